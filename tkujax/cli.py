@@ -1,0 +1,104 @@
+"""The `tkujax` command line: thin wrappers over library functions.
+
+Environment side effects (compilation cache, GL backend) happen here in main(), never on import.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+
+def configure_runtime() -> None:
+    """Persistent XLA compilation cache and a headless GL default."""
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    import jax
+
+    cache = os.environ.get("TKUJAX_CACHE_DIR", str(Path.home() / ".cache" / "tkujax" / "jax"))
+    jax.config.update("jax_compilation_cache_dir", cache)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
+
+
+def _cmd_stand(args) -> int:
+    from tkujax.stand import simulate_stand
+
+    result = simulate_stand(seconds=args.seconds, batch=args.batch, engine=args.engine,
+                            perturb_deg=args.perturb_deg, seed=args.seed)
+    print(json.dumps(result, indent=2))
+    return 1 if result["fell"] else 0
+
+
+def _cmd_render(args) -> int:
+    from tkujax import physics, render
+
+    ok, why = render.rendering_available()
+    if not ok:
+        print(f"tkujax render: offscreen rendering is unavailable: {why}\n"
+              "Install EGL (apt-get install libegl1 libgl1-mesa-dri) and set MUJOCO_GL=egl, or "
+              "OSMesa (apt-get install libosmesa6) and MUJOCO_GL=osmesa.", file=sys.stderr)
+        return 2
+    if args.case is None:
+        model = physics.host_model()
+        data = physics.stand_data(model)
+        frame = render.render_frames(model, data.qpos[None], args.width, args.height)[0]
+        print(render.save_image(frame, args.out))
+        return 0
+    from tkujax.paper import render_case
+
+    print(render_case(args.case, args.control == "on", args.out, args.width, args.height))
+    return 0
+
+
+def _cmd_paper(args) -> int:
+    from tkujax.paper import run_paper
+
+    summary = run_paper(Path(args.out), figures=not args.no_figures)
+    print(summary)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="tkujax", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("stand", help="simulate the robot standing and print what was measured")
+    p.add_argument("--seconds", type=float, default=5.0)
+    p.add_argument("--batch", type=int, default=8, help="robots simulated at once")
+    p.add_argument("--engine", choices=["mjx", "mujoco"], default="mjx")
+    p.add_argument("--perturb-deg", type=float, default=1.0,
+                   help="initial joint perturbation, uniform +- this many degrees")
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=_cmd_stand)
+
+    p = sub.add_parser("render", help="offscreen picture (stand) or video (--case) of TKU-X")
+    p.add_argument("--out", required=True, help=".png for a still, .gif for a --case video")
+    p.add_argument("--case", default=None,
+                   help="paper case, e.g. volleyball-back (ball-direction); omit for the stand pose")
+    p.add_argument("--control", choices=["on", "off"], default="on")
+    p.add_argument("--width", type=int, default=480)
+    p.add_argument("--height", type=int, default=400)
+    p.set_defaults(func=_cmd_render)
+
+    p = sub.add_parser("paper", help="reproduce the paper's Tables 4-5 and Figs. 13-16")
+    p.add_argument("--out", default="results/paper")
+    p.add_argument("--no-figures", action="store_true")
+    p.set_defaults(func=_cmd_paper)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    configure_runtime()
+    try:
+        return args.func(args)
+    except ValueError as err:
+        print(f"tkujax {args.command}: error: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

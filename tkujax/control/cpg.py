@@ -1,0 +1,59 @@
+"""Stepping trajectories from sinusoidal oscillators (Sec. 3.3, Eq. 11-18, Table 2).
+
+Positions are of the ankle centres relative to the waist P_W, in a level frame (x forward,
+y left, z up), in metres. The right foot supports and slides by -x_Sup/2 (the body moves over
+it), the left foot lifts by H_Sup and swings to +x_Sup/2, so the feet end x_Sup apart.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from tkujax.control.params import ControllerParams
+
+
+def cpg_feet(t: jax.Array, x_sup: jax.Array, params: ControllerParams) -> tuple[jax.Array, jax.Array]:
+    """Ankle targets of the recovery step at time t.
+
+    Args:
+      t: (...) time since the start of the recovery step, s. For t < gamma T / 2 (including
+        t < 0) the feet are at the stand positions (0, -/+d_y, -d_z); for t >= T - gamma T / 2
+        (including t >= T) the x offsets hold at -/+x_Sup/2 and y, z are back to the stand.
+      x_sup: (...) step length x_Sup from `push_recovery`, m; broadcast against t.
+      params: step_period T (s), double_support_ratio gamma, lift_height H_Sup (m),
+        hip_offset_y d_y (m), hip_to_ankle_z d_z (m).
+    Returns:
+      (p_right, p_left), each (..., 3) in m: Eq. 11-12, with the oscillators of Eq. 13-18 and
+      Table 2: rho_RA = (-x_Sup/2, 0, 0), rho_LA = (x_Sup/2, 0, H_Sup),
+      omega = (pi / (2 T'), 2 pi / T', pi / T') with T' = T (1 - gamma), phases 0.
+    """
+    dtype = jnp.result_type(t, x_sup, float)
+    t, x_sup = jnp.broadcast_arrays(jnp.asarray(t, dtype), jnp.asarray(x_sup, dtype))
+    T = params.step_period
+    gamma = params.double_support_ratio
+    t_lift = 0.5 * gamma * T          # end of the first double-support phase
+    t_land = T - 0.5 * gamma * T      # end of the single-support (swing) phase
+    swing = T * (1.0 - gamma)         # > 0 since gamma < 0.9 (validate())
+
+    omega = (jnp.pi / (2.0 * swing), 2.0 * jnp.pi / swing, jnp.pi / swing)
+    s = t - t_lift
+    in_swing = (t >= t_lift) & (t < t_land)
+    landed = t >= t_land
+    # x: 0, a quarter sine up to the amplitude (sin(omega_x T') = 1, so it is continuous), hold.
+    unit_x = jnp.where(in_swing, jnp.sin(omega[0] * s), jnp.where(landed, 1.0, 0.0))
+    # y, z: 0 outside the swing. y is a full sine period with zero amplitude (Table 2); z a half
+    # sine peaking at H_Sup at mid-step, continuous at both ends.
+    unit_y = jnp.where(in_swing, jnp.sin(omega[1] * s), 0.0)
+    unit_z = jnp.where(in_swing, jnp.sin(omega[2] * s), 0.0)
+
+    zero = jnp.zeros_like(x_sup)
+    rho_r = (-0.5 * x_sup, zero, zero)
+    rho_l = (0.5 * x_sup, zero, params.lift_height + zero)
+    units = (unit_x, unit_y, unit_z)
+    d_y, d_z = params.hip_offset_y, params.hip_to_ankle_z
+    p0_r = (0.0, -d_y, -d_z)
+    p0_l = (0.0, d_y, -d_z)
+    p_right = jnp.stack([rho * u + o for rho, u, o in zip(rho_r, units, p0_r)], axis=-1)
+    p_left = jnp.stack([rho * u + o for rho, u, o in zip(rho_l, units, p0_l)], axis=-1)
+    return p_right.astype(dtype), p_left.astype(dtype)

@@ -1,0 +1,135 @@
+"""Controller parameters of the Liu et al. 2020 balance controller, as one JAX pytree.
+
+Every field is a data leaf (a Python float or a JAX scalar), so a jitted controller can be
+called with different parameter *values* without recompiling, and `jax.grad` can
+differentiate with respect to any of them. SI units and radians throughout.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import numpy as np
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class ControllerParams:
+    """Parameters of the balance controller (Sec. 3, Table 2, Sec. 4 of the paper).
+
+    Timing
+      control_period        s    sampling time of the controller and of the Kalman filter (30 ms, Sec. 4).
+      step_period           s    T, duration of the recovery step (0.3 s, Sec. 3.3).
+      double_support_ratio  -    gamma, double-support share of T (0.2, Sec. 3.3).
+      lift_height           m    H_Sup, swing-foot lift (3 cm, Sec. 3.3).
+    Push detection / capture point (Sec. 3.2, Sec. 4)
+      eps_forward           rad  epsilon_1: push from the back when phi > eps_forward (12 deg).
+      eps_backward          rad  epsilon_2: push from the front when phi < -eps_backward (2 deg).
+      standing_lean         rad  inclination of the standing robot (upper body leans ~7 deg forward).
+      cp_angle_offset       rad  subtracted from phi before Eq. 7-10, so the capture point uses the
+                                 deviation from the standing lean. Default = standing_lean; 0 gives
+                                 the paper's literal absolute angle. The paper is ambiguous; which
+                                 one reproduces it is decided in the integration, with the step
+                                 lengths of Tables 4-5 (1.09-4.15 cm) as evidence. For reference
+                                 (l = 0.27 m, h = 0.29 m), x_Sup ~= 0.55 m/rad * angle for small angles: the absolute
+                                 angle gives >= 11.3 cm forward at the 12 deg threshold and >= 1.9 cm
+                                 backward at -2 deg; the deviation gives >= 4.8 cm / >= 8.6 cm.
+      cp_gain               -    multiplies x_Sup (1.0 = paper).
+      gate_temperature      rad  0: hard threshold gate (Algorithm 1); > 0: sigmoid gate of that width.
+      gravity               m/s^2
+    Kalman filter (Sec. 3.1, Eq. 1-2), scalar model A = 1, B = control_period, H = 1
+      kalman_q              rad^2  process noise variance added per control period: gyro noise and
+                                   bias drift integrated over one 30 ms step (1e-4 = (0.57 deg)^2).
+      kalman_r              rad^2  variance of the accelerometer inclination, including the error
+                                   caused by the robot's own accelerations (3e-3 = (3.1 deg)^2).
+                                   q/r = 1/30 gives a steady-state gain ~0.17, i.e. the accelerometer
+                                   corrects the gyro integral with a ~0.18 s time constant.
+    Geometry (Fig. 3, Fig. 7, Fig. 11), defaults are the default model's numbers
+      hip_offset_y          m    d_y, waist P_W to hip joint centre (lateral).
+      hip_to_ankle_z        m    d_z, hip joint centre to ankle centre in the stand pose.
+      thigh_length          m    l_t.
+      calf_length           m    l_c.
+      leg_length            m    l, ankle-to-CoM distance of the pendulum (Eq. 7-10).
+      com_height            m    h, CoM height (Eq. 6).
+    """
+
+    control_period: float = 0.030
+    step_period: float = 0.3
+    double_support_ratio: float = 0.2
+    lift_height: float = 0.03
+    eps_forward: float = math.radians(12.0)
+    eps_backward: float = math.radians(2.0)
+    standing_lean: float = math.radians(7.0)
+    cp_angle_offset: float = math.radians(7.0)
+    cp_gain: float = 1.0
+    gate_temperature: float = 0.0
+    gravity: float = 9.81
+    kalman_q: float = 1e-4
+    kalman_r: float = 3e-3
+    hip_offset_y: float = 0.045
+    hip_to_ankle_z: float = 0.20
+    thigh_length: float = 0.11
+    calf_length: float = 0.11
+    leg_length: float = 0.27
+    com_height: float = 0.29
+
+    @classmethod
+    def paper(cls) -> "ControllerParams":
+        """The paper's values, with the geometry of the default TKU-X model."""
+        # Imported here: the model package is heavier and not needed by the pure math.
+        from tkujax.model import leg_geometry, pendulum_lengths
+
+        geo = leg_geometry()
+        leg_length, com_height = pendulum_lengths()
+        p = dataclasses.replace(
+            cls(),
+            hip_offset_y=float(geo.d_y), hip_to_ankle_z=float(geo.d_z),
+            thigh_length=float(geo.thigh), calf_length=float(geo.calf),
+            leg_length=float(leg_length), com_height=float(com_height))
+        return p.validate()
+
+    def validate(self) -> "ControllerParams":
+        """Check ranges on concrete values; raises ValueError naming the field. Returns self.
+
+        For use at the edges (construction, configuration), not inside jit: traced fields
+        cannot be checked and raise TypeError.
+        """
+
+        def val(name: str) -> float:
+            v = getattr(self, name)
+            if isinstance(v, jax.core.Tracer):
+                raise TypeError(f"ControllerParams.validate() needs concrete values; "
+                                f"{name} is traced (call it outside jit)")
+            a = np.asarray(v)
+            if a.shape != ():
+                raise ValueError(f"ControllerParams.{name} must be a scalar, got shape {a.shape}")
+            return float(a)
+
+        def check(name: str, ok, rng: str) -> None:
+            v = val(name)
+            # `not ok(v)` also rejects NaN, whose comparisons are all False.
+            if not ok(v):
+                raise ValueError(f"ControllerParams.{name} must be in {rng}, got {v!r}")
+
+        half_pi = math.pi / 2
+        check("control_period", lambda v: 0.0 < v <= 1.0, "(0, 1] s")
+        check("step_period", lambda v: 0.0 < v <= 2.0, "(0, 2] s")
+        check("double_support_ratio", lambda v: 0.0 <= v < 0.9, "[0, 0.9)")
+        check("lift_height", lambda v: 0.0 <= v <= 0.1, "[0, 0.1] m")
+        check("eps_forward", lambda v: 0.0 <= v < half_pi, "[0, pi/2) rad")
+        check("eps_backward", lambda v: 0.0 <= v < half_pi, "[0, pi/2) rad")
+        check("standing_lean", lambda v: -half_pi < v < half_pi, "(-pi/2, pi/2) rad")
+        check("cp_angle_offset", lambda v: -half_pi < v < half_pi, "(-pi/2, pi/2) rad")
+        check("cp_gain", lambda v: 0.0 <= v <= 10.0, "[0, 10]")
+        check("gate_temperature", lambda v: 0.0 <= v <= 1.0, "[0, 1] rad")
+        check("gravity", lambda v: 0.0 < v < 100.0, "(0, 100) m/s^2")
+        check("kalman_q", lambda v: 0.0 <= v < math.inf, "[0, inf) rad^2")
+        check("kalman_r", lambda v: 0.0 < v < math.inf, "(0, inf) rad^2")
+        for name in ("hip_offset_y", "thigh_length", "calf_length", "leg_length", "com_height"):
+            check(name, lambda v: 0.0 < v <= 2.0, "(0, 2] m")
+        reach = val("thigh_length") + val("calf_length")
+        check("hip_to_ankle_z", lambda v: 0.0 < v <= reach,
+              f"(0, thigh_length + calf_length] = (0, {reach:g}] m")
+        return self

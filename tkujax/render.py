@@ -1,0 +1,73 @@
+"""Offscreen pictures and videos of TKU-X (MuJoCo's renderer; needs EGL or OSMesa on Linux).
+
+On a headless Linux machine: `apt-get install libegl1 libgl1-mesa-dri` and MUJOCO_GL=egl (the CLI
+sets egl when MUJOCO_GL is unset), or `apt-get install libosmesa6` and MUJOCO_GL=osmesa.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+
+def rendering_available() -> tuple[bool, str]:
+    """Whether an offscreen GL context can be made here, and why not."""
+    try:
+        ctx = mujoco.GLContext(64, 64)
+        ctx.make_current()
+        ctx.free()
+        return True, ""
+    except Exception as err:  # noqa: BLE001 - any GL failure means "cannot render"
+        return False, f"{type(err).__name__}: {err} (MUJOCO_GL={os.environ.get('MUJOCO_GL')})"
+
+
+def _camera(azimuth_deg: float) -> mujoco.MjvCamera:
+    cam = mujoco.MjvCamera()
+    cam.lookat[:] = (0.0, 0.0, 0.27)
+    cam.distance = 1.15
+    cam.azimuth = azimuth_deg
+    cam.elevation = -12.0
+    return cam
+
+
+def render_frames(model: mujoco.MjModel, qpos_seq: np.ndarray, width: int = 480,
+                  height: int = 400, azimuth_deg: float = 215.0,
+                  track_xy: bool = True) -> list[np.ndarray]:
+    """RGB frames (height, width, 3) uint8 for each row of `qpos_seq` (n, nq)."""
+    data = mujoco.MjData(model)
+    cam = _camera(azimuth_deg)
+    scene_option = mujoco.MjvOption()
+    scene_option.sitegroup[:] = 0   # hide sensor sites; show the bodies
+    frames = []
+    with mujoco.Renderer(model, height, width) as renderer:
+        for qpos in np.atleast_2d(qpos_seq):
+            data.qpos[:] = qpos
+            mujoco.mj_forward(model, data)
+            if track_xy:
+                cam.lookat[:2] = data.qpos[:2]
+            renderer.update_scene(data, cam, scene_option)
+            frames.append(renderer.render().copy())
+    return frames
+
+
+def save_image(frame: np.ndarray, out: str | Path) -> Path:
+    from PIL import Image  # pillow ships with matplotlib
+
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(frame).save(out)
+    return out
+
+
+def save_gif(frames: list[np.ndarray], out: str | Path, fps: float) -> Path:
+    from PIL import Image
+
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    images = [Image.fromarray(f) for f in frames]
+    images[0].save(out, save_all=True, append_images=images[1:], loop=0,
+                   duration=int(round(1000.0 / fps)), optimize=True)
+    return out
