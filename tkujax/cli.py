@@ -56,7 +56,8 @@ def _cmd_render(args) -> int:
 def _cmd_paper(args) -> int:
     from tkujax.paper import run_paper
 
-    summary = run_paper(Path(args.out), figures=not args.no_figures)
+    summary = run_paper(Path(args.out), figures=not args.no_figures,
+                        impulse_scale=args.impulse_scale)
     print(summary)
     return 0
 
@@ -86,6 +87,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("paper", help="reproduce the paper's Tables 4-5 and Figs. 13-16")
     p.add_argument("--out", default="results/paper")
     p.add_argument("--no-figures", action="store_true")
+    p.add_argument("--impulse-scale", type=float, default=1.0,
+                   help="multiply both balls' momenta (1 = the paper's rig)")
     p.set_defaults(func=_cmd_paper)
     return parser
 

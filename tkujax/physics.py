@@ -36,9 +36,25 @@ def stand_data(model: mujoco.MjModel) -> mujoco.MjData:
     return data
 
 
-def stand_state(model: mujoco.MjModel) -> mjx.Data:
-    """MJX state at the `stand` keyframe (unbatched)."""
-    return mjx.put_data(model, stand_data(model))
+def settled_stand_data(model: mujoco.MjModel, settle_s: float = 1.0) -> mujoco.MjData:
+    """The `stand` keyframe after `settle_s` of holding its targets (MuJoCo C), clock reset to 0.
+
+    The keyframe is placed kinematically; the first steps compress the sole contacts and the
+    IMU reads that transient. Starting rollouts settled keeps it out of the controller.
+    """
+    data = stand_data(model)
+    data.ctrl[:] = model.key("stand").ctrl
+    for _ in range(int(round(settle_s / model.opt.timestep))):
+        mujoco.mj_step(model, data)
+    data.time = 0.0
+    mujoco.mj_forward(model, data)
+    return data
+
+
+def stand_state(model: mujoco.MjModel, settle_s: float = 0.0) -> mjx.Data:
+    """MJX state at the `stand` keyframe (unbatched), optionally settled first."""
+    data = settled_stand_data(model, settle_s) if settle_s > 0 else stand_data(model)
+    return mjx.put_data(model, data)
 
 
 def batch_state(state: mjx.Data, batch: int) -> mjx.Data:

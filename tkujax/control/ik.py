@@ -40,11 +40,15 @@ def _safe_atan2(y: jax.Array, x: jax.Array) -> jax.Array:
     return jnp.where(zero, 0.0, jnp.arctan2(jnp.where(zero, 0.0, y), jnp.where(zero, 1.0, x)))
 
 
+def _safe_sqrt(x: jax.Array) -> jax.Array:
+    """sqrt with value 0 and a finite (zero) gradient for x <= 0, where d sqrt is infinite."""
+    pos = x > 0
+    return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1.0)), 0.0)
+
+
 def _safe_norm(*xs: jax.Array) -> jax.Array:
-    """sqrt(sum x^2) with a finite (zero) gradient at the origin, where d sqrt is infinite."""
-    sq = sum(x * x for x in xs)
-    pos = sq > 0
-    return jnp.where(pos, jnp.sqrt(jnp.where(pos, sq, 1.0)), 0.0)
+    """sqrt(sum x^2) with a finite (zero) gradient at the origin."""
+    return _safe_sqrt(sum(x * x for x in xs))
 
 
 def leg_ik(p_ankle_from_hip: jax.Array, thigh, calf) -> LegAngles:
@@ -57,14 +61,16 @@ def leg_ik(p_ankle_from_hip: jax.Array, thigh, calf) -> LegAngles:
     Returns:
       LegAngles in the convention of the module docstring, with
         hip_roll    = atan2(p_y, -p_z)                     (Eq. 19 without the L^z approximation)
-        knee        = acos((D^2 - l_t^2 - l_c^2) / (2 l_t l_c)) >= 0, D = |p|
+        knee        = acos((D^2 - l_t^2 - l_c^2) / (2 l_t l_c)) >= 0, D = |p| (law of cosines,
+                      computed as an equivalent, better conditioned atan2)
         hip_pitch   = atan2(-p_x, L') - atan2(l_c sin knee, l_t + l_c cos knee), L' = sqrt(p_y^2 + p_z^2)
         ankle_pitch = -(hip_pitch + knee)                  (sole parallel to the ground)
         ankle_roll  = -hip_roll                            (sole parallel to the ground)
       reachable is False when D is outside [|l_t - l_c|, l_t + l_c]; the angles are then those
       of the nearest reachable ankle position on the ray from the hip through p. D is clipped
-      to a relative margin of 1e-6 inside that shell, so boundary targets (full extension)
-      land within ~2e-7 m and all gradients stay finite.
+      to a relative margin of 1e-6 inside that shell, so boundary targets land within ~2e-7 m
+      and all gradients stay finite; the price is a knee of ~2.8 mrad (not 0) for a fully
+      extended target with l_t = l_c (the angle goes like the square root of the margin).
     """
     p = jnp.asarray(p_ankle_from_hip)
     dtype = jnp.result_type(p, thigh, calf, float)
@@ -81,13 +87,17 @@ def leg_ik(p_ankle_from_hip: jax.Array, thigh, calf) -> LegAngles:
     lo = jnp.abs(thigh - calf)
     hi = thigh + calf
     reachable = (dist >= lo) & (dist <= hi)
-    # Clip the distance (not only the cosine) so the result is the nearest reachable pose and
-    # acos never sees |arg| = 1, where its derivative is infinite.
+    # Clip the distance so the result is the nearest reachable pose and the knee never reaches
+    # 0 or pi exactly, where its derivative with respect to the distance is infinite.
     margin = 1e-6 * hi
     d = jnp.clip(dist, lo + margin, hi - margin)
-    cos_knee = (d * d - thigh * thigh - calf * calf) / (2.0 * thigh * calf)
-    eps = jnp.finfo(dtype).eps
-    knee = jnp.arccos(jnp.clip(cos_knee, -1.0 + eps, 1.0 - eps))
+    # Law of cosines, 2 l_t l_c cos(knee) = d^2 - l_t^2 - l_c^2, written as an atan2 with
+    # 2 l_t l_c sin(knee) = sqrt((hi^2 - d^2)(d^2 - lo^2)): same angle as the acos, but the
+    # factored sine keeps float32 accuracy near full extension (acos(1 - x) is ill-conditioned).
+    # The sqrt argument is > 0 thanks to the clip; the safe sqrt also guards rounding.
+    two_lt_lc_sin = _safe_sqrt((hi - d) * (hi + d) * (d - lo) * (d + lo))
+    two_lt_lc_cos = d * d - thigh * thigh - calf * calf
+    knee = jnp.arctan2(two_lt_lc_sin, two_lt_lc_cos)
 
     # Direction of the target from straight-down in the leg plane (positive = backward), minus
     # the angle between thigh and hip-ankle line: the thigh sits forward of that line.

@@ -91,7 +91,8 @@ def kalman_init(phi0: jax.Array, params: ControllerParams, p0: jax.Array | None 
       params: supplies kalman_r, the default initial variance (one accelerometer reading's).
       p0: optional initial variance (rad^2), broadcast to phi0's shape.
     """
-    phi0 = jnp.asarray(phi0, dtype=jnp.result_type(phi0, float))
+    phi0 = jnp.asarray(phi0)
+    phi0 = phi0.astype(jnp.result_type(phi0.dtype, float))
     p0 = params.kalman_r if p0 is None else p0
     return KalmanState(phi=phi0, p=jnp.broadcast_to(jnp.asarray(p0, phi0.dtype), phi0.shape))
 

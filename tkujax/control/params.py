@@ -20,39 +20,40 @@ class ControllerParams:
     """Parameters of the balance controller (Sec. 3, Table 2, Sec. 4 of the paper).
 
     Timing
-      control_period        s    sampling time of the controller and of the Kalman filter (30 ms, Sec. 4).
-      step_period           s    T, duration of the recovery step (0.3 s, Sec. 3.3).
-      double_support_ratio  -    gamma, double-support share of T (0.2, Sec. 3.3).
-      lift_height           m    H_Sup, swing-foot lift (3 cm, Sec. 3.3).
+      control_period        s      controller and Kalman sampling time (30 ms, Sec. 4).
+      step_period           s      T, duration of the recovery step (0.3 s, Sec. 3.3).
+      double_support_ratio  -      gamma, double-support share of T (0.2, Sec. 3.3).
+      lift_height           m      H_Sup, swing-foot lift (3 cm, Sec. 3.3).
     Push detection / capture point (Sec. 3.2, Sec. 4)
-      eps_forward           rad  epsilon_1: push from the back when phi > eps_forward (12 deg).
-      eps_backward          rad  epsilon_2: push from the front when phi < -eps_backward (2 deg).
-      standing_lean         rad  inclination of the standing robot (upper body leans ~7 deg forward).
-      cp_angle_offset       rad  subtracted from phi before Eq. 7-10, so the capture point uses the
-                                 deviation from the standing lean. Default = standing_lean; 0 gives
-                                 the paper's literal absolute angle. The paper is ambiguous; which
-                                 one reproduces it is decided in the integration, with the step
-                                 lengths of Tables 4-5 (1.09-4.15 cm) as evidence. For reference
-                                 (l = 0.27 m, h = 0.29 m), x_Sup ~= 0.55 m/rad * angle for small angles: the absolute
-                                 angle gives >= 11.3 cm forward at the 12 deg threshold and >= 1.9 cm
-                                 backward at -2 deg; the deviation gives >= 4.8 cm / >= 8.6 cm.
-      cp_gain               -    multiplies x_Sup (1.0 = paper).
-      gate_temperature      rad  0: hard threshold gate (Algorithm 1); > 0: sigmoid gate of that width.
-      gravity               m/s^2
+      eps_forward           rad    epsilon_1: push from the back when phi > eps_forward (12 deg).
+      eps_backward          rad    epsilon_2: push from the front when phi < -eps_backward (2 deg).
+      standing_lean         rad    inclination of the standing robot (leans ~7 deg forward).
+      cp_angle_offset       rad    subtracted from phi before Eq. 7-10, so the capture point uses
+                                   the deviation from the standing lean. Default = standing_lean;
+                                   0 gives the paper's literal absolute angle. The paper is
+                                   ambiguous; which one reproduces it is decided in the
+                                   integration, with the step lengths of Tables 4-5 (1.09-4.15 cm)
+                                   as evidence. For reference (l = 0.27 m, h = 0.29 m), x_Sup ~=
+                                   0.55 m/rad * angle for small angles: the absolute angle gives
+                                   >= 11.3 cm forward at the 12 deg threshold and >= 1.9 cm
+                                   backward at -2 deg; the deviation gives >= 4.8 cm / >= 8.6 cm.
+      cp_gain               -      multiplies x_Sup (1.0 = paper).
+      gate_temperature      rad    0: hard threshold gate (Algorithm 1); > 0: sigmoid gate width.
+      gravity               m/s^2  g of Eq. 6 and 10.
     Kalman filter (Sec. 3.1, Eq. 1-2), scalar model A = 1, B = control_period, H = 1
-      kalman_q              rad^2  process noise variance added per control period: gyro noise and
-                                   bias drift integrated over one 30 ms step (1e-4 = (0.57 deg)^2).
+      kalman_q              rad^2  process noise variance added per control period: gyro noise
+                                   and bias drift over one 30 ms step (1e-4 = (0.57 deg)^2).
       kalman_r              rad^2  variance of the accelerometer inclination, including the error
-                                   caused by the robot's own accelerations (3e-3 = (3.1 deg)^2).
-                                   q/r = 1/30 gives a steady-state gain ~0.17, i.e. the accelerometer
+                                   from the robot's own accelerations (3e-3 = (3.1 deg)^2).
+                                   q/r = 1/30 gives a steady-state gain ~0.17: the accelerometer
                                    corrects the gyro integral with a ~0.18 s time constant.
-    Geometry (Fig. 3, Fig. 7, Fig. 11), defaults are the default model's numbers
-      hip_offset_y          m    d_y, waist P_W to hip joint centre (lateral).
-      hip_to_ankle_z        m    d_z, hip joint centre to ankle centre in the stand pose.
-      thigh_length          m    l_t.
-      calf_length           m    l_c.
-      leg_length            m    l, ankle-to-CoM distance of the pendulum (Eq. 7-10).
-      com_height            m    h, CoM height (Eq. 6).
+    Geometry (Fig. 3, Fig. 7, Fig. 11); defaults are the default model's numbers
+      hip_offset_y          m      d_y, waist P_W to hip joint centre (lateral).
+      hip_to_ankle_z        m      d_z, hip joint centre to ankle centre in the stand pose.
+      thigh_length          m      l_t.
+      calf_length           m      l_c.
+      leg_length            m      l, ankle-to-CoM distance of the pendulum (Eq. 7-10).
+      com_height            m      h, CoM height (Eq. 6).
     """
 
     control_period: float = 0.030

@@ -1,0 +1,99 @@
+"""The paper's controller composed: Kalman -> detection -> capture point -> CPG -> IK.
+
+`controller_step` runs once per control period (30 ms). While no push is detected it holds the
+stand targets; on the first detection it latches x_Sup and executes one recovery step of length
+T (Eq. 13-18), then holds the final pose. `enabled` = 0 gives the paper's "disable" rows with
+the same compiled function.
+
+Smooth variant: with gate_temperature > 0 the detection gate is a sigmoid; the step weight then
+accumulates softly (w <- w + (1 - w) gate) and x_Sup is the gate-weighted capture point, so
+gradients reach the thresholds. The step's start time is still the discrete instant at which
+w crosses 1/2; with gate_temperature = 0 all of this is exactly Algorithm 1.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from tkujax.control.capture_point import capture_point, push_gate
+from tkujax.control.cpg import cpg_feet
+from tkujax.control.kalman import KalmanState, accel_to_angle, gyro_to_rates, kalman_init, kalman_step
+from tkujax.control.params import ControllerParams
+from tkujax.control.solve import solve_legs
+
+# Before a step starts its start time is "far in the future": finite so that sin() of the
+# (unselected) CPG branch stays finite and gradients through `where` are never NaN.
+_NOT_STARTED_S = 1.0e4
+
+
+class Sensors(NamedTuple):
+    """What the controller reads each period: gyro (..., 3) rad/s, accel (..., 3) m/s^2."""
+
+    gyro: jax.Array
+    accel: jax.Array
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class ControllerState:
+    """kalman: [pitch, roll] filter; time_s: controller clock; step_weight: 0 before the step,
+    1 once triggered (in between only with a soft gate); step_start_s: when it started;
+    x_sup_m: the latched step length; phi_at_detect: filtered pitch at the trigger (rad)."""
+
+    kalman: KalmanState
+    time_s: jax.Array
+    step_weight: jax.Array
+    step_start_s: jax.Array
+    x_sup_m: jax.Array
+    phi_at_detect: jax.Array
+
+
+class ControllerOutput(NamedTuple):
+    leg_targets: jax.Array   # (12,) rad, tkujax.model.LEG_ACTUATORS order
+    phi: jax.Array           # filtered pitch, rad
+    roll: jax.Array          # filtered roll, rad
+    gate: jax.Array          # detection gate this period, [0, 1]
+    reachable: jax.Array     # IK reached the CPG's targets
+
+
+def controller_init(params: ControllerParams, dtype=jnp.float32) -> ControllerState:
+    """Initial state of a robot standing in its `stand` keyframe (filter at the standing lean)."""
+    zero = jnp.zeros((), dtype)
+    return ControllerState(
+        kalman=kalman_init(jnp.stack([jnp.asarray(params.standing_lean, dtype), zero]), params),
+        time_s=zero, step_weight=zero, step_start_s=jnp.asarray(_NOT_STARTED_S, dtype),
+        x_sup_m=zero, phi_at_detect=zero)
+
+
+def stand_leg_targets(params: ControllerParams) -> jax.Array:
+    """(12,) leg targets of the stand pose (feet at (0, -+d_y, -d_z))."""
+    p_right, p_left = cpg_feet(jnp.asarray(-1.0), jnp.asarray(0.0), params)
+    return solve_legs(p_right, p_left, params)[0]
+
+
+def controller_step(state: ControllerState, sensors: Sensors, params: ControllerParams,
+                    enabled: jax.Array = 1.0) -> tuple[ControllerState, ControllerOutput]:
+    """One control period. `enabled` (scalar, 0 or 1) switches the balance strategy on."""
+    kalman = kalman_step(state.kalman, gyro_to_rates(sensors.gyro), accel_to_angle(sensors.accel),
+                         params)
+    phi = kalman.phi[..., 0]
+    gate = push_gate(phi, params) * jnp.asarray(enabled, phi.dtype)
+    trigger = (1.0 - state.step_weight) * gate          # only the first detection counts
+    x_now = params.cp_gain * capture_point(phi - params.cp_angle_offset, params.leg_length,
+                                           params.com_height, params.gravity)
+    step_weight = state.step_weight + trigger
+    x_sup = state.x_sup_m + trigger * x_now
+    starts_now = (state.step_weight < 0.5) & (step_weight >= 0.5)
+    step_start = jnp.where(starts_now, state.time_s, state.step_start_s)
+    phi_at_detect = jnp.where(starts_now, phi, state.phi_at_detect)
+
+    p_right, p_left = cpg_feet(state.time_s - step_start, x_sup, params)
+    targets, reachable = solve_legs(p_right, p_left, params)
+    new_state = ControllerState(kalman=kalman, time_s=state.time_s + params.control_period,
+                                step_weight=step_weight, step_start_s=step_start, x_sup_m=x_sup,
+                                phi_at_detect=phi_at_detect)
+    return new_state, ControllerOutput(targets, phi, kalman.phi[..., 1], gate, reachable)

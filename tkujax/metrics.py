@@ -1,0 +1,67 @@
+"""Per-push outcomes from a rollout's control-rate series (pure JAX, vmap-able).
+
+Definitions (the band and thresholds are arguments, defaults documented here):
+  fell             the pelvis dropped below 0.12 m, or any non-foot collision geom (knees, hands,
+                   head, chest, pelvis) came within 5 mm of the floor, at any period.
+  recovery_time_s  from the push onset until the true pelvis pitch returns to, and then stays
+                   within, +-band_deg (default 1 deg) of its standing value (mean pitch over the
+                   `baseline_s` before onset); 0 if it never left the band; NaN if it fell or is
+                   still outside at the end.
+  step_length_m    displacement of the swing (left) ankle along x, end minus onset; step_width_m
+                   the same along y.
+  peak_incl_deg    largest |pitch - standing value| after onset, degrees.
+  zmp_excursion_m  largest distance of the ZMP (sole sensors' centre of pressure) from its
+                   standing position after onset.
+  capture_point_m  x_Sup latched by the controller (0 when no push was detected).
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+RECOVERY_BAND_DEG = 1.0
+FALL_PELVIS_HEIGHT_M = 0.12
+FALL_BODY_CLEARANCE_M = 0.005
+
+
+def fall_indicator(series: dict) -> jnp.ndarray:
+    """(n_ticks,) bool: fallen at each period."""
+    return ((series["pelvis_z"] < FALL_PELVIS_HEIGHT_M)
+            | (series["lowest_body_z"] < FALL_BODY_CLEARANCE_M))
+
+
+def outcomes(series: dict, onset_s, band_deg: float = RECOVERY_BAND_DEG,
+             baseline_s: float = 0.3) -> dict:
+    """Outcomes of one rollout (series fields (n_ticks, ...)); see the module docstring."""
+    t = series["t"]
+    pitch_deg = jnp.degrees(series["pitch"])
+    before = (t <= onset_s) & (t > onset_s - baseline_s)
+    after = t > onset_s
+    n_before = jnp.maximum(jnp.sum(before), 1)
+    standing = jnp.sum(jnp.where(before, pitch_deg, 0.0)) / n_before
+    dev = jnp.abs(pitch_deg - standing)
+
+    fell = jnp.any(fall_indicator(series))
+    outside = after & (dev > band_deg)
+    # Last period outside the band (-1 if none); recovered when the next period exists.
+    idx = jnp.arange(t.shape[0])
+    last_out = jnp.max(jnp.where(outside, idx, -1))
+    recovered = (last_out < t.shape[0] - 1) & ~fell
+    t_back = t[jnp.minimum(last_out + 1, t.shape[0] - 1)]
+    recovery = jnp.where(last_out < 0, 0.0, t_back - onset_s)
+    recovery = jnp.where(recovered, recovery, jnp.nan)
+
+    i_onset = jnp.argmax(after)  # first period after onset
+    step = series["l_ankle"][-1] - series["l_ankle"][jnp.maximum(i_onset - 1, 0)]
+    zmp0 = jnp.sum(jnp.where(before[:, None], series["zmp"], 0.0), 0) / n_before
+    zmp_dist = jnp.linalg.norm(series["zmp"] - zmp0, axis=-1)
+    return dict(
+        fell=fell,
+        recovery_time_s=recovery,
+        step_length_m=step[0],
+        step_width_m=step[1],
+        peak_incl_deg=jnp.max(jnp.where(after, dev, 0.0)),
+        zmp_excursion_m=jnp.max(jnp.where(after & (series["fsr_total"] > 1.0), zmp_dist, 0.0)),
+        capture_point_m=series["x_sup"][-1],
+        standing_pitch_deg=standing,
+    )

@@ -1,0 +1,184 @@
+"""`tkujax paper`: the paper's 8 cases (Tables 4-5, Figs. 13-16) in simulation.
+
+Baseball and volleyball, from the back and from the front, balance control off and on, hit at
+0.75 s. Each ball is applied as the impulse it carries at impact (m v of the pendulum rig,
+`tkujax.push.ball_momentum_ns`), a 20 ms half-sine at mid-chest height.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from tkujax import push as push_lib
+from tkujax.control.params import ControllerParams
+from tkujax.model import ModelParams
+from tkujax.sim import RolloutConfig, simulate
+
+BALL_NAMES = ("baseball", "volleyball")
+DIRECTION_NAMES = ("back", "front")
+# Tables 4 (back) and 5 (front): recovery time (s, None = fell) and step length (cm, None = X).
+PAPER_TABLE = {
+    ("back", "baseball", "off"): (0.60, None), ("back", "baseball", "on"): (0.25, 1.36),
+    ("back", "volleyball", "off"): (None, None), ("back", "volleyball", "on"): (0.25, 4.15),
+    ("front", "baseball", "off"): (0.65, None), ("front", "baseball", "on"): (0.20, 1.09),
+    ("front", "volleyball", "off"): (0.97, None), ("front", "volleyball", "on"): (0.37, 3.88),
+}
+NO_STEP_M = 0.005   # swing-ankle displacement below 5 mm is "no step"
+
+
+def paper_cases() -> list[tuple[str, str, str]]:
+    return [(d, b, c) for d in DIRECTION_NAMES for b in BALL_NAMES for c in ("off", "on")]
+
+
+def run_cases(params: ControllerParams | None = None, model_params: ModelParams | None = None,
+              impulse_scale: float = 1.0, config: RolloutConfig = RolloutConfig()):
+    """Simulate the 8 cases. Returns (cases, series, outcomes, pushes as numpy dict)."""
+    params = params or ControllerParams.paper()
+    cases = paper_cases()
+    pushes = push_lib.stack_pushes([
+        push_lib.make_push(impulse_scale * push_lib.ball_momentum_ns(b),
+                           push_lib.DIRECTIONS[d]) for d, b, _ in cases])
+    enabled = np.array([1.0 if c == "on" else 0.0 for *_, c in cases], np.float32)
+    series, outcomes = simulate(pushes, enabled, params, model_params=model_params, config=config)
+    return cases, series, outcomes, pushes
+
+
+def _rows(cases, outcomes, pushes) -> list[dict]:
+    rows = []
+    for i, (d, b, c) in enumerate(cases):
+        fell = bool(outcomes["fell"][i])
+        rec = float(outcomes["recovery_time_s"][i])
+        step = float(outcomes["step_length_m"][i])
+        rows.append(dict(
+            direction=d, ball=b, force_N=push_lib.PAPER_FORCE_N[b], control=c,
+            fell="true" if fell else "false",
+            recovery_time_s="" if fell or math.isnan(rec) else f"{rec:.2f}",
+            step_length_cm="" if abs(step) < NO_STEP_M else f"{100 * step:.2f}",
+            impulse_Ns=f"{float(pushes.impulse_ns[i]):.3f}",
+            peak_incl_deg=f"{float(outcomes['peak_incl_deg'][i]):.2f}",
+            capture_point_cm=f"{100 * float(outcomes['capture_point_m'][i]):.2f}"))
+    return rows
+
+
+def _fmt_paper(rec, step):
+    return ("falls" if rec is None else f"{rec:.2f} s"), ("X" if step is None else f"{step:.2f} cm")
+
+
+def _markdown(rows: list[dict], title: str) -> str:
+    lines = [f"## {title}", "",
+             "| direction | ball | control | paper: recovery | sim: recovery | paper: step | "
+             "sim: step | sim: peak dev. | outcome as paper? |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        p_rec, p_step = PAPER_TABLE[(r["direction"], r["ball"], r["control"])]
+        pr, ps = _fmt_paper(p_rec, p_step)
+        sim_fell = r["fell"] == "true"
+        sr = "falls" if sim_fell else (f"{r['recovery_time_s']} s" if r["recovery_time_s"]
+                                        else "not settled")
+        ss = f"{r['step_length_cm']} cm" if r["step_length_cm"] else "X"
+        same = "yes" if sim_fell == (p_rec is None) else "**no**"
+        lines.append(f"| {r['direction']} | {r['ball']} ({r['force_N']} N, {r['impulse_Ns']} N·s)"
+                     f" | {r['control']} | {pr} | {sr} | {ps} | {ss} | {r['peak_incl_deg']}° | {same} |")
+    return "\n".join(lines) + "\n"
+
+
+def _figures(out: Path, cases, series) -> list[Path]:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths = []
+    fig_no = {("back", "off"): 13, ("back", "on"): 14, ("front", "off"): 15, ("front", "on"): 16}
+    for (d, c), num in fig_no.items():
+        fig, axes = plt.subplots(2, 2, figsize=(9, 5.5), sharex=True)
+        for col, b in enumerate(BALL_NAMES):
+            i = cases.index((d, b, c))
+            t = series["t"][i]
+            axes[0, col].plot(t, np.degrees(series["pitch"][i]), label="true pelvis pitch")
+            axes[0, col].plot(t, np.degrees(series["pitch_est"][i]), "--", label="Kalman φ")
+            axes[0, col].axhline(12, color="r", lw=0.7, ls=":")
+            axes[0, col].axhline(-2, color="r", lw=0.7, ls=":")
+            axes[0, col].axvline(0.75, color="k", lw=0.7, ls=":")
+            axes[0, col].set_title(f"({'ab'[col]}) {b}")
+            axes[0, col].set_ylabel("φ (deg)")
+            # ZMP x relative to its standing value, as the paper's figures (starts at 0).
+            zx = series["zmp"][i][:, 0]
+            axes[1, col].plot(t, 100 * (zx - zx[(t > 0.45) & (t <= 0.75)].mean()), color="g")
+            axes[1, col].axvline(0.75, color="k", lw=0.7, ls=":")
+            axes[1, col].set_ylabel("ZMP x (cm)")
+            axes[1, col].set_xlabel("time (s)")
+        axes[0, 0].legend(fontsize=7)
+        fig.suptitle(f"Fig. {num} (simulated): hit from the {d}, balance control {c}")
+        fig.tight_layout()
+        path = out / f"fig{num}_{d}_control_{c}.png"
+        fig.savefig(path, dpi=90)
+        plt.close(fig)
+        paths.append(path)
+    return paths
+
+
+def run_paper(out: Path, figures: bool = True, params: ControllerParams | None = None,
+              model_params: ModelParams | None = None, impulse_scale: float = 1.0) -> str:
+    """Write table.csv, table.md, series.npz and Figs. 13-16 to `out`; return a summary.
+
+    impulse_scale multiplies both balls' momenta (1 = the paper's rig); other values are
+    labelled as such in table.md.
+    """
+    if not (0.0 < impulse_scale <= 10.0):
+        raise ValueError(f"impulse_scale must be in (0, 10], got {impulse_scale!r}")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    cases, series, outcomes, pushes = run_cases(params, model_params, impulse_scale)
+    wall = time.perf_counter() - t0
+    rows = _rows(cases, outcomes, pushes)
+    with open(out / "table.csv", "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=["direction", "ball", "force_N", "control", "fell",
+                                                "recovery_time_s", "step_length_cm"])
+        writer.writeheader()
+        writer.writerows({k: r[k] for k in writer.fieldnames} for r in rows)
+    import jax
+
+    title = "The paper's Tables 4-5 beside the simulation"
+    if impulse_scale != 1.0:
+        title += f" (ball impulses scaled x{impulse_scale:g}: NOT the paper's rig)"
+    md = _markdown(rows, title)
+    n_same = sum(1 for r in rows
+                 if (r["fell"] == "true") == (PAPER_TABLE[(r["direction"], r["ball"],
+                                                           r["control"])][0] is None))
+    md += (f"\nFall/no-fall outcomes as in the paper: {n_same}/8. Device: {jax.devices()[0]}, "
+           f"wall {wall:.1f} s (compile included).\n")
+    (out / "table.md").write_text(md)
+    np.savez_compressed(out / "series.npz", **{k: v for k, v in series.items()})
+    (out / "outcomes.json").write_text(json.dumps(rows, indent=1))
+    if figures:
+        _figures(out, cases, series)
+    return md
+
+
+def render_case(case: str, control_on: bool, out: str | Path, width: int = 480,
+                height: int = 400) -> Path:
+    """GIF of one paper case, e.g. case='volleyball-back'."""
+    try:
+        ball, direction = case.split("-")
+        push = push_lib.ball_push(ball, direction)
+    except ValueError as err:
+        raise ValueError(f"case must be BALL-DIRECTION with BALL in {BALL_NAMES} and DIRECTION "
+                         f"in {DIRECTION_NAMES}, got {case!r}") from err
+    import jax
+
+    from tkujax import physics, render, sim
+
+    config = RolloutConfig(duration_s=2.1, record_qpos=True)
+    host = physics.host_model()
+    series = sim.rollout(physics.device_model(), physics.stand_state(host, 1.0), push,
+                         ControllerParams.paper(), 1.0 if control_on else 0.0,
+                         jax.random.PRNGKey(0), config=config)
+    frames = render.render_frames(host, np.asarray(series["qpos"]), width, height)
+    return render.save_gif(frames, out, fps=1.0 / config.control_period_s)

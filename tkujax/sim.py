@@ -1,0 +1,215 @@
+"""The closed loop: MJX physics + sensors + the paper's controller, as one pure rollout.
+
+Per control period (30 ms): read the IMU (optional Gaussian noise), run `controller_step`,
+quantise the leg targets to the servos' 0.088 deg resolution (straight-through gradient), hold
+them for `substeps` physics steps while the push's force acts through `xfrc_applied`. A
+`lax.scan` over periods; `jax.vmap` over pushes, controller parameters and model parameters.
+
+Time series come back at control rate; `tkujax.metrics.outcomes` turns them into per-push
+outcomes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from mujoco import mjx
+
+from tkujax import physics
+from tkujax.control.controller import Sensors, controller_init, controller_step
+from tkujax.control.params import ControllerParams
+from tkujax.model import FSR_SENSORS, LEG_ACTUATORS, ModelParams
+from tkujax.push import Push, force_at
+
+SERVO_RESOLUTION_RAD = math.radians(360.0 / 4096.0)   # 0.088 deg, Dynamixel MX [paper Table 1]
+
+
+@dataclasses.dataclass(frozen=True)
+class RolloutConfig:
+    """Static settings (changing them recompiles)."""
+
+    duration_s: float = 2.4
+    control_period_s: float = 0.030
+    quantise_targets: bool = True
+    record_qpos: bool = False      # add the full qpos to the series (for rendering)
+
+
+@dataclasses.dataclass(frozen=True)
+class ModelIndex:
+    """Static indices into the compiled model (plain numpy, never traced)."""
+
+    leg_actuators: np.ndarray
+    chest_body: int
+    chest_stand_z: float          # chest body origin height in the stand keyframe, m
+    chest_stand_cos: float        # cos of its tilt there (the chest axis leans by the stand lean)
+    gyro_adr: int
+    accel_adr: int
+    fsr_adr: np.ndarray
+    fsr_sites: np.ndarray
+    sphere_geoms: np.ndarray      # non-foot collision spheres (knees, hands, head, pelvis)
+    sphere_radii: np.ndarray
+    box_geoms: np.ndarray         # non-foot collision boxes (chest)
+    box_half_sizes: np.ndarray    # (nb, 3)
+    ankle_sites: tuple[int, int]  # r_ankle, l_ankle
+    stand_ctrl: np.ndarray
+    timestep_s: float
+
+    @staticmethod
+    def of(model: mujoco.MjModel) -> "ModelIndex":
+        data = physics.stand_data(model)
+        chest = model.body("chest").id
+        foot_names = set(FSR_SENSORS)
+        pair_geoms = [int(g) for g in model.pair_geom2 if model.geom(int(g)).name not in foot_names]
+        spheres = [g for g in pair_geoms if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_SPHERE]
+        boxes = [g for g in pair_geoms if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_BOX]
+        sensor_adr = lambda n: int(model.sensor_adr[model.sensor(n).id])  # noqa: E731
+        return ModelIndex(
+            leg_actuators=np.array([model.actuator(n).id for n in LEG_ACTUATORS]),
+            chest_body=chest, chest_stand_z=float(data.xpos[chest][2]),
+            chest_stand_cos=float(data.xmat[chest][8]),
+            gyro_adr=sensor_adr("gyro"), accel_adr=sensor_adr("accel"),
+            fsr_adr=np.array([sensor_adr(n) for n in FSR_SENSORS]),
+            fsr_sites=np.array([model.site(n).id for n in FSR_SENSORS]),
+            sphere_geoms=np.array(spheres, dtype=int), sphere_radii=model.geom_size[spheres, 0],
+            box_geoms=np.array(boxes, dtype=int), box_half_sizes=model.geom_size[boxes],
+            ankle_sites=(model.site("r_ankle").id, model.site("l_ankle").id),
+            stand_ctrl=np.array(model.key("stand").ctrl), timestep_s=float(model.opt.timestep))
+
+
+@functools.lru_cache(maxsize=8)
+def model_index(params: ModelParams | None = None) -> ModelIndex:
+    return ModelIndex.of(physics.host_model(params))
+
+
+def _quantise(q: jax.Array) -> jax.Array:
+    """Round to the servo resolution; the gradient passes straight through."""
+    return q + jax.lax.stop_gradient(jnp.round(q / SERVO_RESOLUTION_RAD) * SERVO_RESOLUTION_RAD - q)
+
+
+def _push_wrench(idx: ModelIndex, d: mjx.Data, push: Push) -> jax.Array:
+    """(nbody, 6) xfrc_applied for the push at time d.time (force and moment about the CoM)."""
+    force = force_at(push, d.time)
+    local = jnp.stack([0.0, 0.0, (push.height_m - idx.chest_stand_z) / idx.chest_stand_cos])
+    point = d.xpos[idx.chest_body] + d.xmat[idx.chest_body] @ local
+    torque = jnp.cross(point - d.xipos[idx.chest_body], force)
+    return jnp.zeros_like(d.xfrc_applied).at[idx.chest_body].set(jnp.concatenate([force, torque]))
+
+
+def _lowest_body_point(idx: ModelIndex, d: mjx.Data) -> jax.Array:
+    """Height of the lowest point of any non-foot collision geom, m."""
+    lows = [d.geom_xpos[idx.sphere_geoms, 2] - idx.sphere_radii]
+    if idx.box_geoms.size:
+        zrow = d.geom_xmat[idx.box_geoms, 2, :]   # world z row: the box's vertical half-extent
+        lows.append(d.geom_xpos[idx.box_geoms, 2] - jnp.sum(jnp.abs(zrow) * idx.box_half_sizes, -1))
+    return jnp.min(jnp.concatenate(lows))
+
+
+def _zmp(idx: ModelIndex, d: mjx.Data) -> tuple[jax.Array, jax.Array]:
+    """Centre of pressure of the eight sole sensors (world x, y), and their total force (N)."""
+    f = d.sensordata[idx.fsr_adr]
+    total = jnp.sum(f)
+    pos = d.site_xpos[idx.fsr_sites, :2]
+    # With no foot on the ground there is no ZMP: report the feet's centre instead of 0/0.
+    safe = jnp.where(total > 1e-3, total, 1.0)
+    zmp = jnp.where(total > 1e-3, (f @ pos) / safe, jnp.mean(pos, 0))
+    return zmp, total
+
+
+def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerParams,
+            enabled: jax.Array, key: jax.Array, gyro_noise_std: jax.Array = 0.0,
+            accel_noise_std: jax.Array = 0.0, config: RolloutConfig = RolloutConfig(),
+            index: ModelIndex | None = None) -> dict:
+    """Simulate one robot under one push with the controller in the loop.
+
+    Args:
+      model, state: MJX model and initial state (the `stand` keyframe: `physics.stand_state`).
+      push: the Push (scalars). params: ControllerParams. enabled: 1 = balance control on.
+      key: PRNG key for sensor noise. gyro_noise_std (rad/s), accel_noise_std (m/s^2).
+      config: static settings. index: static model indices (default model when None).
+    Returns:
+      dict of (n_ticks, ...) series at control rate, sampled at the end of each period:
+      t (s), pitch / roll (true pelvis inclination, rad), pitch_est / roll_est (Kalman), zmp
+      (2,) m, fsr_total N, com (3,) m, r_ankle / l_ankle (3,) m, pelvis_z m, lowest_body_z m,
+      gate, x_sup m, step_weight, reachable.
+    """
+    idx = index or model_index()
+    substeps = int(round(config.control_period_s / idx.timestep_s))
+    n_ticks = int(round(config.duration_s / config.control_period_s))
+    params = dataclasses.replace(params, control_period=config.control_period_s)
+    dtype = state.qpos.dtype
+    stand_ctrl = jnp.asarray(idx.stand_ctrl, dtype)
+    r_ankle, l_ankle = idx.ankle_sites
+
+    def physics_step(d, _):
+        d = d.replace(xfrc_applied=_push_wrench(idx, d, push))
+        return mjx.step(model, d), None
+
+    def tick(carry, tick_key):
+        d, ctrl_state = carry
+        gyro = d.sensordata[idx.gyro_adr:idx.gyro_adr + 3]
+        accel = d.sensordata[idx.accel_adr:idx.accel_adr + 3]
+        kg, ka = jax.random.split(tick_key)
+        gyro = gyro + gyro_noise_std * jax.random.normal(kg, (3,), dtype)
+        accel = accel + accel_noise_std * jax.random.normal(ka, (3,), dtype)
+        ctrl_state, out = controller_step(ctrl_state, Sensors(gyro, accel), params, enabled)
+        legs = _quantise(out.leg_targets) if config.quantise_targets else out.leg_targets
+        d = d.replace(ctrl=stand_ctrl.at[idx.leg_actuators].set(legs.astype(dtype)))
+        d, _ = jax.lax.scan(physics_step, d, None, length=substeps)
+        pitch, roll = physics.pitch_roll_from_quat(d.qpos[3:7])
+        zmp, fsr_total = _zmp(idx, d)
+        series = dict(
+            t=d.time, pitch=pitch, roll=roll, pitch_est=out.phi, roll_est=out.roll, zmp=zmp,
+            fsr_total=fsr_total, com=d.subtree_com[1], r_ankle=d.site_xpos[r_ankle],
+            l_ankle=d.site_xpos[l_ankle], pelvis_z=d.qpos[2],
+            lowest_body_z=_lowest_body_point(idx, d), gate=out.gate, x_sup=ctrl_state.x_sup_m,
+            step_weight=ctrl_state.step_weight, reachable=out.reachable)
+        if config.record_qpos:
+            series["qpos"] = d.qpos
+        return (d, ctrl_state), series
+
+    carry = (state, controller_init(params, dtype))
+    _, series = jax.lax.scan(tick, carry, jax.random.split(key, n_ticks))
+    return series
+
+
+@functools.lru_cache(maxsize=8)
+def batched_rollout(model_params: ModelParams | None = None,
+                    config: RolloutConfig = RolloutConfig(), settle_s: float = 1.0):
+    """jit(vmap(rollout)) over (push, enabled, key) for one model, plus outcomes.
+
+    Returns f(pushes, enabled, keys, params, gyro_noise_std, accel_noise_std) ->
+    (series, outcomes), batched along axis 0; params is shared by the batch. Compiled once
+    per batch shape; cached per model and config.
+    """
+    from tkujax.metrics import outcomes
+
+    host = physics.host_model(model_params)
+    model, index = physics.device_model(model_params), model_index(model_params)
+    state = physics.stand_state(host, settle_s)
+
+    def one(push, enabled, key, params, gyro_std, accel_std):
+        series = rollout(model, state, push, params, enabled, key, gyro_std, accel_std,
+                         config, index)
+        return series, outcomes(series, push.onset_s)
+
+    return jax.jit(jax.vmap(one, in_axes=(0, 0, 0, None, None, None)))
+
+
+def simulate(pushes: Push, enabled, params: ControllerParams, seed: int = 0,
+             gyro_noise_std: float = 0.0, accel_noise_std: float = 0.0,
+             model_params: ModelParams | None = None,
+             config: RolloutConfig = RolloutConfig()) -> tuple[dict, dict]:
+    """Run a batch of pushes (stacked Push, leading axis) and return numpy (series, outcomes)."""
+    n = int(np.shape(pushes.impulse_ns)[0])
+    enabled = jnp.broadcast_to(jnp.asarray(enabled, jnp.float32), (n,))
+    keys = jax.random.split(jax.random.PRNGKey(seed), n)
+    f = batched_rollout(model_params, config)
+    out = f(pushes, enabled, keys, params, jnp.float32(gyro_noise_std),
+            jnp.float32(accel_noise_std))
+    return jax.tree_util.tree_map(np.asarray, out)
