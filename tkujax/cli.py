@@ -62,6 +62,27 @@ def _cmd_paper(args) -> int:
     return 0
 
 
+def _cmd_sweep(args) -> int:
+    from tkujax.sweep import load_params_json, run_sweep
+
+    params = load_params_json(args.params) if args.params else None
+    manifest = run_sweep(args.spec, args.out, params=params, max_chunks=args.max_chunks,
+                         process_id=args.process_id, num_processes=args.num_processes,
+                         coordinator=args.coordinator)
+    state = "complete" if manifest["complete"] else "incomplete (rerun the same command to resume)"
+    print(f"{manifest['n_pushes']} pushes in {args.out}: {state}; wall {manifest['wall_s']} s")
+    return 0
+
+
+def _cmd_map(args) -> int:
+    from tkujax.maps import make_maps
+
+    result = make_maps(args.dir)
+    print("\n".join(result["files"]))
+    print(Path(result["summary"]).read_text())
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="tkujax", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -90,6 +111,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--impulse-scale", type=float, default=1.0,
                    help="multiply both balls' momenta (1 = the paper's rig)")
     p.set_defaults(func=_cmd_paper)
+
+    p = sub.add_parser("sweep", help="run (or resume) a push sweep from a TOML spec")
+    p.add_argument("spec", help="sweep spec, e.g. sweeps/stability_map_cpu.toml")
+    p.add_argument("--out", required=True, help="output folder (npz chunks + manifest.json)")
+    p.add_argument("--params", default=None, help="controller parameters JSON (tkujax tune output)")
+    p.add_argument("--max-chunks", type=int, default=None, help="stop after this many new chunks")
+    p.add_argument("--process-id", type=int, default=None, help="multi-process: this process")
+    p.add_argument("--num-processes", type=int, default=None, help="multi-process: how many")
+    p.add_argument("--coordinator", default=None, help="multi-process: HOST:PORT of process 0")
+    p.set_defaults(func=_cmd_sweep)
+
+    p = sub.add_parser("map", help="stability maps and capturability checks of a sweep folder")
+    p.add_argument("dir")
+    p.set_defaults(func=_cmd_map)
     return parser
 
 

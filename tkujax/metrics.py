@@ -3,16 +3,18 @@
 Definitions (the band and thresholds are arguments, defaults documented here):
   fell             the pelvis dropped below 0.12 m, or any non-foot collision geom (knees, hands,
                    head, chest, pelvis) came within 5 mm of the floor, at any period.
-  recovery_time_s  from the push onset until the true pelvis pitch returns to, and then stays
-                   within, +-band_deg (default 1 deg) of its standing value (mean pitch over the
-                   `baseline_s` before onset); 0 if it never left the band; NaN if it fell or is
-                   still outside at the end.
+  recovery_time_s  from the push onset until the true pelvis inclination returns to, and then
+                   stays within, band_deg (default 1 deg) of its standing value (mean pitch and
+                   roll over the `baseline_s` before onset; the deviation is hypot(d pitch,
+                   d roll), so sideways pushes count); 0 if it never left the band; NaN if it
+                   fell or is still outside at the end.
   step_length_m    displacement of the swing (left) ankle along x, end minus onset; step_width_m
                    the same along y.
-  peak_incl_deg    largest |pitch - standing value| after onset, degrees.
+  peak_incl_deg    largest inclination deviation (as above) after onset, degrees.
   zmp_excursion_m  largest distance of the ZMP (sole sensors' centre of pressure) from its
                    standing position after onset.
-  capture_point_m  x_Sup latched by the controller (0 when no push was detected).
+  capture_point_m  x_Sup latched by the controller (0 when no push was detected);
+                   capture_point_y_m the lateral y_Sup (0 unless lateral steps are on).
 """
 
 from __future__ import annotations
@@ -34,12 +36,14 @@ def outcomes(series: dict, onset_s, band_deg: float = RECOVERY_BAND_DEG,
              baseline_s: float = 0.3) -> dict:
     """Outcomes of one rollout (series fields (n_ticks, ...)); see the module docstring."""
     t = series["t"]
-    pitch_deg = jnp.degrees(series["pitch"])
+    pitch_deg, roll_deg = jnp.degrees(series["pitch"]), jnp.degrees(series["roll"])
     before = (t <= onset_s) & (t > onset_s - baseline_s)
     after = t > onset_s
     n_before = jnp.maximum(jnp.sum(before), 1)
     standing = jnp.sum(jnp.where(before, pitch_deg, 0.0)) / n_before
-    dev = jnp.abs(pitch_deg - standing)
+    standing_roll = jnp.sum(jnp.where(before, roll_deg, 0.0)) / n_before
+    # hypot written out with a floor so its gradient at zero deviation is finite.
+    dev = jnp.sqrt((pitch_deg - standing) ** 2 + (roll_deg - standing_roll) ** 2 + 1e-12)
 
     fell = jnp.any(fall_indicator(series))
     outside = after & (dev > band_deg)
@@ -63,5 +67,6 @@ def outcomes(series: dict, onset_s, band_deg: float = RECOVERY_BAND_DEG,
         peak_incl_deg=jnp.max(jnp.where(after, dev, 0.0)),
         zmp_excursion_m=jnp.max(jnp.where(after & (series["fsr_total"] > 1.0), zmp_dist, 0.0)),
         capture_point_m=series["x_sup"][-1],
+        capture_point_y_m=series["y_sup"][-1],
         standing_pitch_deg=standing,
     )

@@ -167,7 +167,7 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
             t=d.time, pitch=pitch, roll=roll, pitch_est=out.phi, roll_est=out.roll, zmp=zmp,
             fsr_total=fsr_total, com=d.subtree_com[1], r_ankle=d.site_xpos[r_ankle],
             l_ankle=d.site_xpos[l_ankle], pelvis_z=d.qpos[2],
-            lowest_body_z=_lowest_body_point(idx, d), gate=out.gate, x_sup=ctrl_state.x_sup_m,
+            lowest_body_z=_lowest_body_point(idx, d), gate=out.gate, x_sup=ctrl_state.x_sup_m, y_sup=ctrl_state.y_sup_m,
             step_weight=ctrl_state.step_weight, reachable=out.reachable)
         if config.record_qpos:
             series["qpos"] = d.qpos

@@ -58,18 +58,23 @@ def push_gate(phi: jax.Array, params: ControllerParams) -> jax.Array:
     differentiable gate that tends to the hard one as tau -> 0 (except at the thresholds).
     The choice is a `where` on the tau value, so one compiled function serves both.
     """
-    phi = jnp.asarray(phi, jnp.result_type(phi, float))
-    dtype = phi.dtype
-    tau = params.gate_temperature
+    return band_gate(phi, -params.eps_backward, params.eps_forward, params.gate_temperature)
+
+
+def band_gate(angle: jax.Array, lower, upper, temperature) -> jax.Array:
+    """(...) in [0, 1]: 1 outside the band (lower, upper), 0 inside; sigmoid edges of width
+    `temperature` when it is > 0, exactly the hard test when it is 0."""
+    angle = jnp.asarray(angle, jnp.result_type(angle, float))
+    dtype = angle.dtype
+    tau = temperature
     soft_on = tau > 0
     # Divide by 1 where tau == 0: the unselected soft branch must stay finite or its zero
     # cotangent times inf/NaN would poison the gradient through `where`.
     tau_safe = jnp.where(soft_on, tau, 1.0)
-    soft = (jax.nn.sigmoid((phi - params.eps_forward) / tau_safe)
-            + jax.nn.sigmoid((-params.eps_backward - phi) / tau_safe))
-    # The sum is <= 1 whenever eps_1 + eps_2 >= 0; the clip guards rounding and odd settings.
+    soft = jax.nn.sigmoid((angle - upper) / tau_safe) + jax.nn.sigmoid((lower - angle) / tau_safe)
+    # The sum is <= 1 whenever lower <= upper; the clip guards rounding and odd settings.
     soft = jnp.minimum(soft, 1.0)
-    hard = push_detected(phi, params).astype(dtype)
+    hard = ((angle > upper) | (angle < lower)).astype(dtype)
     return jnp.where(soft_on, soft, hard).astype(dtype)
 
 

@@ -9,6 +9,11 @@ Smooth variant: with gate_temperature > 0 the detection gate is a sigmoid; the s
 accumulates softly (w <- w + (1 - w) gate) and x_Sup is the gate-weighted capture point, so
 gradients reach the thresholds. The step's start time is still the discrete instant at which
 w crosses 1/2; with gate_temperature = 0 all of this is exactly Algorithm 1.
+
+Sideways pushes (params.lateral_steps = 1, a tkujax extension): the roll is watched too; when
+the lateral lean psi = -roll (positive toward +y) leaves (-eps_lateral, eps_lateral) a step is
+triggered as well, with y_Sup = capture_point(psi) and the swing foot on the falling side
+(`cpg_feet_lateral`). The same single step carries x_Sup (from the pitch) and y_Sup.
 """
 
 from __future__ import annotations
@@ -19,8 +24,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from tkujax.control.capture_point import capture_point, push_gate
-from tkujax.control.cpg import cpg_feet
+from tkujax.control.capture_point import band_gate, capture_point, push_gate
+from tkujax.control.cpg import cpg_feet, cpg_feet_lateral
 from tkujax.control.kalman import KalmanState, accel_to_angle, gyro_to_rates, kalman_init, kalman_step
 from tkujax.control.params import ControllerParams
 from tkujax.control.solve import solve_legs
@@ -49,6 +54,7 @@ class ControllerState:
     step_weight: jax.Array
     step_start_s: jax.Array
     x_sup_m: jax.Array
+    y_sup_m: jax.Array
     phi_at_detect: jax.Array
 
 
@@ -66,7 +72,7 @@ def controller_init(params: ControllerParams, dtype=jnp.float32) -> ControllerSt
     return ControllerState(
         kalman=kalman_init(jnp.stack([jnp.asarray(params.standing_lean, dtype), zero]), params),
         time_s=zero, step_weight=zero, step_start_s=jnp.asarray(_NOT_STARTED_S, dtype),
-        x_sup_m=zero, phi_at_detect=zero)
+        x_sup_m=zero, y_sup_m=zero, phi_at_detect=zero)
 
 
 def stand_leg_targets(params: ControllerParams) -> jax.Array:
@@ -81,19 +87,32 @@ def controller_step(state: ControllerState, sensors: Sensors, params: Controller
     kalman = kalman_step(state.kalman, gyro_to_rates(sensors.gyro), accel_to_angle(sensors.accel),
                          params)
     phi = kalman.phi[..., 0]
-    gate = push_gate(phi, params) * jnp.asarray(enabled, phi.dtype)
+    psi = -kalman.phi[..., 1]                            # lateral lean, positive toward +y
+    enabled = jnp.asarray(enabled, phi.dtype)
+    lateral_gate = params.lateral_steps * band_gate(psi, -params.eps_lateral, params.eps_lateral,
+                                                    params.gate_temperature)
+    # Either detector triggers the (single) step: 1 - (1 - a)(1 - b) is "a or b" for 0/1 gates.
+    gate = enabled * (1.0 - (1.0 - push_gate(phi, params)) * (1.0 - lateral_gate))
     trigger = (1.0 - state.step_weight) * gate          # only the first detection counts
-    x_now = params.cp_gain * capture_point(phi - params.cp_angle_offset, params.leg_length,
-                                           params.com_height, params.gravity)
+    cp = lambda angle: params.cp_gain * capture_point(  # noqa: E731
+        angle, params.leg_length, params.com_height, params.gravity)
     step_weight = state.step_weight + trigger
-    x_sup = state.x_sup_m + trigger * x_now
+    x_sup = state.x_sup_m + trigger * cp(phi - params.cp_angle_offset)
+    y_sup = state.y_sup_m + trigger * params.lateral_steps * cp(psi)
     starts_now = (state.step_weight < 0.5) & (step_weight >= 0.5)
     step_start = jnp.where(starts_now, state.time_s, state.step_start_s)
     phi_at_detect = jnp.where(starts_now, phi, state.phi_at_detect)
 
-    p_right, p_left = cpg_feet(state.time_s - step_start, x_sup, params)
+    # With lateral steps off y_sup is 0 and cpg_feet_lateral equals the paper's cpg_feet; the
+    # paper's function is kept on that path so the paper mode is its literal transcription.
+    t_step = state.time_s - step_start
+    p_paper = cpg_feet(t_step, x_sup, params)
+    p_lateral = cpg_feet_lateral(t_step, x_sup, y_sup, params)
+    use_lateral = params.lateral_steps > 0
+    p_right = jnp.where(use_lateral, p_lateral[0], p_paper[0])
+    p_left = jnp.where(use_lateral, p_lateral[1], p_paper[1])
     targets, reachable = solve_legs(p_right, p_left, params)
     new_state = ControllerState(kalman=kalman, time_s=state.time_s + params.control_period,
                                 step_weight=step_weight, step_start_s=step_start, x_sup_m=x_sup,
-                                phi_at_detect=phi_at_detect)
+                                y_sup_m=y_sup, phi_at_detect=phi_at_detect)
     return new_state, ControllerOutput(targets, phi, kalman.phi[..., 1], gate, reachable)

@@ -30,6 +30,21 @@ def cpg_feet(t: jax.Array, x_sup: jax.Array, params: ControllerParams) -> tuple[
     """
     dtype = jnp.result_type(t, x_sup, float)
     t, x_sup = jnp.broadcast_arrays(jnp.asarray(t, dtype), jnp.asarray(x_sup, dtype))
+    unit_x, unit_y, unit_z = _unit_oscillators(t, params)
+    zero = jnp.zeros_like(x_sup)
+    rho_r = (-0.5 * x_sup, zero, zero)
+    rho_l = (0.5 * x_sup, zero, params.lift_height + zero)
+    units = (unit_x, unit_y, unit_z)
+    d_y, d_z = params.hip_offset_y, params.hip_to_ankle_z
+    p0_r = (0.0, -d_y, -d_z)
+    p0_l = (0.0, d_y, -d_z)
+    p_right = jnp.stack([rho * u + o for rho, u, o in zip(rho_r, units, p0_r)], axis=-1)
+    p_left = jnp.stack([rho * u + o for rho, u, o in zip(rho_l, units, p0_l)], axis=-1)
+    return p_right.astype(dtype), p_left.astype(dtype)
+
+
+def _unit_oscillators(t: jax.Array, params: ControllerParams):
+    """Eq. 13-18 with unit amplitudes: (x, y, z) profiles at time t since the step started."""
     T = params.step_period
     gamma = params.double_support_ratio
     t_lift = 0.5 * gamma * T          # end of the first double-support phase
@@ -46,14 +61,29 @@ def cpg_feet(t: jax.Array, x_sup: jax.Array, params: ControllerParams) -> tuple[
     # sine peaking at H_Sup at mid-step, continuous at both ends.
     unit_y = jnp.where(in_swing, jnp.sin(omega[1] * s), 0.0)
     unit_z = jnp.where(in_swing, jnp.sin(omega[2] * s), 0.0)
+    return unit_x, unit_y, unit_z
 
-    zero = jnp.zeros_like(x_sup)
-    rho_r = (-0.5 * x_sup, zero, zero)
-    rho_l = (0.5 * x_sup, zero, params.lift_height + zero)
-    units = (unit_x, unit_y, unit_z)
+
+def cpg_feet_lateral(t: jax.Array, x_sup: jax.Array, y_sup: jax.Array,
+                     params: ControllerParams) -> tuple[jax.Array, jax.Array]:
+    """The recovery step extended with a sideways component (a tkujax extension).
+
+    The swing foot is the left one when y_sup >= 0 (falling toward +y) and the right one
+    otherwise, so the legs never cross. The swing foot moves by (+x_sup/2, +y_sup/2) relative to
+    the waist and lifts by H_Sup, the support foot by (-x_sup/2, -y_sup/2); y follows the same
+    quarter-sine-then-hold profile as x (Eq. 13/16 with rho^y = +-y_sup/2 instead of the paper's
+    zero-amplitude Eq. 14/17). With y_sup = 0 this equals `cpg_feet` exactly.
+    """
+    dtype = jnp.result_type(t, x_sup, y_sup, float)
+    t, x_sup, y_sup = jnp.broadcast_arrays(*(jnp.asarray(a, dtype) for a in (t, x_sup, y_sup)))
+    unit_x, _, unit_z = _unit_oscillators(t, params)
+    swing_left = y_sup >= 0.0
+    lift = params.lift_height * unit_z
     d_y, d_z = params.hip_offset_y, params.hip_to_ankle_z
-    p0_r = (0.0, -d_y, -d_z)
-    p0_l = (0.0, d_y, -d_z)
-    p_right = jnp.stack([rho * u + o for rho, u, o in zip(rho_r, units, p0_r)], axis=-1)
-    p_left = jnp.stack([rho * u + o for rho, u, o in zip(rho_l, units, p0_l)], axis=-1)
+    half_x, half_y = 0.5 * x_sup * unit_x, 0.5 * y_sup * unit_x
+    swing_sign_l = jnp.where(swing_left, 1.0, -1.0)
+    p_left = jnp.stack([swing_sign_l * half_x, d_y + swing_sign_l * half_y,
+                        -d_z + jnp.where(swing_left, lift, 0.0)], -1)
+    p_right = jnp.stack([-swing_sign_l * half_x, -d_y - swing_sign_l * half_y,
+                         -d_z + jnp.where(swing_left, 0.0, lift)], -1)
     return p_right.astype(dtype), p_left.astype(dtype)

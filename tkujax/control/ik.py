@@ -22,6 +22,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from tkujax.control.safe_math import safe_atan2, safe_norm, safe_sqrt
+
 
 class LegAngles(NamedTuple):
     """Joint angles of one leg (rad), each (...); `reachable` is a (...) bool."""
@@ -32,23 +34,6 @@ class LegAngles(NamedTuple):
     ankle_pitch: jax.Array
     ankle_roll: jax.Array
     reachable: jax.Array
-
-
-def _safe_atan2(y: jax.Array, x: jax.Array) -> jax.Array:
-    """atan2 with value and gradient 0 (not NaN) at y = x = 0 (double-where trick)."""
-    zero = (x * x + y * y) == 0
-    return jnp.where(zero, 0.0, jnp.arctan2(jnp.where(zero, 0.0, y), jnp.where(zero, 1.0, x)))
-
-
-def _safe_sqrt(x: jax.Array) -> jax.Array:
-    """sqrt with value 0 and a finite (zero) gradient for x <= 0, where d sqrt is infinite."""
-    pos = x > 0
-    return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1.0)), 0.0)
-
-
-def _safe_norm(*xs: jax.Array) -> jax.Array:
-    """sqrt(sum x^2) with a finite (zero) gradient at the origin."""
-    return _safe_sqrt(sum(x * x for x in xs))
 
 
 def leg_ik(p_ankle_from_hip: jax.Array, thigh, calf) -> LegAngles:
@@ -80,9 +65,9 @@ def leg_ik(p_ankle_from_hip: jax.Array, thigh, calf) -> LegAngles:
     calf = jnp.asarray(calf, dtype)
 
     # The hip roll tilts the whole pitch plane; in that plane the leg hangs a distance L' down.
-    hip_roll = _safe_atan2(py, -pz)
-    l_plane = _safe_norm(py, pz)
-    dist = _safe_norm(px, l_plane)
+    hip_roll = safe_atan2(py, -pz)
+    l_plane = safe_norm(py, pz)
+    dist = safe_norm(px, l_plane)
 
     lo = jnp.abs(thigh - calf)
     hi = thigh + calf
@@ -95,13 +80,13 @@ def leg_ik(p_ankle_from_hip: jax.Array, thigh, calf) -> LegAngles:
     # 2 l_t l_c sin(knee) = sqrt((hi^2 - d^2)(d^2 - lo^2)): same angle as the acos, but the
     # factored sine keeps float32 accuracy near full extension (acos(1 - x) is ill-conditioned).
     # The sqrt argument is > 0 thanks to the clip; the safe sqrt also guards rounding.
-    two_lt_lc_sin = _safe_sqrt((hi - d) * (hi + d) * (d - lo) * (d + lo))
+    two_lt_lc_sin = safe_sqrt((hi - d) * (hi + d) * (d - lo) * (d + lo))
     two_lt_lc_cos = d * d - thigh * thigh - calf * calf
     knee = jnp.arctan2(two_lt_lc_sin, two_lt_lc_cos)
 
     # Direction of the target from straight-down in the leg plane (positive = backward), minus
     # the angle between thigh and hip-ankle line: the thigh sits forward of that line.
-    target = _safe_atan2(-px, l_plane)
+    target = safe_atan2(-px, l_plane)
     offset = jnp.arctan2(calf * jnp.sin(knee), thigh + calf * jnp.cos(knee))
     hip_pitch = target - offset
     ankle_pitch = -(hip_pitch + knee)

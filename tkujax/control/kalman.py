@@ -17,23 +17,7 @@ import jax
 import jax.numpy as jnp
 
 from tkujax.control.params import ControllerParams
-
-
-def _safe_atan2(y: jax.Array, x: jax.Array) -> jax.Array:
-    """atan2 whose value and gradient are 0 (not NaN) at y = x = 0.
-
-    d atan2 = (x dy - y dx) / (x^2 + y^2) is 0/0 at the origin; the double `where` feeds the
-    origin a harmless (0, 1) so neither branch's gradient is NaN.
-    """
-    zero = (x * x + y * y) == 0
-    return jnp.where(zero, 0.0, jnp.arctan2(jnp.where(zero, 0.0, y), jnp.where(zero, 1.0, x)))
-
-
-def _safe_sqrt(x: jax.Array) -> jax.Array:
-    """sqrt with a finite gradient at 0 (d sqrt = 1 / (2 sqrt x) is inf there); value 0 at x <= 0."""
-    tiny = jnp.finfo(jnp.result_type(x, float)).tiny
-    pos = x > tiny
-    return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1.0)), 0.0)
+from tkujax.control.safe_math import safe_atan2, safe_sqrt
 
 
 def accel_to_angle(accel: jax.Array) -> jax.Array:
@@ -53,8 +37,8 @@ def accel_to_angle(accel: jax.Array) -> jax.Array:
     the sqrt form avoids overestimating pitch by 1/cos(roll) when both are present.
     """
     ax, ay, az = accel[..., 0], accel[..., 1], accel[..., 2]
-    pitch = _safe_atan2(-ax, _safe_sqrt(ay * ay + az * az))
-    roll = _safe_atan2(ay, az)
+    pitch = safe_atan2(-ax, safe_sqrt(ay * ay + az * az))
+    roll = safe_atan2(ay, az)
     return jnp.stack([pitch, roll], axis=-1)
 
 

@@ -66,6 +66,8 @@ class ControllerParams:
     cp_angle_offset: float = math.radians(7.0)
     cp_gain: float = 1.0
     gate_temperature: float = 0.0
+    lateral_steps: float = 0.0
+    eps_lateral: float = math.radians(4.0)
     gravity: float = 9.81
     kalman_q: float = 1e-4
     kalman_r: float = 3e-3
@@ -125,6 +127,8 @@ class ControllerParams:
         check("cp_angle_offset", lambda v: -half_pi < v < half_pi, "(-pi/2, pi/2) rad")
         check("cp_gain", lambda v: 0.0 <= v <= 10.0, "[0, 10]")
         check("gate_temperature", lambda v: 0.0 <= v <= 1.0, "[0, 1] rad")
+        check("lateral_steps", lambda v: v in (0.0, 1.0), "{0, 1}")
+        check("eps_lateral", lambda v: 0.0 <= v < half_pi, "[0, pi/2) rad")
         check("gravity", lambda v: 0.0 < v < 100.0, "(0, 100) m/s^2")
         check("kalman_q", lambda v: 0.0 <= v < math.inf, "[0, inf) rad^2")
         check("kalman_r", lambda v: 0.0 < v < math.inf, "(0, inf) rad^2")

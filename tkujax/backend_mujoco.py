@@ -1,0 +1,323 @@
+"""CPU backend: MuJoCo C physics, the JAX controller vectorised over all pushes.
+
+`simulate_mujoco` has the semantics and outputs of `tkujax.sim.simulate` (MJX), so callers can
+switch backends. Per control period:
+
+  1. read every robot's IMU (gyro, accelerometer) from the sensordata of the previous physics
+     step, add Gaussian noise (numpy RNG: same law as MJX, not the same realisation);
+  2. run ONE jitted, vmapped `controller_step` over the whole batch (compiled once per batch
+     shape), quantise the leg targets to the servo resolution exactly like `sim._quantise`;
+  3. set ctrl = the stand ctrl with the leg actuators replaced, and advance every robot
+     `substeps` physics steps with `mujoco.rollout` (a persistent `Rollout(nthread=...)` thread
+     pool: the physics runs across all cores, the GIL released).
+
+The push (`push.force_at`, a half-sine force at a point of the chest axis, with its moment
+about the chest CoM, as `sim._push_wrench`) goes in through `xfrc_applied`, given to
+`mujoco.rollout` per step as part of the control (control_spec = mjSTATE_CTRL |
+mjSTATE_XFRC_APPLIED). The moment depends on the chest orientation, which rollout cannot feed
+back inside a chunk of steps, so two modes:
+
+  push_wrench="exact" (default): periods in which some push acts are stepped one physics step
+    per rollout call, the wrench of each step computed from the chest pose MJX uses for it
+    (MJX applies `_push_wrench` to d.xpos / d.xmat / d.xipos, which after `mjx.step` hold the
+    kinematics of the qpos *before* the previous step; this backend reproduces that lag).
+    Periods without any push run as one rollout chunk of `substeps` steps.
+  push_wrench="period_start": every period is one chunk; the force keeps its exact per-step
+    time profile, but the lever arm (chest orientation) is frozen at the pose used for the
+    period's first step. The 20 ms pulse spans 1-2 periods of 30 ms, during which the chest
+    turns by a fraction of a degree, so only the moment changes, by that angle times the lever
+    arm (tests/test_backend_mujoco.py measures the effect on the outcomes).
+
+Warm start: MuJoCo's solver (here Newton with a single iteration, so the warm start matters)
+starts from the previous step's qacc. `mujoco.rollout` takes it as `initial_warmstart` but
+does not return it; with the Euler integrator and eulerdamp disabled, qvel_next = qvel +
+dt * qacc exactly, so it is recovered as (qvel[-1] - qvel[-2]) / dt and chained between
+chunks: the chunked run is the same trajectory as one uninterrupted mj_step loop (to
+round-off; tests check it).
+
+Series kinematics follow MJX's convention too: positions (ankles, CoM, sole sensor sites,
+collision geoms) are those MJX leaves in d.site_xpos etc. after the last step of the period
+(the kinematics of the state before that step), while pitch, roll and pelvis_z come from the
+final qpos.
+
+Differences that remain against MJX: float64 physics (MJX runs float32), MuJoCo C's own
+collision routines and solver implementation, and the noise realisation.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import os
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import mujoco.rollout
+import numpy as np
+
+from tkujax import physics
+from tkujax.control.controller import Sensors, controller_init, controller_step
+from tkujax.control.params import ControllerParams
+from tkujax.metrics import outcomes as _outcomes
+from tkujax.model import ModelParams
+from tkujax.push import Push
+from tkujax.sim import ModelIndex, RolloutConfig, _quantise, model_index
+
+PUSH_WRENCH_MODES = ("exact", "period_start")
+
+_FULL = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
+_CTRL = int(mujoco.mjtState.mjSTATE_CTRL)
+_CTRL_XFRC = _CTRL | int(mujoco.mjtState.mjSTATE_XFRC_APPLIED)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Setup:
+    model: mujoco.MjModel
+    index: ModelIndex
+    state0: np.ndarray        # (nstate,) settled stand, FULLPHYSICS layout
+    warmstart0: np.ndarray    # (nv,)
+    sensordata0: np.ndarray   # (nsensordata,)
+    qpos_slice: slice
+    qvel_slice: slice
+
+
+@functools.lru_cache(maxsize=8)
+def _setup(model_params: ModelParams | None) -> _Setup:
+    model = physics.host_model(model_params)
+    # FULLPHYSICS layout: time, qpos, qvel, act, history, plugin (state bits in ascending order).
+    nt = mujoco.mj_stateSize(model, int(mujoco.mjtState.mjSTATE_TIME))
+    nq = mujoco.mj_stateSize(model, int(mujoco.mjtState.mjSTATE_QPOS))
+    nv = mujoco.mj_stateSize(model, int(mujoco.mjtState.mjSTATE_QVEL))
+    if model.opt.integrator != mujoco.mjtIntegrator.mjINT_EULER:
+        raise ValueError("backend_mujoco recovers the warm start assuming the Euler integrator")
+    if not model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_EULERDAMP:
+        raise ValueError("backend_mujoco recovers the warm start assuming eulerdamp is disabled")
+    data = physics.settled_stand_data(model, 1.0)   # the state sim.batched_rollout starts from
+    state0 = np.empty(mujoco.mj_stateSize(model, _FULL))
+    mujoco.mj_getState(model, data, state0, _FULL)
+    state0.setflags(write=False)
+    return _Setup(model=model, index=model_index(model_params), state0=state0,
+                  warmstart0=np.array(data.qacc_warmstart), sensordata0=np.array(data.sensordata),
+                  qpos_slice=slice(nt, nt + nq), qvel_slice=slice(nt + nq, nt + nq + nv))
+
+
+@functools.lru_cache(maxsize=4)
+def _rollout_pool(nthread: int) -> mujoco.rollout.Rollout:
+    """Persistent thread pool (nthread 0: run on the calling thread)."""
+    return mujoco.rollout.Rollout(nthread=nthread)
+
+
+@functools.partial(jax.jit, static_argnames=("quantise",))
+def _control_tick(states, gyro, accel, params, enabled, quantise: bool):
+    """controller_step over the batch (states, gyro, accel, enabled batched; params shared)."""
+    step = jax.vmap(controller_step, in_axes=(0, 0, None, 0))
+    states, out = step(states, Sensors(gyro, accel), params, enabled)
+    legs = _quantise(out.leg_targets) if quantise else out.leg_targets
+    return states, legs, out
+
+
+@jax.jit
+def _batched_outcomes(series: dict, onset_s: jax.Array) -> dict:
+    return jax.vmap(_outcomes)(series, onset_s)
+
+
+def _force(pushes: dict, t: np.ndarray) -> np.ndarray:
+    """Numpy twin of push.force_at: (n, k, 3) world force at times t (n, k)."""
+    onset, dur = pushes["onset_s"][:, None], pushes["duration_s"][:, None]
+    phase = (t - onset) / dur
+    active = (phase >= 0.0) & (phase < 1.0)
+    mag = pushes["impulse_ns"][:, None] * (np.pi / (2.0 * dur)) * np.sin(np.pi * phase)
+    mag = np.where(active, mag, 0.0)
+    az = pushes["azimuth_rad"][:, None]
+    return mag[..., None] * np.stack([np.cos(az), np.sin(az), np.zeros_like(az)], -1)
+
+
+class _Kinematics:
+    """Forward kinematics of a batch of FULLPHYSICS states on one scratch MjData."""
+
+    def __init__(self, setup: _Setup):
+        self.m, self.idx = setup.model, setup.index
+        self.d = mujoco.MjData(self.m)
+
+    def chest(self, states: np.ndarray):
+        """(xpos (n,3), xmat (n,3,3), xipos (n,3)) of the chest body."""
+        m, d, b = self.m, self.d, self.idx.chest_body
+        n = states.shape[0]
+        xpos, xmat, xipos = np.empty((n, 3)), np.empty((n, 3, 3)), np.empty((n, 3))
+        for i in range(n):
+            mujoco.mj_setState(m, d, states[i], _FULL)
+            mujoco.mj_kinematics(m, d)
+            xpos[i], xmat[i], xipos[i] = d.xpos[b], d.xmat[b].reshape(3, 3), d.xipos[b]
+        return xpos, xmat, xipos
+
+    def series(self, states: np.ndarray) -> dict:
+        """Kinematic quantities recorded per period (see module doc for which state)."""
+        m, d, idx = self.m, self.d, self.idx
+        n = states.shape[0]
+        r, l = idx.ankle_sites
+        out = dict(com=np.empty((n, 3)), r_ankle=np.empty((n, 3)), l_ankle=np.empty((n, 3)),
+                   fsr_xy=np.empty((n, len(idx.fsr_sites), 2)),
+                   sphere_z=np.empty((n, len(idx.sphere_geoms))),
+                   box_z=np.empty((n, len(idx.box_geoms))),
+                   box_zrow=np.empty((n, len(idx.box_geoms), 3)))
+        for i in range(n):
+            mujoco.mj_setState(m, d, states[i], _FULL)
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_comPos(m, d)
+            out["com"][i] = d.subtree_com[1]
+            out["r_ankle"][i], out["l_ankle"][i] = d.site_xpos[r], d.site_xpos[l]
+            out["fsr_xy"][i] = d.site_xpos[idx.fsr_sites, :2]
+            out["sphere_z"][i] = d.geom_xpos[idx.sphere_geoms, 2]
+            if idx.box_geoms.size:
+                out["box_z"][i] = d.geom_xpos[idx.box_geoms, 2]
+                out["box_zrow"][i] = d.geom_xmat[idx.box_geoms].reshape(-1, 3, 3)[:, 2, :]
+        return out
+
+
+def _wrench(idx: ModelIndex, pose, height: np.ndarray, force: np.ndarray) -> np.ndarray:
+    """Numpy twin of sim._push_wrench: (n, k, 6) [force, moment about the chest CoM].
+
+    pose: chest (xpos, xmat, xipos) per robot; force (n, k, 3) for k steps sharing that pose.
+    """
+    xpos, xmat, xipos = pose
+    local = np.zeros((height.shape[0], 3))
+    local[:, 2] = (height - idx.chest_stand_z) / idx.chest_stand_cos
+    point = xpos + np.einsum("nij,nj->ni", xmat, local)
+    arm = (point - xipos)[:, None, :]
+    return np.concatenate([force, np.cross(np.broadcast_to(arm, force.shape), force)], -1)
+
+
+def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int = 0,
+                    gyro_noise_std: float = 0.0, accel_noise_std: float = 0.0,
+                    model_params: ModelParams | None = None,
+                    config: RolloutConfig = RolloutConfig(), n_threads: int | None = None,
+                    push_wrench: str = "exact") -> tuple[dict, dict]:
+    """Run a batch of pushes with MuJoCo C physics; returns numpy (series, outcomes).
+
+    Same arguments, keys and shapes as `tkujax.sim.simulate`, plus n_threads (physics
+    threads; default: the CPUs this process may use) and push_wrench ("exact" or
+    "period_start", see the module doc).
+    """
+    if push_wrench not in PUSH_WRENCH_MODES:
+        raise ValueError(f"push_wrench must be one of {PUSH_WRENCH_MODES}, got {push_wrench!r}")
+    setup = _setup(model_params)
+    m, idx = setup.model, setup.index
+    n = int(np.shape(pushes.impulse_ns)[0])
+    if n_threads is None:
+        n_threads = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (
+            os.cpu_count() or 1)
+    nthread = int(n_threads) if (n_threads > 1 and n > 1) else 0
+    pool = _rollout_pool(nthread)
+    datas = [mujoco.MjData(m) for _ in range(max(nthread, 1))]
+    kin = _Kinematics(setup)
+
+    dt = float(m.opt.timestep)
+    substeps = int(round(config.control_period_s / idx.timestep_s))
+    n_ticks = int(round(config.duration_s / config.control_period_s))
+    params = dataclasses.replace(params, control_period=config.control_period_s)
+    enabled_j = jnp.broadcast_to(jnp.asarray(enabled, jnp.float32), (n,))
+    p = {k: np.asarray(getattr(pushes, k), np.float64)
+         for k in ("impulse_ns", "azimuth_rad", "height_m", "duration_s", "onset_s")}
+    rng = np.random.default_rng(seed)
+    qv = setup.qvel_slice
+
+    ctrl_state = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (n,) + x.shape),
+                                        controller_init(params, jnp.float32))
+    state = np.tile(setup.state0, (n, 1))                 # current state
+    pose_state = state.copy()     # whose kinematics MJX's d.xpos holds (before the last step)
+    warm = np.tile(setup.warmstart0, (n, 1))
+    sensordata = np.tile(setup.sensordata0, (n, 1))
+    stand_ctrl = np.asarray(idx.stand_ctrl, np.float64)
+    ctrl_spec_size = mujoco.mj_stateSize(m, _CTRL_XFRC)
+    nu = m.nu
+    xfrc_cols = slice(nu + 6 * idx.chest_body, nu + 6 * idx.chest_body + 6)
+
+    rec = {k: [] for k in ("t", "pitch", "roll", "pitch_est", "roll_est", "zmp", "fsr_total",
+                           "com", "r_ankle", "l_ankle", "pelvis_z", "lowest_body_z", "gate",
+                           "x_sup", "step_weight", "reachable")}
+    if config.record_qpos:
+        rec["qpos"] = []
+
+    def run(s0, w0, control, spec, nstep):
+        states, sens = pool.rollout(m, datas, s0, control, control_spec=spec,
+                                    initial_warmstart=w0, nstep=nstep)
+        prev_qvel = s0[:, qv] if nstep == 1 else states[:, -2, qv]
+        return states, sens, (states[:, -1, qv] - prev_qvel) / dt
+
+    for _ in range(n_ticks):
+        gyro = sensordata[:, idx.gyro_adr:idx.gyro_adr + 3]
+        accel = sensordata[:, idx.accel_adr:idx.accel_adr + 3]
+        gyro = gyro + gyro_noise_std * rng.standard_normal((n, 3))
+        accel = accel + accel_noise_std * rng.standard_normal((n, 3))
+        ctrl_state, legs, out = _control_tick(ctrl_state, jnp.asarray(gyro, jnp.float32),
+                                              jnp.asarray(accel, jnp.float32), params,
+                                              enabled_j, config.quantise_targets)
+        ctrl = np.tile(stand_ctrl, (n, 1))
+        ctrl[:, idx.leg_actuators] = np.asarray(legs, np.float64)
+
+        t_steps = state[:, :1] + dt * np.arange(substeps)[None, :]      # (n, substeps)
+        force = _force(p, t_steps)
+        pushed = bool(np.any(force != 0.0))
+        if not pushed:
+            states, sens, warm = run(state, warm, ctrl[:, None, :], _CTRL, substeps)
+            pose_state = states[:, -2] if substeps > 1 else state
+            state, sensordata = states[:, -1], sens[:, -1]
+        elif push_wrench == "period_start":
+            control = np.zeros((n, substeps, ctrl_spec_size))
+            control[:, :, :nu] = ctrl[:, None, :]
+            control[:, :, xfrc_cols] = _wrench(idx, kin.chest(pose_state), p["height_m"], force)
+            states, sens, warm = run(state, warm, control, _CTRL_XFRC, substeps)
+            pose_state = states[:, -2] if substeps > 1 else state
+            state, sensordata = states[:, -1], sens[:, -1]
+        else:   # exact: one step per call, the wrench from the pose MJX would use
+            control = np.zeros((n, 1, ctrl_spec_size))
+            control[:, 0, :nu] = ctrl
+            for j in range(substeps):
+                f = force[:, j:j + 1]
+                control[:, :, xfrc_cols] = _wrench(idx, kin.chest(pose_state), p["height_m"], f)
+                states, sens, warm = run(state, warm, control, _CTRL_XFRC, 1)
+                pose_state = state
+                state, sensordata = states[:, -1], sens[:, -1]
+
+        k = kin.series(pose_state)
+        qpos = state[:, setup.qpos_slice]
+        pitch, roll = physics.pitch_roll_from_quat(qpos[:, 3:7])
+        fsr = sensordata[:, idx.fsr_adr]
+        total = fsr.sum(-1)
+        safe = np.where(total > 1e-3, total, 1.0)
+        zmp = np.where((total > 1e-3)[:, None], np.einsum("nf,nfk->nk", fsr, k["fsr_xy"])
+                       / safe[:, None], k["fsr_xy"].mean(1))
+        lows = [k["sphere_z"] - idx.sphere_radii]
+        if idx.box_geoms.size:
+            lows.append(k["box_z"] - np.sum(np.abs(k["box_zrow"]) * idx.box_half_sizes, -1))
+        rec["t"].append(state[:, 0])
+        rec["pitch"].append(pitch)
+        rec["roll"].append(roll)
+        rec["pitch_est"].append(out.phi)
+        rec["roll_est"].append(out.roll)
+        rec["zmp"].append(zmp)
+        rec["fsr_total"].append(total)
+        rec["com"].append(k["com"])
+        rec["r_ankle"].append(k["r_ankle"])
+        rec["l_ankle"].append(k["l_ankle"])
+        rec["pelvis_z"].append(qpos[:, 2])
+        rec["lowest_body_z"].append(np.min(np.concatenate(lows, -1), -1))
+        rec["gate"].append(out.gate)
+        rec["x_sup"].append(ctrl_state.x_sup_m)
+        rec["step_weight"].append(ctrl_state.step_weight)
+        rec["reachable"].append(out.reachable)
+        if config.record_qpos:
+            rec["qpos"].append(qpos)
+
+    # (n_ticks, n, ...) -> (n, n_ticks, ...); physical fields in MJX's float32, the controller's
+    # fields in the dtype the controller gives them.
+    series = {}
+    for key, vals in rec.items():
+        arr = np.stack([np.asarray(v) for v in vals], 1)
+        if arr.dtype == np.float64:
+            arr = arr.astype(np.float32)
+        series[key] = arr
+    out = _batched_outcomes(jax.tree_util.tree_map(jnp.asarray, series),
+                            jnp.asarray(pushes.onset_s, jnp.float32))
+    return series, jax.tree_util.tree_map(np.asarray, out)

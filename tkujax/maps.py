@@ -1,0 +1,194 @@
+"""`tkujax map DIR`: stability maps, capture regions and capturability checks of a sweep.
+
+Cells are (control, azimuth, impulse); when a sweep varies more (height, onset, controller
+grid, randomisation) a cell's value is the mean over those records (fall *fraction*), and the
+fall boundary is where that fraction crosses 1/2.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from tkujax import capturability
+from tkujax.control.params import ControllerParams
+from tkujax.sweep import load
+
+ROUND = 6
+
+
+def _cells(rec: dict, key: str, control: bool):
+    """(azimuths, impulses, mean of rec[key] per cell as (n_az, n_J)), NaN where empty."""
+    sel = rec["control"].astype(bool) == control
+    az = np.round(np.mod(rec["azimuth_deg"][sel], 360.0), ROUND)
+    j = np.round(rec["impulse_ns"][sel], ROUND)
+    v = rec[key][sel].astype(float)
+    azs, js = np.unique(az), np.unique(j)
+    total = np.zeros((len(azs), len(js)))
+    count = np.zeros_like(total)
+    ia, ij = np.searchsorted(azs, az), np.searchsorted(js, j)
+    ok = np.isfinite(v)
+    np.add.at(total, (ia[ok], ij[ok]), v[ok])
+    np.add.at(count, (ia, ij), ok.astype(float))
+    with np.errstate(invalid="ignore"):
+        return azs, js, np.where(count > 0, total / np.maximum(count, 1), np.nan)
+
+
+def max_recoverable_impulse(rec: dict, control: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Per azimuth: the largest impulse below which every tested impulse was survived
+    (fall fraction < 1/2); 0 when even the smallest fell."""
+    azs, js, frac = _cells(rec, "fell", control)
+    out = np.zeros(len(azs))
+    for i in range(len(azs)):
+        fell = frac[i] >= 0.5
+        first = np.argmax(fell) if fell.any() else len(js)
+        out[i] = js[first - 1] if first > 0 else 0.0
+    return azs, out
+
+
+def _polar_mesh(azs, js):
+    """Cell edges for pcolormesh on a polar axis (azimuth wraps around)."""
+    a = np.radians(azs)
+    da = np.diff(np.append(a, a[0] + 2 * np.pi)) if len(a) > 1 else np.array([2 * np.pi])
+    a_edges = np.append(a - da / 2, a[-1] + da[-1] / 2)
+    dj = np.diff(js) if len(js) > 1 else np.array([max(js[0], 0.1)])
+    j_edges = np.concatenate([[max(js[0] - dj[0] / 2, 0.0)], js[:-1] + dj / 2, [js[-1] + dj[-1] / 2]])
+    return np.meshgrid(a_edges, j_edges, indexing="ij")
+
+
+def _polar_panel(ax, rec, key, control, title, cmap, vmin=None, vmax=None, label=""):
+    azs, js, val = _cells(rec, key, control)
+    A, J = _polar_mesh(azs, js)
+    mesh = ax.pcolormesh(A, J, val, cmap=cmap, vmin=vmin, vmax=vmax, shading="flat")
+    ax.set_theta_zero_location("S")   # pushed from behind (0 deg, toward +x) drawn at the bottom
+    ax.set_title(title, fontsize=9)
+    ax.set_rlabel_position(135)
+    return mesh
+
+
+def make_maps(out_dir: str | Path, params: ControllerParams | None = None) -> dict:
+    """Write maps/*.png and maps/summary.md (+ .json) for the sweep in `out_dir`."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out_dir = Path(out_dir)
+    rec = load(out_dir)
+    manifest = json.loads((out_dir / "manifest.json").read_text())
+    params = params or ControllerParams(**manifest.get("controller_params", {}))
+    maps = out_dir / "maps"
+    maps.mkdir(exist_ok=True)
+    controls = [c for c in (False, True) if (rec["control"].astype(bool) == c).any()]
+    name = lambda c: "control on" if c else "control off"  # noqa: E731
+    files = []
+
+    # 1. Polar stability map: fall fraction, with the boundary of each setting overlaid.
+    fig, axes = plt.subplots(1, len(controls), subplot_kw=dict(projection="polar"),
+                             figsize=(5 * len(controls), 4.6), squeeze=False)
+    for ax, c in zip(axes[0], controls):
+        mesh = _polar_panel(ax, rec, "fell", c, f"fall fraction, {name(c)}\n(radius: impulse N·s; "
+                            "angle: push azimuth, 0° = from behind)", "RdYlGn_r", 0, 1)
+        for c2, style in zip(controls, ("k--", "b-")):
+            azs, jmax = max_recoverable_impulse(rec, c2)
+            a = np.radians(np.append(azs, azs[0] + 360))
+            ax.plot(a, np.append(jmax, jmax[0]), style, lw=1.2, label=f"boundary, {name(c2)}")
+    axes[0, -1].legend(loc="lower left", bbox_to_anchor=(0.75, -0.12), fontsize=7)
+    fig.colorbar(mesh, ax=axes[0].tolist(), shrink=0.7)
+    files.append(maps / "stability_polar.png")
+    fig.savefig(files[-1], dpi=90)
+    plt.close(fig)
+
+    # 2. Recovery time and step length maps (per control setting).
+    fig, axes = plt.subplots(2, len(controls), subplot_kw=dict(projection="polar"),
+                             figsize=(5 * len(controls), 8.6), squeeze=False)
+    for k, c in enumerate(controls):
+        m = _polar_panel(axes[0, k], rec, "recovery_time_s", c, f"recovery time (s), {name(c)}",
+                         "viridis")
+        fig.colorbar(m, ax=axes[0, k], shrink=0.7)
+        rec_abs = dict(rec, step_abs_cm=100 * np.hypot(rec["step_length_m"], rec["step_width_m"]))
+        m = _polar_panel(axes[1, k], rec_abs, "step_abs_cm", c, f"step length (cm), {name(c)}",
+                         "magma")
+        fig.colorbar(m, ax=axes[1, k], shrink=0.7)
+    fig.tight_layout()
+    files.append(maps / "recovery_and_step.png")
+    fig.savefig(files[-1], dpi=90)
+    plt.close(fig)
+
+    # 3. Capture region: where the swing foot landed vs where the LIP capture point said.
+    lip = capturability.lip_model()
+    sel = rec["control"].astype(bool) & ~rec["fell"].astype(bool) & (
+        np.hypot(rec["step_length_m"], rec["step_width_m"]) > 0.005)
+    az = np.radians(rec["azimuth_deg"][sel])
+    shift = capturability.capture_point_shift_m(lip, rec["impulse_ns"][sel])
+    fig, ax = plt.subplots(figsize=(5.5, 5))
+    poly = np.vstack([lip.support_polygon, lip.support_polygon[:1]]) - lip.com_xy_m
+    ax.plot(100 * poly[:, 0], 100 * poly[:, 1], "k-", lw=1, label="support polygon (stand)")
+    ax.scatter(100 * shift * np.cos(az), 100 * shift * np.sin(az), s=8, c="tab:blue",
+               label="LIP capture-point shift J/(mω)")
+    ax.scatter(100 * rec["step_length_m"][sel], 100 * rec["step_width_m"][sel], s=8,
+               c="tab:red", label="swing-foot displacement (sim)")
+    ax.scatter(100 * rec["capture_point_m"][sel], np.zeros(int(sel.sum())), s=8, marker="x",
+               c="tab:green", label="controller x_Sup (sagittal)")
+    ax.set_xlabel("x (cm, forward)")
+    ax.set_ylabel("y (cm, left)")
+    ax.set_aspect("equal")
+    ax.legend(fontsize=7)
+    ax.set_title(f"capture region: {int(sel.sum())} recovered pushes with a step", fontsize=9)
+    files.append(maps / "capture_region.png")
+    fig.savefig(files[-1], dpi=90)
+    plt.close(fig)
+
+    # 4. Max recoverable impulse per direction vs capturability theory.
+    fine = np.radians(np.arange(0, 361, 2.0))
+    fig, ax = plt.subplots(figsize=(7.5, 4))
+    theory = {n: capturability.max_impulse_ns(lip, fine, n, params) for n in (0, 1)}
+    ax.plot(np.degrees(fine), theory[0], "k:", label="J_0 = mω r_max (no step)")
+    ax.plot(np.degrees(fine), theory[1], "k--", label="J_1 (one step, l_max, Δt_s)")
+    table = []
+    for c, mk in zip(controls, ("s", "o")):
+        azs, jmax = max_recoverable_impulse(rec, c)
+        ax.plot(azs, jmax, mk + "-", ms=4, label=f"sim max recoverable, {name(c)}")
+        for a, j in zip(azs, jmax):
+            table.append((float(a), c, float(j)))
+    ax.set_xlabel("push azimuth (deg; 0 = from behind, 90 = from the right)")
+    ax.set_ylabel("impulse (N·s)")
+    ax.legend(fontsize=7)
+    ax.grid(alpha=0.3)
+    files.append(maps / "max_impulse_vs_theory.png")
+    fig.tight_layout()
+    fig.savefig(files[-1], dpi=90)
+    plt.close(fig)
+
+    # Summary table.
+    azs_all = sorted({a for a, _, _ in table})
+    lookup = {(a, c): j for a, c, j in table}
+    rows = ["| azimuth (deg) | r_max (cm) | J_0 theory | sim max, off | J_1 theory | sim max, on |",
+            "|---|---|---|---|---|---|"]
+    summary = []
+    for a in azs_all:
+        ar = math.radians(a)
+        j0 = float(capturability.max_impulse_ns(lip, ar, 0, params)[0])
+        j1 = float(capturability.max_impulse_ns(lip, ar, 1, params)[0])
+        off, on = lookup.get((a, False)), lookup.get((a, True))
+        fmt = lambda v: "-" if v is None else f"{v:.2f}"  # noqa: E731
+        rows.append(f"| {a:.0f} | {100 * float(capturability.r_max(lip, ar)[0]):.1f} | {j0:.2f} | "
+                    f"{fmt(off)} | {j1:.2f} | {fmt(on)} |")
+        summary.append(dict(azimuth_deg=a, J0_theory=j0, J1_theory=j1, sim_max_off=off,
+                            sim_max_on=on))
+    n = len(rec["fell"])
+    text = (f"# Sweep `{manifest['name']}`: {n} pushes\n\n"
+            f"Devices: {', '.join(manifest.get('devices', []))}; wall {manifest.get('wall_s')} s "
+            f"(compile included); fall fraction: "
+            + ", ".join(f"{name(c)} {rec['fell'][rec['control'].astype(bool) == c].mean():.3f}"
+                        for c in controls)
+            + f".\n\nLIP: m = {lip.mass_kg:.2f} kg, z0 = {lip.com_height_m:.3f} m, "
+            f"ω = {lip.omega:.2f} 1/s, l_max = {capturability.step_reach_m(params):.3f} m, "
+            f"Δt_s = {capturability.step_time_s(params):.3f} s. Sim max = largest tested impulse "
+            "below which every impulse was survived (grid resolution applies).\n\n"
+            + "\n".join(rows) + "\n")
+    (maps / "summary.md").write_text(text)
+    (maps / "summary.json").write_text(json.dumps(summary, indent=1))
+    return dict(files=[str(f) for f in files], summary=str(maps / "summary.md"))

@@ -1,0 +1,262 @@
+"""Declarative sweep specs (TOML): parsing, validation, and expansion into push records.
+
+A spec names what varies and how: grids (every combination) and/or seeded random samples over
+the push (impulse, azimuth, contact height, onset, duration), controller parameters, and model
+randomisation. Everything is checked before anything runs: unknown keys, wrong types and
+out-of-range values raise SpecError naming the key and the allowed range.
+
+    [sweep]
+    name = "stability_map"
+    seed = 0
+    chunk_size = 1024          # pushes per compiled batch and per result file
+    duration_s = 2.4           # simulated time per push
+    control = ["off", "on"]    # every push is run with each listed setting
+
+    [push.grid]                # lists, or {start, stop, num[, endpoint]} ranges
+    impulse_ns = {start = 0.2, stop = 3.0, num = 15}
+    azimuth_deg = {start = 0, stop = 360, num = 24, endpoint = false}
+
+    [push.random]              # seeded samples, added to the grid ({uniform = [lo, hi]})
+    n = 0
+
+    [controller]               # fixed ControllerParams overrides (angles in degrees)
+    step_period = 0.3
+    [controller.grid]          # ControllerParams varied as a grid (crossed with the pushes)
+    [randomize]                # per-push model/sensor randomisation ({uniform = [lo, hi]} or a value)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import math
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+class SpecError(ValueError):
+    """A spec problem; the message names the key and what is allowed."""
+
+
+# name: (lo, hi, default, unit). Push fields in user units.
+PUSH_FIELDS = {
+    "impulse_ns": (0.0, 10.0, 0.5, "N·s"),
+    "azimuth_deg": (-360.0, 360.0, 0.0, "deg"),
+    "height_m": (0.25, 0.46, 0.36, "m"),
+    "onset_s": (0.05, 20.0, 0.75, "s"),
+    "duration_s": (0.002, 0.5, 0.02, "s"),
+}
+# ControllerParams fields a spec may set; *_deg fields are converted to radians.
+CONTROLLER_FIELDS = {
+    "step_period": (0.05, 2.0, "s"),
+    "double_support_ratio": (0.0, 0.89, ""),
+    "lift_height": (0.0, 0.1, "m"),
+    "eps_forward_deg": (0.0, 60.0, "deg"),
+    "eps_backward_deg": (0.0, 60.0, "deg"),
+    "cp_angle_offset_deg": (-30.0, 30.0, "deg"),
+    "cp_gain": (0.0, 10.0, ""),
+    "gate_temperature_deg": (0.0, 30.0, "deg"),
+    "lateral_steps": (0.0, 1.0, "(0 = paper, 1 = sideways steps too)"),
+    "eps_lateral_deg": (0.0, 60.0, "deg"),
+    "kalman_q": (0.0, 1.0, "rad^2"),
+    "kalman_r": (1e-9, 1.0, "rad^2"),
+}
+# Randomisation: multiplicative scales and additive values applied per push.
+RANDOMIZE_FIELDS = {
+    "link_mass_scale": (0.5, 1.5, "x (all bodies)"),
+    "torso_com_offset_x_m": (-0.05, 0.05, "m (chest body CoM, forward)"),
+    "floor_friction": (0.1, 2.0, ""),
+    "servo_kp_scale": (0.5, 1.5, "x (all actuators)"),
+    "gyro_noise_std": (0.0, 1.0, "rad/s"),
+    "accel_noise_std": (0.0, 5.0, "m/s^2"),
+}
+RANDOMIZE_DEFAULTS = {"link_mass_scale": 1.0, "torso_com_offset_x_m": 0.0, "floor_friction": None,
+                      "servo_kp_scale": 1.0, "gyro_noise_std": 0.0, "accel_noise_std": 0.0}
+SWEEP_FIELDS = {"name": str, "seed": int, "chunk_size": int, "duration_s": (int, float),
+                "control": list, "description": str}
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepSpec:
+    """A validated spec. `raw` is the parsed TOML (recorded in the manifest)."""
+
+    name: str
+    seed: int
+    chunk_size: int
+    duration_s: float
+    control: tuple[str, ...]
+    push_grid: dict[str, np.ndarray]
+    push_random: dict[str, tuple[float, float]]
+    n_random: int
+    controller: dict[str, float]
+    controller_grid: dict[str, np.ndarray]
+    randomize: dict[str, Any]
+    raw: dict
+
+    def records(self) -> dict[str, np.ndarray]:
+        """Expand into one record per push (columns of equal length, deterministic order)."""
+        return expand(self)
+
+
+def _number(key: str, value, lo: float, hi: float, unit: str = "") -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise SpecError(f"{key}: expected a number in [{lo}, {hi}] {unit}, got {value!r}")
+    if not lo <= value <= hi:
+        raise SpecError(f"{key}: {value!r} is out of range [{lo}, {hi}] {unit}".rstrip())
+    return float(value)
+
+
+def _values(key: str, value, lo: float, hi: float, unit: str = "") -> np.ndarray:
+    """A list, a scalar, or a {start, stop, num, endpoint} range -> validated array."""
+    if isinstance(value, dict):
+        unknown = set(value) - {"start", "stop", "num", "endpoint"}
+        if unknown or not {"start", "stop", "num"} <= set(value):
+            raise SpecError(f"{key}: a range needs start, stop, num (and optional endpoint); "
+                            f"got keys {sorted(value)}")
+        num = value["num"]
+        if isinstance(num, bool) or not isinstance(num, int) or not 1 <= num <= 1_000_000:
+            raise SpecError(f"{key}.num: expected an integer in [1, 1000000], got {num!r}")
+        endpoint = value.get("endpoint", True)
+        if not isinstance(endpoint, bool):
+            raise SpecError(f"{key}.endpoint: expected true or false, got {endpoint!r}")
+        start = _number(f"{key}.start", value["start"], lo, hi, unit)
+        stop = _number(f"{key}.stop", value["stop"], lo, hi, unit)
+        return np.linspace(start, stop, num, endpoint=endpoint)
+    items = value if isinstance(value, list) else [value]
+    if not items:
+        raise SpecError(f"{key}: empty list")
+    return np.array([_number(f"{key}[{i}]", v, lo, hi, unit) for i, v in enumerate(items)])
+
+
+def _uniform(key: str, value, lo: float, hi: float, unit: str = "") -> tuple[float, float]:
+    if not (isinstance(value, dict) and set(value) == {"uniform"}
+            and isinstance(value["uniform"], list) and len(value["uniform"]) == 2):
+        raise SpecError(f"{key}: expected {{uniform = [lo, hi]}} within [{lo}, {hi}] {unit}, "
+                        f"got {value!r}")
+    a = _number(f"{key}.uniform[0]", value["uniform"][0], lo, hi, unit)
+    b = _number(f"{key}.uniform[1]", value["uniform"][1], lo, hi, unit)
+    if a > b:
+        raise SpecError(f"{key}.uniform: lower bound {a} exceeds upper bound {b}")
+    return a, b
+
+
+def _table(key: str, value, allowed) -> dict:
+    if not isinstance(value, dict):
+        raise SpecError(f"[{key}]: expected a table, got {type(value).__name__}")
+    unknown = sorted(set(value) - set(allowed))
+    if unknown:
+        raise SpecError(f"[{key}]: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
+    return value
+
+
+def parse_spec(data: dict) -> SweepSpec:
+    """Validate a parsed TOML document."""
+    _table("top level", data, {"sweep", "push", "controller", "randomize"})
+    sweep = _table("sweep", data.get("sweep", {}), SWEEP_FIELDS)
+    for k, types in SWEEP_FIELDS.items():
+        if k in sweep and (isinstance(sweep[k], bool) or not isinstance(sweep[k], types)):
+            raise SpecError(f"sweep.{k}: expected {getattr(types, '__name__', 'a number')}, "
+                            f"got {sweep[k]!r}")
+    chunk = sweep.get("chunk_size", 1024)
+    if not 1 <= chunk <= 1_048_576:
+        raise SpecError(f"sweep.chunk_size: {chunk} is out of range [1, 1048576]")
+    duration = _number("sweep.duration_s", sweep.get("duration_s", 2.4), 0.1, 30.0, "s")
+    control = tuple(sweep.get("control", ["off", "on"]))
+    if not control or any(c not in ("on", "off") for c in control) or len(set(control)) != len(control):
+        raise SpecError(f"sweep.control: expected a list of distinct 'on'/'off', got {list(control)!r}")
+
+    push = _table("push", data.get("push", {}), {"grid", "random"})
+    grid = _table("push.grid", push.get("grid", {}), PUSH_FIELDS)
+    push_grid = {k: _values(f"push.grid.{k}", v, *PUSH_FIELDS[k][:2], PUSH_FIELDS[k][3])
+                 for k, v in grid.items()}
+    rnd = _table("push.random", push.get("random", {}), set(PUSH_FIELDS) | {"n"})
+    n_random = rnd.get("n", 0)
+    if isinstance(n_random, bool) or not isinstance(n_random, int) or not 0 <= n_random <= 10_000_000:
+        raise SpecError(f"push.random.n: expected an integer in [0, 10000000], got {n_random!r}")
+    push_random = {k: _uniform(f"push.random.{k}", v, *PUSH_FIELDS[k][:2], PUSH_FIELDS[k][3])
+                   for k, v in rnd.items() if k != "n"}
+    if not push_grid and n_random == 0:
+        raise SpecError("[push]: give a [push.grid] or [push.random] with n > 0: nothing to run")
+
+    ctrl = _table("controller", data.get("controller", {}), set(CONTROLLER_FIELDS) | {"grid"})
+    controller = {k: _number(f"controller.{k}", v, *CONTROLLER_FIELDS[k])
+                  for k, v in ctrl.items() if k != "grid"}
+    cgrid = _table("controller.grid", ctrl.get("grid", {}), CONTROLLER_FIELDS)
+    controller_grid = {k: _values(f"controller.grid.{k}", v, *CONTROLLER_FIELDS[k])
+                       for k, v in cgrid.items()}
+    both = sorted(set(controller) & set(controller_grid))
+    if both:
+        raise SpecError(f"controller: {both} set both as fixed values and in [controller.grid]")
+
+    rand = _table("randomize", data.get("randomize", {}), RANDOMIZE_FIELDS)
+    randomize = {}
+    for k, v in rand.items():
+        lo, hi, unit = RANDOMIZE_FIELDS[k]
+        randomize[k] = (_uniform(f"randomize.{k}", v, lo, hi, unit) if isinstance(v, dict)
+                        else _number(f"randomize.{k}", v, lo, hi, unit))
+    return SweepSpec(name=sweep.get("name", "sweep"), seed=sweep.get("seed", 0),
+                     chunk_size=chunk, duration_s=duration, control=control,
+                     push_grid=push_grid, push_random=push_random, n_random=n_random,
+                     controller=controller, controller_grid=controller_grid,
+                     randomize=randomize, raw=data)
+
+
+def load_spec(path: str | Path) -> SweepSpec:
+    path = Path(path)
+    if not path.is_file():
+        raise SpecError(f"spec file not found: {path}")
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as err:
+        raise SpecError(f"{path}: not valid TOML: {err}") from err
+    return parse_spec(data)
+
+
+def expand(spec: SweepSpec) -> dict[str, np.ndarray]:
+    """One record per (push, controller-grid point, control setting), as columns.
+
+    Order: control setting (outermost), controller grid, grid pushes then random pushes.
+    Randomisation columns are drawn per record from the spec's seed.
+    """
+    rng = np.random.default_rng(spec.seed)
+    defaults = {k: v[2] for k, v in PUSH_FIELDS.items()}
+    # Grid pushes: Cartesian product over the given fields (others at their defaults).
+    cols = {k: np.array([defaults[k]]) for k in PUSH_FIELDS}
+    grid_cols = {}
+    if spec.push_grid:
+        cols.update(spec.push_grid)
+        mesh = np.meshgrid(*[cols[k] for k in PUSH_FIELDS], indexing="ij")
+        grid_cols = {k: m.ravel() for k, m in zip(PUSH_FIELDS, mesh)}
+    n_grid = len(next(iter(grid_cols.values()))) if grid_cols else 0
+    rand_cols = {}
+    for k in PUSH_FIELDS:
+        if k in spec.push_random:
+            lo, hi = spec.push_random[k]
+            rand_cols[k] = rng.uniform(lo, hi, spec.n_random)
+        else:
+            rand_cols[k] = np.full(spec.n_random, defaults[k])
+    pushes = {k: np.concatenate([grid_cols.get(k, np.zeros(0)), rand_cols[k]]) for k in PUSH_FIELDS}
+    n_push = n_grid + spec.n_random
+
+    cgrid = spec.controller_grid
+    combos = list(itertools.product(*cgrid.values())) if cgrid else [()]
+    records: dict[str, list] = {k: [] for k in PUSH_FIELDS}
+    records["control"] = []
+    for k in cgrid:
+        records[k] = []
+    for control in spec.control:
+        for combo in combos:
+            for k in PUSH_FIELDS:
+                records[k].append(pushes[k])
+            records["control"].append(np.full(n_push, control == "on"))
+            for k, v in zip(cgrid, combo):
+                records[k].append(np.full(n_push, v))
+    out = {k: np.concatenate(v) for k, v in records.items()}
+    n = len(out["control"])
+    for k, v in spec.randomize.items():
+        out[k] = rng.uniform(*v, n) if isinstance(v, tuple) else np.full(n, v)
+    out["push_id"] = np.arange(n)
+    return out
