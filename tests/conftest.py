@@ -1,9 +1,13 @@
 """Test-wide set-up: headless GL, persistent XLA cache (MJX compiles are slow on CPU)."""
 
+import ctypes.util
 import os
 from pathlib import Path
 
-os.environ.setdefault("MUJOCO_GL", "egl")
+# Headless rendering through EGL where libEGL exists; elsewhere rendering tests skip (setting
+# MUJOCO_GL=egl without libEGL would make `import mujoco` itself fail).
+if "MUJOCO_GL" not in os.environ and ctypes.util.find_library("EGL"):
+    os.environ["MUJOCO_GL"] = "egl"
 
 import jax  # noqa: E402
 

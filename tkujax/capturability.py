@@ -42,6 +42,11 @@ class LipModel:
         return math.sqrt(G / self.com_height_m)
 
 
+def _cross2(a, b) -> float:
+    """z of the 2-D cross product (numpy 2 deprecates np.cross on 2-vectors)."""
+    return float(a[0] * b[1] - a[1] * b[0])
+
+
 def _convex_hull(points: np.ndarray) -> np.ndarray:
     """Andrew's monotone chain; counter-clockwise, no repeated end point."""
     pts = sorted(map(tuple, points))
@@ -49,7 +54,7 @@ def _convex_hull(points: np.ndarray) -> np.ndarray:
     def half(seq):
         h = []
         for p in seq:
-            while len(h) >= 2 and np.cross(np.subtract(h[-1], h[-2]), np.subtract(p, h[-2])) <= 0:
+            while len(h) >= 2 and _cross2(np.subtract(h[-1], h[-2]), np.subtract(p, h[-2])) <= 0:
                 h.pop()
             h.append(p)
         return h

@@ -13,8 +13,13 @@ from pathlib import Path
 
 
 def configure_runtime() -> None:
-    """Persistent XLA compilation cache and a headless GL default."""
-    os.environ.setdefault("MUJOCO_GL", "egl")
+    """Persistent XLA compilation cache and a headless GL default (EGL, where present)."""
+    # mujoco reads MUJOCO_GL at import and fails to import at all when the chosen library is
+    # missing: default to EGL only where libEGL exists (headless rendering), else leave it.
+    import ctypes.util
+
+    if "MUJOCO_GL" not in os.environ and ctypes.util.find_library("EGL"):
+        os.environ["MUJOCO_GL"] = "egl"
     import jax
 
     cache = os.environ.get("TKUJAX_CACHE_DIR", str(Path.home() / ".cache" / "tkujax" / "jax"))
@@ -83,6 +88,19 @@ def _cmd_map(args) -> int:
     return 0
 
 
+def _cmd_bench(args) -> int:
+    from tkujax.bench import run_bench
+
+    batches = tuple(int(b) for b in args.batches.split(","))
+    result = run_bench(args.out, batches=batches, duration_s=args.duration, repeats=args.repeats,
+                       raw_steps=args.raw_steps, cpu_batch=args.cpu_batch or None,
+                       grad_batch=args.grad_batch or None, compile_batch=args.compile_batch)
+    from tkujax.bench import summary_markdown
+
+    print(summary_markdown(result))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="tkujax", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -125,6 +143,17 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("map", help="stability maps and capturability checks of a sweep folder")
     p.add_argument("dir")
     p.set_defaults(func=_cmd_map)
+
+    p = sub.add_parser("bench", help="throughput: raw MJX vs closed loop vs MuJoCo C, compile")
+    p.add_argument("--out", default="results/bench/bench.json")
+    p.add_argument("--batches", default="1024,4096,16384,65536")
+    p.add_argument("--duration", type=float, default=1.5, help="simulated seconds per push")
+    p.add_argument("--raw-steps", type=int, default=300)
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--cpu-batch", type=int, default=256, help="0 skips the MuJoCo C peer")
+    p.add_argument("--grad-batch", type=int, default=1024, help="0 skips the gradient step")
+    p.add_argument("--compile-batch", type=int, default=1024)
+    p.set_defaults(func=_cmd_bench)
     return parser
 
 

@@ -15,21 +15,44 @@ import numpy as np
 
 from tkujax import capturability
 from tkujax.control.params import ControllerParams
+from tkujax.spec import parse_spec
 from tkujax.sweep import load
 
 ROUND = 6
 
 
+MAX_AZIMUTH_BINS = 72     # 5 deg
+MAX_IMPULSE_BINS = 48
+
+
+def _axis(values: np.ndarray, max_bins: int, period: float | None = None):
+    """(bin centres, bin index of each value). Grid values map to themselves; when there are
+    more distinct values than max_bins (random samples), equal bins centred on a regular grid
+    (for a periodic axis, centred on 0)."""
+    values = np.round(values, ROUND)
+    uniq = np.unique(values)
+    if len(uniq) <= max_bins:
+        return uniq, np.searchsorted(uniq, values)
+    if period is not None:
+        width = period / max_bins
+        idx = np.floor(np.mod(values + width / 2, period) / width).astype(int) % max_bins
+        centres = np.arange(max_bins) * width
+    else:
+        centres = np.linspace(uniq[0], uniq[-1], max_bins)
+        width = centres[1] - centres[0]
+        idx = np.clip(np.round((values - centres[0]) / width).astype(int), 0, max_bins - 1)
+    used = np.unique(idx)             # drop empty bins
+    return centres[used], np.searchsorted(used, idx)
+
+
 def _cells(rec: dict, key: str, control: bool):
     """(azimuths, impulses, mean of rec[key] per cell as (n_az, n_J)), NaN where empty."""
     sel = rec["control"].astype(bool) == control
-    az = np.round(np.mod(rec["azimuth_deg"][sel], 360.0), ROUND)
-    j = np.round(rec["impulse_ns"][sel], ROUND)
+    azs, ia = _axis(np.mod(rec["azimuth_deg"][sel], 360.0), MAX_AZIMUTH_BINS, 360.0)
+    js, ij = _axis(rec["impulse_ns"][sel], MAX_IMPULSE_BINS)
     v = rec[key][sel].astype(float)
-    azs, js = np.unique(az), np.unique(j)
     total = np.zeros((len(azs), len(js)))
     count = np.zeros_like(total)
-    ia, ij = np.searchsorted(azs, az), np.searchsorted(js, j)
     ok = np.isfinite(v)
     np.add.at(total, (ia[ok], ij[ok]), v[ok])
     np.add.at(count, (ia, ij), ok.astype(float))
@@ -76,8 +99,15 @@ def make_maps(out_dir: str | Path, params: ControllerParams | None = None) -> di
     import matplotlib.pyplot as plt
 
     out_dir = Path(out_dir)
-    rec = load(out_dir)
+    everything = load(out_dir)
+    # Maps and the boundary table use the grid's exact cells when the sweep has a grid; random
+    # samples (binned) are used only when there is no grid, and summarised separately.
     manifest = json.loads((out_dir / "manifest.json").read_text())
+    if "from_grid" not in everything:   # sweeps written before the column existed
+        everything["from_grid"] = parse_spec(manifest["spec"]).records()["from_grid"][
+            everything["push_id"]]
+    grid = everything["from_grid"].astype(bool)
+    rec = {k: v[grid] for k, v in everything.items()} if grid.any() else everything
     params = params or ControllerParams(**manifest.get("controller_params", {}))
     maps = out_dir / "maps"
     maps.mkdir(exist_ok=True)
@@ -178,13 +208,20 @@ def make_maps(out_dir: str | Path, params: ControllerParams | None = None) -> di
                     f"{fmt(off)} | {j1:.2f} | {fmt(on)} |")
         summary.append(dict(azimuth_deg=a, J0_theory=j0, J1_theory=j1, sim_max_off=off,
                             sim_max_on=on))
-    n = len(rec["fell"])
+    n = len(everything["fell"])
+    random_note = ""
+    if grid.any() and not grid.all():
+        r = {k: v[~grid] for k, v in everything.items()}
+        random_note = (f" Random samples ({int((~grid).sum())} records, randomised model and "
+                       "pushes): fall fraction " + ", ".join(
+                           f"{name(c)} {r['fell'][r['control'].astype(bool) == c].mean():.3f}"
+                           for c in controls) + "; the maps and table below use the grid.")
     text = (f"# Sweep `{manifest['name']}`: {n} pushes\n\n"
             f"Devices: {', '.join(manifest.get('devices', []))}; wall {manifest.get('wall_s')} s "
             f"(compile included); fall fraction: "
             + ", ".join(f"{name(c)} {rec['fell'][rec['control'].astype(bool) == c].mean():.3f}"
                         for c in controls)
-            + f".\n\nLIP: m = {lip.mass_kg:.2f} kg, z0 = {lip.com_height_m:.3f} m, "
+            + f".{random_note}\n\nLIP: m = {lip.mass_kg:.2f} kg, z0 = {lip.com_height_m:.3f} m, "
             f"ω = {lip.omega:.2f} 1/s, l_max = {capturability.step_reach_m(params):.3f} m, "
             f"Δt_s = {capturability.step_time_s(params):.3f} s. Sim max = largest tested impulse "
             "below which every impulse was survived (grid resolution applies).\n\n"

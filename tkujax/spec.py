@@ -218,6 +218,7 @@ def load_spec(path: str | Path) -> SweepSpec:
 def expand(spec: SweepSpec) -> dict[str, np.ndarray]:
     """One record per (push, controller-grid point, control setting), as columns.
 
+    `from_grid` marks grid pushes (True) and random samples (False).
     Order: control setting (outermost), controller grid, grid pushes then random pushes.
     Randomisation columns are drawn per record from the spec's seed.
     """
@@ -243,8 +244,10 @@ def expand(spec: SweepSpec) -> dict[str, np.ndarray]:
 
     cgrid = spec.controller_grid
     combos = list(itertools.product(*cgrid.values())) if cgrid else [()]
+    is_grid = np.arange(n_push) < n_grid
     records: dict[str, list] = {k: [] for k in PUSH_FIELDS}
     records["control"] = []
+    records["from_grid"] = []
     for k in cgrid:
         records[k] = []
     for control in spec.control:
@@ -252,6 +255,7 @@ def expand(spec: SweepSpec) -> dict[str, np.ndarray]:
             for k in PUSH_FIELDS:
                 records[k].append(pushes[k])
             records["control"].append(np.full(n_push, control == "on"))
+            records["from_grid"].append(is_grid)
             for k, v in zip(cgrid, combo):
                 records[k].append(np.full(n_push, v))
     out = {k: np.concatenate(v) for k, v in records.items()}

@@ -224,7 +224,7 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
     varied = tuple(sorted(spec.controller_grid))
     base = controller_params_from(params, spec.controller)
     fn = make_chunk_fn(base, varied, spec.duration_s, model_params)
-    input_keys = [k for k in recs if k != "push_id"]
+    input_keys = [k for k in recs if k not in ("push_id", "from_grid")]
 
     progress = Progress(len(mine) * spec.chunk_size, (len(mine) - len(todo)) * spec.chunk_size,
                         open(os.devnull, "w") if quiet else sys.stderr)
@@ -246,9 +246,9 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
         np.savez(tmp, **record)
         os.replace(tmp, _chunk_path(out, i))
         computed += 1
-        if computed == 1:
-            progress.restart()   # rates and ETA exclude the compile
         progress.update(hi - lo)
+        if computed == 1:
+            progress.restart()   # later rates and ETAs exclude the compile
     progress.close()
     wall = time.perf_counter() - t_start
 

@@ -5,9 +5,9 @@ stand targets; on the first detection it latches x_Sup and executes one recovery
 T (Eq. 13-18), then holds the final pose. `enabled` = 0 gives the paper's "disable" rows with
 the same compiled function.
 
-Smooth variant: with gate_temperature > 0 the detection gate is a sigmoid; the step weight then
-accumulates softly (w <- w + (1 - w) gate) and x_Sup is the gate-weighted capture point, so
-gradients reach the thresholds. The step's start time is still the discrete instant at which
+Smooth variant: with gate_temperature > 0 the detection gate is a sigmoid; the step weight is
+the running max of the gate (w <- max(w, gate)) and x_Sup accumulates the capture point weighted
+by each increase of w, so gradients reach the thresholds. The step's start time is still the discrete instant at which
 w crosses 1/2; with gate_temperature = 0 all of this is exactly Algorithm 1.
 
 Sideways pushes (params.lateral_steps = 1, a tkujax extension): the roll is watched too; when
@@ -93,10 +93,13 @@ def controller_step(state: ControllerState, sensors: Sensors, params: Controller
                                                     params.gate_temperature)
     # Either detector triggers the (single) step: 1 - (1 - a)(1 - b) is "a or b" for 0/1 gates.
     gate = enabled * (1.0 - (1.0 - push_gate(phi, params)) * (1.0 - lateral_gate))
-    trigger = (1.0 - state.step_weight) * gate          # only the first detection counts
+    # The step weight is the running max of the gate: a hard gate latches 0 -> 1 once; a soft
+    # gate only grows as far as the inclination actually approached a threshold (summing soft
+    # gates instead would let a robot standing still creep past 1/2 and step by itself).
+    step_weight = jnp.maximum(state.step_weight, gate)
+    trigger = step_weight - state.step_weight          # only the first detection counts
     cp = lambda angle: params.cp_gain * capture_point(  # noqa: E731
         angle, params.leg_length, params.com_height, params.gravity)
-    step_weight = state.step_weight + trigger
     x_sup = state.x_sup_m + trigger * cp(phi - params.cp_angle_offset)
     y_sup = state.y_sup_m + trigger * params.lateral_steps * cp(psi)
     starts_now = (state.step_weight < 0.5) & (step_weight >= 0.5)

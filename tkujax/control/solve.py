@@ -7,10 +7,12 @@ the IMU on it) leans forward by the standing lean, while the CPG's frame is leve
   2. hip roll, hip pitch and knee come from `leg_ik` in that frame (they alone set the ankle
      position, the ankle axes passing through the ankle centre);
   3. the ankle pitch and roll make the sole level in the world, not parallel to the pelvis:
-     they solve R_x(roll_h) R_y(pitch_h + knee + pitch_a) R_x(roll_a) = R_y(-lean). With no hip
-     roll this is exact (pitch_a = -lean - pitch_h - knee, roll_a = 0), which is every pose of
-     the paper's sagittal step; with a hip roll r the residual sole tilt is about |sin r sin
-     lean| (0.6 deg at r = 5 deg), since the pitch-roll ankle cannot realise a yaw component.
+     R_x(roll_h) R_y(pitch_h + knee + pitch_a) R_x(roll_a) must carry the sole normal to the
+     world vertical, i.e. match the third column of R_x(-roll_h) R_y(-lean). That is always
+     solvable, so the sole is exactly level; with no hip roll (every pose of the paper's
+     sagittal step) the whole orientation is exact (pitch_a = -lean - pitch_h - knee, roll_a =
+     0); with a hip roll r the foot keeps a small yaw (about sin r sin lean, 0.6 deg at r = 5
+     deg) that a pitch-roll ankle cannot undo.
 Model joint signs: see tkujax.model.mjcf (right-hand rule, zero = straight leg, no offsets).
 """
 
@@ -52,8 +54,10 @@ def solve_leg(p_ankle_level: jax.Array, hip_y: jax.Array, params: ControllerPara
     a = leg_ik(p_pelvis, params.thigh_length, params.calf_length)
     # Desired sole orientation in the hip-roll frame: M = R_x(-roll_h) R_y(-lean) = R_y(b) R_x(c).
     m = _rot_x(-a.hip_roll) @ _rot_y(jnp.broadcast_to(-lean, a.hip_roll.shape))
-    sole_pitch = jnp.arctan2(-m[..., 2, 0], m[..., 0, 0])
-    ankle_roll = jnp.arctan2(-m[..., 1, 2], m[..., 1, 1])
+    # Match M's third column (the sole normal): R_y(b) R_x(c) e_z = (sin b cos c, -sin c,
+    # cos b cos c). The sole is then exactly level; only its yaw can differ from M's.
+    sole_pitch = jnp.arctan2(m[..., 0, 2], m[..., 2, 2])
+    ankle_roll = jnp.arctan2(-m[..., 1, 2], jnp.hypot(m[..., 0, 2], m[..., 2, 2]))
     ankle_pitch = sole_pitch - a.hip_pitch - a.knee
     angles = jnp.stack([jnp.zeros_like(a.knee), a.hip_roll, a.hip_pitch, a.knee, ankle_pitch,
                         ankle_roll], -1)
