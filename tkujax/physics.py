@@ -24,8 +24,10 @@ def host_model(params: ModelParams | None = None) -> mujoco.MjModel:
 
 @functools.lru_cache(maxsize=8)
 def device_model(params: ModelParams | None = None) -> mjx.Model:
-    """The MJX model on the default device (cached per parameter set)."""
-    return mjx.put_model(host_model(params))
+    """The MJX model on this process's first local device (cached per parameter set).
+
+    Local, not jax.devices()[0]: in a multi-process run that is another process's device."""
+    return mjx.put_model(host_model(params), device=jax.local_devices()[0])
 
 
 def stand_data(model: mujoco.MjModel) -> mujoco.MjData:
@@ -54,7 +56,7 @@ def settled_stand_data(model: mujoco.MjModel, settle_s: float = 1.0) -> mujoco.M
 def stand_state(model: mujoco.MjModel, settle_s: float = 0.0) -> mjx.Data:
     """MJX state at the `stand` keyframe (unbatched), optionally settled first."""
     data = settled_stand_data(model, settle_s) if settle_s > 0 else stand_data(model)
-    return mjx.put_data(model, data)
+    return mjx.put_data(model, data, device=jax.local_devices()[0])
 
 
 def batch_state(state: mjx.Data, batch: int) -> mjx.Data:

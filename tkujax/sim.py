@@ -38,6 +38,7 @@ class RolloutConfig:
     control_period_s: float = 0.030
     quantise_targets: bool = True
     record_qpos: bool = False      # add the full qpos to the series (for rendering)
+    remat: bool = False            # jax.checkpoint the control tick (less memory under grad)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -174,7 +175,8 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
         return (d, ctrl_state), series
 
     carry = (state, controller_init(params, dtype))
-    _, series = jax.lax.scan(tick, carry, jax.random.split(key, n_ticks))
+    tick_fn = jax.checkpoint(tick) if config.remat else tick
+    _, series = jax.lax.scan(tick_fn, carry, jax.random.split(key, n_ticks))
     return series
 
 

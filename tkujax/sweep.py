@@ -16,6 +16,7 @@ output folder (a shared file system across hosts).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import json
 import math
@@ -84,9 +85,12 @@ def randomize_model(model, mass_scale, torso_com_dx, friction, kp_scale, chest_b
         actuator_gainprm=gain, actuator_biasprm=bias, pair_friction=pair_friction)
 
 
+@functools.lru_cache(maxsize=8)
 def make_chunk_fn(base_params: ControllerParams, varied: tuple[str, ...],
                   duration_s: float, model_params: ModelParams | None = None):
-    """jit(vmap) of one push record -> outcomes. `varied`: controller fields given per record."""
+    """jit(vmap) of one push record -> outcomes. `varied`: controller fields given per record.
+
+    Cached, so sweeps run in one process share the compiled function."""
     host = physics.host_model(model_params)
     model, index = physics.device_model(model_params), model_index(model_params)
     state = physics.stand_state(host, 1.0)
@@ -173,10 +177,13 @@ def _chunk_path(out: Path, i: int) -> Path:
 def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerParams | None = None,
               model_params: ModelParams | None = None, max_chunks: int | None = None,
               process_id: int | None = None, num_processes: int | None = None,
-              coordinator: str | None = None, quiet: bool = False) -> dict:
+              coordinator: str | None = None, quiet: bool = False,
+              wait_for_others_s: float = 3600.0) -> dict:
     """Run (or resume) a sweep into `out`. Returns the manifest.
 
     max_chunks: stop after computing this many new chunks (for tests and partial runs).
+    Multi-process: process 0 waits up to `wait_for_others_s` for the other processes' chunks
+    before writing the final manifest.
     """
     spec = spec if isinstance(spec, SweepSpec) else load_spec(spec)
     params = params or ControllerParams.paper()
@@ -252,10 +259,17 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
     progress.close()
     wall = time.perf_counter() - t_start
 
+    if process_id == 0 and num_processes > 1 and (max_chunks is None):
+        # The other processes write their chunks into the same folder: wait for them (bounded)
+        # so that the manifest says whether the sweep as a whole is complete.
+        deadline = time.monotonic() + wait_for_others_s
+        while (time.monotonic() < deadline
+               and not all(_chunk_path(out, i).exists() for i in range(n_chunks))):
+            time.sleep(1.0)
     complete = all(_chunk_path(out, i).exists() for i in range(n_chunks))
+    manifest.update(complete=complete, wall_s=round(previous_wall + wall, 2),
+                    chunks_computed_last_run=computed)
     if process_id == 0:
-        manifest.update(complete=complete, wall_s=round(previous_wall + wall, 2),
-                        chunks_computed_last_run=computed)
         manifest_path.write_text(json.dumps(manifest, indent=1, default=str))
     return manifest
 
