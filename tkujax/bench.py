@@ -129,7 +129,8 @@ def run_bench(out: str | Path, batches=(1024, 4096, 16384, 65536), duration_s: f
                   n_devices=jax.device_count(), platform=platform.platform(),
                   versions={p: _version(p) for p in ("jax", "jaxlib", "mujoco", "mujoco-mjx")},
                   repeats=repeats, duration_s=duration_s, raw=[], closed_loop=[])
-    result["compile"] = compile_times(compile_batch, duration_s)
+    if compile_batch:
+        result["compile"] = compile_times(compile_batch, duration_s)
     for b in batches:
         result["raw"].append(raw_stepping(b, raw_steps, repeats))
         result["closed_loop"].append(closed_loop(b, duration_s, repeats))
