@@ -91,6 +91,25 @@ def compile_times(batch: int, duration_s: float) -> dict:
     return out
 
 
+def multi_device(batch: int, duration_s: float, repeats: int) -> list[dict]:
+    """The sharded closed-loop chunk at a fixed global batch on 1..n local devices."""
+    from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+    params = ControllerParams.paper()
+    fn = make_chunk_fn(params, (), duration_s)
+    steps = int(round(duration_s / physics.host_model().opt.timestep))
+    out = []
+    devices = jax.local_devices()
+    for n in sorted({1, len(devices)}):
+        sharding = NamedSharding(Mesh(np.array(devices[:n]), ("push",)), PartitionSpec("push"))
+        recs = {k: jax.device_put(v, sharding) for k, v in _push_batch(batch).items()}
+        keys = jax.device_put(jax.random.split(jax.random.PRNGKey(0), batch), sharding)
+        sec = _timed(lambda: fn(recs, keys), repeats)
+        out.append(dict(n_devices=n, batch=batch, seconds=sec, pushes_per_s=batch / sec,
+                        physics_steps_per_s=batch * steps / sec))
+    return out
+
+
 def cpu_peer(batch: int, duration_s: float, repeats: int) -> dict | None:
     try:
         from tkujax.backend_mujoco import simulate_mujoco
@@ -121,7 +140,8 @@ def gradient_step(batch: int, duration_s: float, repeats: int) -> dict | None:
 
 def run_bench(out: str | Path, batches=(1024, 4096, 16384, 65536), duration_s: float = 1.5,
               raw_steps: int = 300, repeats: int = 3, cpu_batch: int | None = 256,
-              grad_batch: int | None = 1024, compile_batch: int = 1024) -> dict:
+              grad_batch: int | None = 1024, compile_batch: int = 1024,
+              scaling_batch: int | None = None) -> dict:
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     dev = jax.devices()[0]
@@ -134,6 +154,9 @@ def run_bench(out: str | Path, batches=(1024, 4096, 16384, 65536), duration_s: f
     for b in batches:
         result["raw"].append(raw_stepping(b, raw_steps, repeats))
         result["closed_loop"].append(closed_loop(b, duration_s, repeats))
+        _write(out, result)
+    if scaling_batch and jax.local_device_count() > 1:
+        result["multi_device"] = multi_device(scaling_batch, duration_s, repeats)
         _write(out, result)
     if cpu_batch:
         result["cpu_peer"] = cpu_peer(cpu_batch, duration_s, repeats)
@@ -174,7 +197,14 @@ def summary_markdown(r: dict) -> str:
     g = r.get("gradient_step")
     if g:
         lines += ["", f"Gradient step: {g}"]
-    comp = r.get("compile", {})
-    lines += ["", f"Compile of the closed loop: cold {comp.get('cold_s', float('nan')):.1f} s, "
-              f"from the persistent cache {comp.get('cached_s', float('nan')):.1f} s."]
+    md = r.get("multi_device")
+    if md:
+        base = md[0]["pushes_per_s"]
+        lines += ["", "| devices | batch | pushes/s | speed-up |", "|---|---|---|---|"]
+        lines += [f"| {m['n_devices']} | {m['batch']} | {m['pushes_per_s']:.3g} | "
+                  f"{m['pushes_per_s'] / base:.2f}x |" for m in md]
+    comp = r.get("compile")
+    if comp:
+        lines += ["", f"Compile of the closed loop: cold {comp['cold_s']:.1f} s, "
+                  f"from the persistent cache {comp['cached_s']:.1f} s."]
     return "\n".join(lines) + "\n"

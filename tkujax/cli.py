@@ -54,15 +54,19 @@ def _cmd_render(args) -> int:
         return 0
     from tkujax.paper import render_case
 
-    print(render_case(args.case, args.control == "on", args.out, args.width, args.height))
+    print(render_case(args.case, args.control == "on", args.out, args.width, args.height,
+                      impulse_scale=args.impulse_scale))
     return 0
 
 
 def _cmd_paper(args) -> int:
     from tkujax.paper import run_paper
 
+    from tkujax.model import ModelParams
+
+    model_params = ModelParams.from_overrides(args.model) if args.model else None
     summary = run_paper(Path(args.out), figures=not args.no_figures,
-                        impulse_scale=args.impulse_scale)
+                        impulse_scale=args.impulse_scale, model_params=model_params)
     print(summary)
     return 0
 
@@ -94,7 +98,8 @@ def _cmd_bench(args) -> int:
     batches = tuple(int(b) for b in args.batches.split(","))
     result = run_bench(args.out, batches=batches, duration_s=args.duration, repeats=args.repeats,
                        raw_steps=args.raw_steps, cpu_batch=args.cpu_batch or None,
-                       grad_batch=args.grad_batch or None, compile_batch=args.compile_batch)
+                       grad_batch=args.grad_batch or None, compile_batch=args.compile_batch,
+                       scaling_batch=args.scaling_batch or None)
     from tkujax.bench import summary_markdown
 
     print(summary_markdown(result))
@@ -119,6 +124,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--case", default=None,
                    help="paper case, e.g. volleyball-back (ball-direction); omit for the stand pose")
     p.add_argument("--control", choices=["on", "off"], default="on")
+    p.add_argument("--impulse-scale", type=float, default=1.0,
+                   help="multiply the ball's momentum (1 = the paper's rig)")
     p.add_argument("--width", type=int, default=480)
     p.add_argument("--height", type=int, default=400)
     p.set_defaults(func=_cmd_render)
@@ -128,6 +135,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-figures", action="store_true")
     p.add_argument("--impulse-scale", type=float, default=1.0,
                    help="multiply both balls' momenta (1 = the paper's rig)")
+    p.add_argument("--model", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a ModelParams field, e.g. foot_forward_offset_m=-0.03 "
+                        "(repeatable; the controller's geometry follows the model)")
     p.set_defaults(func=_cmd_paper)
 
     p = sub.add_parser("sweep", help="run (or resume) a push sweep from a TOML spec")
@@ -152,7 +162,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--cpu-batch", type=int, default=256, help="0 skips the MuJoCo C peer")
     p.add_argument("--grad-batch", type=int, default=1024, help="0 skips the gradient step")
-    p.add_argument("--compile-batch", type=int, default=1024)
+    p.add_argument("--compile-batch", type=int, default=1024, help="0 skips the compile timing")
+    p.add_argument("--scaling-batch", type=int, default=65536,
+                   help="global batch for the 1-vs-all-local-devices scaling run (0 skips)")
     p.set_defaults(func=_cmd_bench)
     return parser
 

@@ -119,13 +119,14 @@ def make_maps(out_dir: str | Path, params: ControllerParams | None = None) -> di
     fig, axes = plt.subplots(1, len(controls), subplot_kw=dict(projection="polar"),
                              figsize=(5 * len(controls), 4.6), squeeze=False)
     for ax, c in zip(axes[0], controls):
-        mesh = _polar_panel(ax, rec, "fell", c, f"fall fraction, {name(c)}\n(radius: impulse N·s; "
-                            "angle: push azimuth, 0° = from behind)", "RdYlGn_r", 0, 1)
+        mesh = _polar_panel(ax, rec, "fell", c, f"fall fraction, {name(c)}", "RdYlGn_r", 0, 1)
         for c2, style in zip(controls, ("k--", "b-")):
             azs, jmax = max_recoverable_impulse(rec, c2)
             a = np.radians(np.append(azs, azs[0] + 360))
             ax.plot(a, np.append(jmax, jmax[0]), style, lw=1.2, label=f"boundary, {name(c2)}")
     axes[0, -1].legend(loc="lower left", bbox_to_anchor=(0.75, -0.12), fontsize=7)
+    fig.suptitle("radius: impulse (N·s); angle: push azimuth (0° = pushed from behind, "
+                 "90° = from the right)", fontsize=8, y=0.02)
     fig.colorbar(mesh, ax=axes[0].tolist(), shrink=0.7)
     files.append(maps / "stability_polar.png")
     fig.savefig(files[-1], dpi=90)

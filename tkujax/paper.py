@@ -39,7 +39,7 @@ def paper_cases() -> list[tuple[str, str, str]]:
 def run_cases(params: ControllerParams | None = None, model_params: ModelParams | None = None,
               impulse_scale: float = 1.0, config: RolloutConfig = RolloutConfig()):
     """Simulate the 8 cases. Returns (cases, series, outcomes, pushes as numpy dict)."""
-    params = params or ControllerParams.paper()
+    params = params or ControllerParams.paper(model_params)
     cases = paper_cases()
     pushes = push_lib.stack_pushes([
         push_lib.make_push(impulse_scale * push_lib.ball_momentum_ns(b),
@@ -59,7 +59,8 @@ def _rows(cases, outcomes, pushes) -> list[dict]:
             direction=d, ball=b, force_N=push_lib.PAPER_FORCE_N[b], control=c,
             fell="true" if fell else "false",
             recovery_time_s="" if fell or math.isnan(rec) else f"{rec:.2f}",
-            step_length_cm="" if abs(step) < NO_STEP_M else f"{100 * step:.2f}",
+            # A fall drags the feet too: that is not a recovery step (the paper writes X).
+            step_length_cm="" if fell or abs(step) < NO_STEP_M else f"{100 * step:.2f}",
             impulse_Ns=f"{float(pushes.impulse_ns[i]):.3f}",
             peak_incl_deg=f"{float(outcomes['peak_incl_deg'][i]):.2f}",
             capture_point_cm=f"{100 * float(outcomes['capture_point_m'][i]):.2f}"))
@@ -153,7 +154,9 @@ def run_paper(out: Path, figures: bool = True, params: ControllerParams | None =
                  if (r["fell"] == "true") == (PAPER_TABLE[(r["direction"], r["ball"],
                                                            r["control"])][0] is None))
     md += (f"\nFall/no-fall outcomes as in the paper: {n_same}/8. Device: {jax.devices()[0]}, "
-           f"wall {wall:.1f} s (compile included).\n")
+           f"wall {wall:.1f} s (including the compile unless it was already cached). "
+           "recovery_time_s is empty when the robot fell, or (\"not settled\" here) when it was "
+           "still outside the band at the end of the horizon.\n")
     (out / "table.md").write_text(md)
     np.savez_compressed(out / "series.npz", **{k: v for k, v in series.items()})
     (out / "outcomes.json").write_text(json.dumps(rows, indent=1))
@@ -163,12 +166,15 @@ def run_paper(out: Path, figures: bool = True, params: ControllerParams | None =
 
 
 def render_case(case: str, control_on: bool, out: str | Path, width: int = 480,
-                height: int = 400) -> Path:
-    """GIF of one paper case, e.g. case='volleyball-back'."""
+                height: int = 400, impulse_scale: float = 1.0) -> Path:
+    """GIF of one paper case, e.g. case='volleyball-back' (impulse_scale as in run_paper)."""
+    if not (0.0 < impulse_scale <= 10.0):
+        raise ValueError(f"impulse_scale must be in (0, 10], got {impulse_scale!r}")
     try:
         ball, direction = case.split("-")
-        push = push_lib.ball_push(ball, direction)
-    except ValueError as err:
+        push = push_lib.make_push(impulse_scale * push_lib.ball_momentum_ns(ball),
+                                  push_lib.DIRECTIONS[direction])
+    except (ValueError, KeyError) as err:
         raise ValueError(f"case must be BALL-DIRECTION with BALL in {BALL_NAMES} and DIRECTION "
                          f"in {DIRECTION_NAMES}, got {case!r}") from err
     import jax

@@ -79,13 +79,13 @@ class ControllerParams:
     com_height: float = 0.29
 
     @classmethod
-    def paper(cls) -> "ControllerParams":
-        """The paper's values, with the geometry of the default TKU-X model."""
+    def paper(cls, model_params=None) -> "ControllerParams":
+        """The paper's values, with the geometry of the TKU-X model (default: the default one)."""
         # Imported here: the model package is heavier and not needed by the pure math.
         from tkujax.model import leg_geometry, pendulum_lengths
 
-        geo = leg_geometry()
-        leg_length, com_height = pendulum_lengths()
+        geo = leg_geometry(model_params)
+        leg_length, com_height = pendulum_lengths(model_params)
         p = dataclasses.replace(
             cls(),
             hip_offset_y=float(geo.d_y), hip_to_ankle_z=float(geo.d_z),

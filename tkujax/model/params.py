@@ -90,8 +90,11 @@ class ModelParams:
 
     def validate(self) -> "ModelParams":
         """Raise ValueError naming the first bad field; return self."""
+        signed = {"foot_forward_offset_m"}   # a signed offset, checked below
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
+            if f.name in signed:
+                continue
             if f.name.endswith(("_m", "_kg")) and not (isinstance(value, (int, float))
                                                      and math.isfinite(value) and value > 0):
                 raise ValueError(f"ModelParams.{f.name} must be a positive finite number, "
@@ -122,10 +125,29 @@ class ModelParams:
                              f"got {self.floor_friction!r}")
         if self.solver_iterations < 1 or self.ls_iterations < 1:
             raise ValueError("ModelParams.solver_iterations and ls_iterations must be >= 1")
-        if self.foot_forward_offset_m >= 0.5 * self.foot_length_m:
-            raise ValueError("ModelParams.foot_forward_offset_m must be < foot_length_m / 2, "
-                             f"got {self.foot_forward_offset_m!r}")
+        off = self.foot_forward_offset_m
+        if not (isinstance(off, (int, float)) and abs(off) < 0.5 * self.foot_length_m):
+            raise ValueError("ModelParams.foot_forward_offset_m must be in (-foot_length_m/2, "
+                             f"foot_length_m/2) = (+-{0.5 * self.foot_length_m:g}) m, got {off!r}")
         return self
+
+    @classmethod
+    def from_overrides(cls, items: list[str] | dict) -> "ModelParams":
+        """ModelParams with `KEY=VALUE` overrides (CLI) or a {key: value} dict; validated.
+
+        Unknown keys and non-numbers raise ValueError naming the key."""
+        pairs = items.items() if isinstance(items, dict) else [_split(i) for i in items]
+        numeric = {f.name: f.type for f in dataclasses.fields(cls)
+                   if f.name not in ("leg_mass_fractions", "leg_servo", "arm_servo")}
+        values = {}
+        for key, value in pairs:
+            if key not in numeric:
+                raise ValueError(f"unknown model parameter {key!r}; allowed: {sorted(numeric)}")
+            try:
+                values[key] = (int(value) if numeric[key] in ("int", int) else float(value))
+            except (TypeError, ValueError):
+                raise ValueError(f"model parameter {key} must be a number, got {value!r}") from None
+        return dataclasses.replace(cls(), **values).validate()
 
     @property
     def height_m(self) -> float:
@@ -133,3 +155,10 @@ class ModelParams:
         return (self.ankle_height_m + self.calf_length_m + self.thigh_length_m
                 + self.pelvis_height_m + self.chest_height_m + self.neck_height_m
                 + 2 * self.head_radius_m)
+
+
+def _split(item: str) -> tuple[str, str]:
+    if "=" not in item:
+        raise ValueError(f"model override must be KEY=VALUE, got {item!r}")
+    key, value = item.split("=", 1)
+    return key.strip(), value.strip()
