@@ -112,7 +112,7 @@ def test_params_json(tmp_path):
 @pytest.fixture(scope="module")
 def full_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("full")
-    manifest = run_sweep(TINY, out, quiet=True)
+    manifest = run_sweep(TINY, out, quiet=True, backend="mjx")
     return out, manifest, load(out)
 
 
@@ -141,18 +141,18 @@ def test_full_run_records_and_manifest(full_run):
 
 def test_interrupted_sweep_resumes_identically(full_run, tmp_path):
     _, _, reference = full_run
-    first = run_sweep(TINY, tmp_path, max_chunks=1, quiet=True)   # "interrupted" after 1 chunk
+    first = run_sweep(TINY, tmp_path, max_chunks=1, quiet=True, backend="mjx")  # interrupted
     assert not first["complete"] and len(list(tmp_path.glob("chunk_*.npz"))) == 1
     (tmp_path / ".chunk_000001.tmp.npz").write_bytes(b"partial write")  # a crash mid-write
-    second = run_sweep(TINY, tmp_path, quiet=True)
+    second = run_sweep(TINY, tmp_path, quiet=True, backend="mjx")
     assert second["complete"] and second["chunks_computed_last_run"] == 1
     _assert_same_records(load(tmp_path), reference)
-    again = run_sweep(TINY, tmp_path, quiet=True)                   # finished: not recomputed
+    again = run_sweep(TINY, tmp_path, quiet=True, backend="mjx")    # finished: not recomputed
     assert again["chunks_computed_last_run"] == 0
     other = load_spec(TINY)
     other.raw["sweep"]["seed"] = 1
     with pytest.raises(SpecError, match="holds a different sweep"):
-        run_sweep(other, tmp_path, quiet=True)
+        run_sweep(other, tmp_path, quiet=True, backend="mjx")
 
 
 def _subprocess_env(**extra):
@@ -181,7 +181,8 @@ def test_two_devices_give_the_same_records(full_run, tmp_path):
     _, _, reference = full_run
     code = ("import jax; from tkujax.cli import configure_runtime; configure_runtime(); "
             "assert jax.local_device_count() == 2, jax.devices(); "
-            f"from tkujax.sweep import run_sweep; run_sweep({str(TINY)!r}, {str(tmp_path)!r}, quiet=True)")
+            f"from tkujax.sweep import run_sweep; "
+            f"run_sweep({str(TINY)!r}, {str(tmp_path)!r}, quiet=True, backend='mjx')")
     env = _subprocess_env(XLA_FLAGS="--xla_force_host_platform_device_count=2")
     proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
                           timeout=900)
@@ -201,7 +202,8 @@ def test_two_processes_give_the_same_records(full_run, tmp_path):
     port = _free_port()
     procs = [subprocess.Popen(
         [sys.executable, "-m", "tkujax.cli", "sweep", str(TINY), "--out", str(tmp_path),
-         "--process-id", str(i), "--num-processes", "2", "--coordinator", f"127.0.0.1:{port}"],
+         "--process-id", str(i), "--num-processes", "2", "--coordinator", f"127.0.0.1:{port}",
+         "--backend", "mjx"],
         env=_subprocess_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         for i in range(2)]
     results = [p.communicate(timeout=900) for p in procs]
@@ -263,3 +265,21 @@ def test_map_boundary_matches_individual_rollouts(full_run):
                 fell.append(bool(o["fell"][0]))
             expected = 0.0 if fell[0] else (0.5 if fell[1] else 2.2)
             assert j == expected, (control, az, fell)
+
+
+def test_auto_backend_is_mujoco_c_on_cpu_and_agrees_with_mjx(full_run, tmp_path):
+    """On a CPU, "auto" runs MuJoCo C; its outcomes agree with the MJX sweep (>= 95 %: all 8
+    here, the tiny sweep's impulses being far from the fall boundary)."""
+    from tkujax.sweep import choose_backend
+
+    _, _, reference = full_run
+    manifest = run_sweep(TINY, tmp_path, quiet=True)
+    assert manifest["backend"] == "mujoco"
+    rec = load(tmp_path)
+    agree = np.mean(rec["fell"] == reference["fell"])
+    assert agree >= 0.95
+    np.testing.assert_allclose(rec["step_length_m"], reference["step_length_m"], atol=0.01)
+    randomized = _with("randomize", {"link_mass_scale": {"uniform": [0.9, 1.1]}})
+    assert choose_backend("auto", parse_spec(randomized)) == "mjx"
+    with pytest.raises(SpecError, match="cannot vary"):
+        choose_backend("mujoco", parse_spec(randomized))

@@ -77,9 +77,10 @@ def _cmd_sweep(args) -> int:
     params = load_params_json(args.params) if args.params else None
     manifest = run_sweep(args.spec, args.out, params=params, max_chunks=args.max_chunks,
                          process_id=args.process_id, num_processes=args.num_processes,
-                         coordinator=args.coordinator)
+                         coordinator=args.coordinator, backend=args.backend)
     state = "complete" if manifest["complete"] else "incomplete (rerun the same command to resume)"
-    print(f"{manifest['n_pushes']} pushes in {args.out}: {state}; wall {manifest['wall_s']} s")
+    print(f"{manifest['n_pushes']} pushes in {args.out} ({manifest['backend']} backend): "
+          f"{state}; wall {manifest['wall_s']} s")
     return 0
 
 
@@ -145,6 +146,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output folder (npz chunks + manifest.json)")
     p.add_argument("--params", default=None, help="controller parameters JSON (tkujax tune output)")
     p.add_argument("--max-chunks", type=int, default=None, help="stop after this many new chunks")
+    p.add_argument("--backend", choices=["auto", "mjx", "mujoco"], default="auto",
+                   help="auto: MJX on a GPU, MuJoCo C on a CPU when the spec allows it")
     p.add_argument("--process-id", type=int, default=None, help="multi-process: this process")
     p.add_argument("--num-processes", type=int, default=None, help="multi-process: how many")
     p.add_argument("--coordinator", default=None, help="multi-process: HOST:PORT of process 0")
