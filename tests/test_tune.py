@@ -1,0 +1,263 @@
+"""Gradient tuning (tkujax.tune): finite-difference check of the rollout gradient, a short
+tuning run, the reparameterisation, NaN handling, and the spec / parameter files.
+
+Everything that runs the MJX rollout shares ONE compiled value_and_grad (module fixture
+`problem`): float64, 2 pushes x 0.6 s, no servo quantisation, no remat. Compiling it takes
+~4 minutes on a 2-core CPU (once; the persistent XLA cache makes reruns fast).
+
+Finite-difference setting (the issue asks for "where no contact changes"; both are stated):
+  float64; pushes at 0.15 s onset, 20 ms pulse at 0.36 m; horizon 0.6 s; soft gate, 2 deg;
+  servo quantisation OFF (with it the leg targets are piecewise constant in the parameters,
+  so finite differences see zero while the straight-through gradient does not: by design);
+  central differences in latent space, h = 1e-5; tolerance: relative error <= 1e-4 (measured
+  ~1e-7..1e-9), or absolute <= 1e-10 for gradients that are zero.
+  A. no step, no contact change: 0.05 N s from behind and from the front. The step is never
+     triggered (the step weight stays < 1/2), so T, gamma and H_Sup cannot affect the loss: their
+     gradients are exactly 0 (asserted). eps_1, eps_2, cp_gain, kalman_q, kalman_r act through
+     the soft gate on x_Sup (the step-length cost) and must match the differences.
+  B. a step with contact changes (foot lift-off and landing): 1.2 N s from behind and 1.0 N s
+     from the front; T = 0.32 s and gamma = 0.25 so that the lift-off (gamma T / 2 = 40 ms) and
+     landing (T - gamma T / 2 = 280 ms) instants fall between the 30 ms control ticks. At the
+     paper's T = 0.3 s, gamma = 0.2 they coincide with ticks, where the loss has a kink in T
+     and gamma and the gradient is one-sided (measured: gamma 2-60% off the central
+     difference, which averages the two sides). All eight gradients, through the MJX physics,
+     must match.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from tkujax.control.params import ControllerParams
+from tkujax.spec import RANDOMIZE_DEFAULTS, SpecError
+from tkujax.sweep import load_params_json
+from tkujax.tune import (DEG, TUNABLE, LossConfig, Reparam, TuneProblem, evolution_baseline,
+                         make_optimizer, optimise, params_json, parse_tune_spec,
+                         temperature_schedule)
+
+H = 1e-5
+REL_TOL = 1e-4
+ABS_TOL = 1e-10
+TAU = 2.0 * DEG
+BATCH = 2
+
+
+def _pushes(impulse_ns, azimuth_deg) -> dict:
+    d = dict(impulse_ns=np.array(impulse_ns, float), azimuth_deg=np.array(azimuth_deg, float),
+             height_m=np.full(BATCH, 0.36), duration_s=np.full(BATCH, 0.02),
+             onset_s=np.full(BATCH, 0.15))
+    for k, v in RANDOMIZE_DEFAULTS.items():
+        d[k] = np.full(BATCH, -1.0 if v is None else v)
+    return d
+
+
+TINY = _pushes([0.05, 0.05], [0.0, 180.0])
+STEP = _pushes([1.2, 1.0], [0.0, 180.0])
+KEYS = jax.random.split(jax.random.PRNGKey(0), BATCH)
+
+
+@pytest.fixture(scope="module")
+def reparam() -> Reparam:
+    return Reparam.make(tuple(TUNABLE))
+
+
+@pytest.fixture(scope="module")
+def base() -> ControllerParams:
+    return dataclasses.replace(ControllerParams.paper(), step_period=0.32,
+                               double_support_ratio=0.25)
+
+
+@pytest.fixture(scope="module")
+def problem(reparam, base) -> TuneProblem:
+    return TuneProblem(reparam, base, LossConfig(), duration_s=0.6, remat=False, float64=True,
+                       quantise_targets=False)
+
+
+def _fd_check(problem, z0, batch):
+    loss, aux, grad = problem.value_and_grad(z0, TAU, batch, KEYS)
+    fd = np.zeros_like(grad)
+    for i in range(len(z0)):
+        e = np.zeros_like(z0)
+        e[i] = H
+        lp = problem.value_and_grad(z0 + e, TAU, batch, KEYS)[0]
+        lm = problem.value_and_grad(z0 - e, TAU, batch, KEYS)[0]
+        fd[i] = (lp - lm) / (2 * H)
+    return loss, aux, grad, fd
+
+
+def _report(fields, grad, fd):
+    for f, g, d in zip(fields, grad, fd):
+        print(f"{f:22s} grad {g: .9e}  fd {d: .9e}  rel {abs(g - d) / max(abs(d), 1e-300):.2e}")
+
+
+def test_gradient_matches_finite_differences_without_a_step(problem, reparam, base):
+    z0 = reparam.latent_of(base)
+    _, aux, grad, fd = _fd_check(problem, z0, TINY)
+    _report(reparam.fields, grad, fd)
+    assert np.all(aux["outcomes"]["capture_point_m"] != 0.0)     # the soft gate sets x_Sup ...
+    assert not np.any(aux["outcomes"]["fell"])
+    for i, f in enumerate(reparam.fields):
+        if f in ("step_period", "double_support_ratio", "lift_height"):
+            # ... but the step never starts, so the CPG parameters cannot act.
+            assert grad[i] == 0.0 and abs(fd[i]) <= ABS_TOL, f
+        else:
+            assert grad[i] != 0.0, f
+            assert abs(grad[i] - fd[i]) <= REL_TOL * abs(fd[i]), (f, grad[i], fd[i])
+
+
+def test_gradient_matches_finite_differences_through_a_step(problem, reparam, base):
+    z0 = reparam.latent_of(base)
+    _, aux, grad, fd = _fd_check(problem, z0, STEP)
+    _report(reparam.fields, grad, fd)
+    # Both pushes trigger a step (forward and backward) and are recovered.
+    x_sup = aux["outcomes"]["capture_point_m"]
+    assert x_sup[0] > 0.02 and x_sup[1] < -0.02
+    assert not np.any(aux["outcomes"]["fell"])
+    for i, f in enumerate(reparam.fields):
+        assert abs(grad[i]) > 1e-6, f
+        assert abs(grad[i] - fd[i]) <= REL_TOL * abs(fd[i]), (f, grad[i], fd[i])
+
+
+def test_short_tuning_run_lowers_the_loss(problem, reparam, base):
+    z0 = reparam.latent_of(base)
+    step_fn = lambda z, tau: problem.value_and_grad(z, tau, STEP, KEYS)  # noqa: E731
+    temps = np.full(4, TAU)
+    z, hist = optimise(step_fn, z0, temps, make_optimizer(0.3, 1.0), reparam, log=print)
+    before = hist[0]["loss"]
+    after = problem.value_and_grad(z, TAU, STEP, KEYS)[0]
+    print(f"loss before {before:.6f} after {after:.6f}")
+    assert not any(r["skipped"] for r in hist)
+    assert after < before
+    for f, (lo, hi) in reparam.user_ranges().items():
+        assert lo <= reparam.user(z)[f] <= hi
+
+
+def test_nan_gradient_is_skipped_and_reported(problem, reparam, base):
+    z0 = reparam.latent_of(base)
+    nan_push = dict(STEP, impulse_ns=np.array([np.nan, 1.0]))   # NaN into the rollout itself
+    calls = []
+
+    def step_fn(z, tau):
+        calls.append(z.copy())
+        batch = nan_push if len(calls) == 2 else STEP
+        return problem.value_and_grad(z, tau, batch, KEYS)
+
+    z, hist = optimise(step_fn, z0, np.full(3, TAU), make_optimizer(0.3, 1.0), reparam,
+                       log=print)
+    assert [r["skipped"] for r in hist] == [False, True, False]
+    assert hist[1]["loss"] is None and hist[1]["n_nonfinite_grad"] > 0
+    # The skipped step changed nothing: iteration 2 starts where iteration 1 did.
+    np.testing.assert_array_equal(calls[2], calls[1])
+    assert not np.array_equal(calls[1], calls[0])
+
+
+def test_nan_gradient_skip_keeps_optimizer_state():
+    """A cheap synthetic check: NaN on step 1 leaves z and Adam's moments as they were, so the
+    run equals a run without that step."""
+    target = np.array([1.0, -2.0, 0.5])
+
+    def quad(z, tau):
+        g = 2 * (z - target)
+        return float(np.sum((z - target) ** 2)), {}, g
+
+    calls = {"n": 0}
+
+    def with_nan(z, tau):
+        calls["n"] += 1
+        loss, aux, g = quad(z, tau)
+        return (loss, aux, np.full_like(g, np.nan)) if calls["n"] == 2 else (loss, aux, g)
+
+    opt = make_optimizer(0.1, 1.0)
+    z_nan, hist = optimise(with_nan, np.zeros(3), np.zeros(4), opt, log=None)
+    z_ref, _ = optimise(quad, np.zeros(3), np.zeros(3), opt, log=None)
+    assert [r["skipped"] for r in hist] == [False, True, False, False]
+    np.testing.assert_allclose(z_nan, z_ref, rtol=0, atol=1e-7)
+
+
+def test_reparameterisation_in_range_and_round_trip(reparam):
+    ranges = reparam.user_ranges()
+    for z in (np.full(reparam.size, -1e3), np.full(reparam.size, 1e3),
+              np.array([1e3, -1e3] * 4), np.array([np.inf, -np.inf] * 4)):
+        for values in (np.asarray(reparam.values(jnp.asarray(z, jnp.float32))),
+                       reparam.values_np(z)):
+            assert np.all(np.isfinite(values))
+            for f, v in zip(reparam.fields, values):
+                lo, hi = ranges[f]
+                k = DEG if f.startswith("eps") else 1.0
+                assert lo * k <= v <= hi * k, (f, v)
+        p = reparam.params_np(ControllerParams.paper(), z)
+        p.validate()                                   # ControllerParams' own ranges
+    rng = np.random.default_rng(0)
+    with jax.enable_x64(True):
+        for _ in range(20):
+            z = rng.uniform(-8, 8, reparam.size)
+            back = reparam.latent(np.asarray(reparam.values(jnp.asarray(z))))
+            np.testing.assert_allclose(back, z, rtol=0, atol=1e-6)
+            np.testing.assert_allclose(reparam.latent(reparam.values_np(z)), z, atol=1e-6)
+    with pytest.raises(ValueError, match="step_period"):
+        reparam.latent([0.7, 0.2, 0.03, 0.2, 0.03, 1.0, 1e-4, 3e-3])   # T above its range
+    # Gradients are finite and zero only at saturation.
+    g = jax.grad(lambda z: jnp.sum(reparam.values(z)))(jnp.zeros(reparam.size))
+    assert np.all(np.asarray(g) > 0)
+
+
+def test_temperature_schedule_anneals():
+    t = temperature_schedule(3.0, 0.5, 5) / DEG
+    np.testing.assert_allclose([t[0], t[-1]], [3.0, 0.5])
+    assert np.all(np.diff(t) < 0)
+    np.testing.assert_allclose(temperature_schedule(2.0, 1.0, 3, "linear") / DEG, [2, 1.5, 1])
+
+
+def test_evolution_baseline_counts_evaluations():
+    n = {"calls": 0}
+
+    def loss(z):
+        n["calls"] += 1
+        return float(np.sum((z - 1.0) ** 2))
+
+    z, rows = evolution_baseline(loss, np.zeros(3), 30, 0.5, 0, log=None, pushes_per_eval=8)
+    assert n["calls"] == 30 and len(rows) == 30 and rows[-1]["pushes_simulated"] == 240
+    assert loss(z) < 3.0
+
+
+def test_params_json_is_what_sweep_reads(tmp_path, reparam):
+    p = reparam.params_np(ControllerParams.paper(), np.linspace(-2, 2, reparam.size))
+    path = tmp_path / "params_after.json"
+    path.write_text(json.dumps(params_json(p)))
+    back = load_params_json(path)
+    for f in reparam.fields:
+        assert math.isclose(getattr(back, f), getattr(p, f), rel_tol=1e-12)
+    assert back.gate_temperature == 0.0
+
+
+SPEC = {"tune": {"batch": 4, "iterations": 2, "duration_s": 1.0},
+        "push": {"impulse_ns": {"uniform": [0.2, 1.0]}, "azimuth_deg": [0, 180]}}
+
+
+def test_spec_validation_names_key_and_range():
+    spec = parse_tune_spec(SPEC)
+    assert spec.params == ("step_period", "double_support_ratio", "lift_height", "eps_forward",
+                           "eps_backward")
+    assert spec.eval_seed != spec.seed
+    bad = [({"tune": {**SPEC["tune"], "iterations": 0}}, "tune.iterations"),
+           ({"tune": {**SPEC["tune"], "params": ["standing_lean"]}}, "tune.params"),
+           ({"tune": {**SPEC["tune"], "ranges": {"step_period": [0.01, 0.5]}}},
+            r"tune.ranges.step_period\[0\].*0.05, 2.0"),
+           ({"tune": {**SPEC["tune"], "ranges": {"step_period": [0.35, 0.5]}}},
+            "strictly inside"),
+           ({"tune": {**SPEC["tune"], "anneal": {"start_deg": 1.0, "end_deg": 2.0}}},
+            "tune.anneal.end_deg"),
+           ({"tune": {**SPEC["tune"], "bogus": 1}}, "unknown key"),
+           ({"evaluate": {"seed": 0}}, "evaluate.seed"),
+           ({"push": {"impulse_ns": {"uniform": [0.2, 20.0]}}}, "push.impulse_ns"),
+           ({"push": {"onset_s": 0.99}}, "push.onset_s")]
+    for patch, match in bad:
+        with pytest.raises(SpecError, match=match):
+            parse_tune_spec({**SPEC, **patch})
