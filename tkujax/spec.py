@@ -204,15 +204,19 @@ def parse_spec(data: dict) -> SweepSpec:
                      randomize=randomize, raw=data)
 
 
-def load_spec(path: str | Path) -> SweepSpec:
+def read_toml(path: str | Path) -> dict:
+    """A TOML file as a dict; SpecError when it is missing or not valid TOML."""
     path = Path(path)
     if not path.is_file():
         raise SpecError(f"spec file not found: {path}")
     try:
-        data = tomllib.loads(path.read_text())
+        return tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as err:
         raise SpecError(f"{path}: not valid TOML: {err}") from err
-    return parse_spec(data)
+
+
+def load_spec(path: str | Path) -> SweepSpec:
+    return parse_spec(read_toml(path))
 
 
 def expand(spec: SweepSpec) -> dict[str, np.ndarray]:

@@ -61,7 +61,6 @@ import json
 import math
 import sys
 import time
-import tomllib
 from pathlib import Path
 from typing import Any, Callable
 
@@ -77,7 +76,7 @@ from tkujax.metrics import FALL_BODY_CLEARANCE_M, FALL_PELVIS_HEIGHT_M, outcomes
 from tkujax.push import Push
 from tkujax.sim import RolloutConfig, model_index, rollout
 from tkujax.spec import (CONTROLLER_FIELDS, PUSH_FIELDS, RANDOMIZE_DEFAULTS, RANDOMIZE_FIELDS,
-                         SpecError, _number, _table, _uniform, _values)
+                         SpecError, _number, _table, _uniform, _values, read_toml)
 from tkujax.sweep import controller_params_from, randomize_model
 
 DEG = math.pi / 180.0
@@ -674,14 +673,7 @@ def parse_tune_spec(data: dict) -> TuneSpec:
 
 
 def load_tune_spec(path: str | Path) -> TuneSpec:
-    path = Path(path)
-    if not path.is_file():
-        raise SpecError(f"spec file not found: {path}")
-    try:
-        data = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as err:
-        raise SpecError(f"{path}: not valid TOML: {err}") from err
-    return parse_tune_spec(data)
+    return parse_tune_spec(read_toml(path))
 
 
 def sample_pushes(spec: TuneSpec, n: int, seed: int) -> dict[str, np.ndarray]:
