@@ -146,6 +146,11 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
     dtype = state.qpos.dtype
     stand_ctrl = jnp.asarray(idx.stand_ctrl, dtype)
     r_ankle, l_ankle = idx.ankle_sites
+    # The leg actuators are contiguous (tkujax.model.JOINT_NAMES ends with them): a static slice
+    # rather than an index array, whose integer dtype would follow the x64 mode at trace time.
+    first = int(idx.leg_actuators[0])
+    assert np.array_equal(idx.leg_actuators, np.arange(first, first + len(idx.leg_actuators)))
+    legs_slice = slice(first, first + len(idx.leg_actuators))
 
     def physics_step(d, _):
         d = d.replace(xfrc_applied=_push_wrench(idx, d, push))
@@ -160,7 +165,7 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
         accel = accel + accel_noise_std * jax.random.normal(ka, (3,), dtype)
         ctrl_state, out = controller_step(ctrl_state, Sensors(gyro, accel), params, enabled)
         legs = _quantise(out.leg_targets) if config.quantise_targets else out.leg_targets
-        d = d.replace(ctrl=stand_ctrl.at[idx.leg_actuators].set(legs.astype(dtype)))
+        d = d.replace(ctrl=stand_ctrl.at[legs_slice].set(legs.astype(dtype)))
         d, _ = jax.lax.scan(physics_step, d, None, length=substeps)
         pitch, roll = physics.pitch_roll_from_quat(d.qpos[3:7])
         zmp, fsr_total = _zmp(idx, d)
