@@ -102,20 +102,28 @@ def _push_wrench(idx: ModelIndex, d: mjx.Data, push: Push) -> jax.Array:
     return jnp.zeros_like(d.xfrc_applied).at[idx.chest_body].set(jnp.concatenate([force, torque]))
 
 
+def _rows(x: jax.Array, ids) -> jax.Array:
+    """x[ids] for static ids, as static slices: no integer index array is traced, so nothing
+    depends on the x64 mode (index arrays traced under x64 after being cached under x32 gave
+    int32/int64 mismatches)."""
+    return jnp.stack([x[int(i)] for i in ids])
+
+
 def _lowest_body_point(idx: ModelIndex, d: mjx.Data) -> jax.Array:
     """Height of the lowest point of any non-foot collision geom, m."""
-    lows = [d.geom_xpos[idx.sphere_geoms, 2] - idx.sphere_radii]
+    lows = [_rows(d.geom_xpos, idx.sphere_geoms)[:, 2] - idx.sphere_radii]
     if idx.box_geoms.size:
-        zrow = d.geom_xmat[idx.box_geoms, 2, :]   # world z row: the box's vertical half-extent
-        lows.append(d.geom_xpos[idx.box_geoms, 2] - jnp.sum(jnp.abs(zrow) * idx.box_half_sizes, -1))
+        zrow = _rows(d.geom_xmat, idx.box_geoms)[:, 2, :]   # world z row: vertical half-extent
+        lows.append(_rows(d.geom_xpos, idx.box_geoms)[:, 2]
+                    - jnp.sum(jnp.abs(zrow) * idx.box_half_sizes, -1))
     return jnp.min(jnp.concatenate(lows))
 
 
 def _zmp(idx: ModelIndex, d: mjx.Data) -> tuple[jax.Array, jax.Array]:
     """Centre of pressure of the eight sole sensors (world x, y), and their total force (N)."""
-    f = d.sensordata[idx.fsr_adr]
+    f = _rows(d.sensordata, idx.fsr_adr)
     total = jnp.sum(f)
-    pos = d.site_xpos[idx.fsr_sites, :2]
+    pos = _rows(d.site_xpos, idx.fsr_sites)[:, :2]
     # With no foot on the ground there is no ZMP: report the feet's centre instead of 0/0.
     safe = jnp.where(total > 1e-3, total, 1.0)
     zmp = jnp.where(total > 1e-3, (f @ pos) / safe, jnp.mean(pos, 0))
