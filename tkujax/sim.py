@@ -111,11 +111,13 @@ def _rows(x: jax.Array, ids) -> jax.Array:
 
 def _lowest_body_point(idx: ModelIndex, d: mjx.Data) -> jax.Array:
     """Height of the lowest point of any non-foot collision geom, m."""
-    lows = [_rows(d.geom_xpos, idx.sphere_geoms)[:, 2] - idx.sphere_radii]
+    # Model constants cast to the state's dtype explicitly (never left to the x64 mode).
+    dtype = d.geom_xpos.dtype
+    lows = [_rows(d.geom_xpos, idx.sphere_geoms)[:, 2] - jnp.asarray(idx.sphere_radii, dtype)]
     if idx.box_geoms.size:
         zrow = _rows(d.geom_xmat, idx.box_geoms)[:, 2, :]   # world z row: vertical half-extent
         lows.append(_rows(d.geom_xpos, idx.box_geoms)[:, 2]
-                    - jnp.sum(jnp.abs(zrow) * idx.box_half_sizes, -1))
+                    - jnp.sum(jnp.abs(zrow) * jnp.asarray(idx.box_half_sizes, dtype), -1))
     return jnp.min(jnp.concatenate(lows))
 
 
