@@ -152,6 +152,17 @@ def _table(key: str, value, allowed) -> dict:
     return value
 
 
+def parse_randomize(data: dict) -> dict[str, Any]:
+    """The validated [randomize] table: {key: (lo, hi) for uniform draws, or a fixed value}."""
+    rand = _table("randomize", data.get("randomize", {}), RANDOMIZE_FIELDS)
+    randomize = {}
+    for k, v in rand.items():
+        lo, hi, unit = RANDOMIZE_FIELDS[k]
+        randomize[k] = (_uniform(f"randomize.{k}", v, lo, hi, unit) if isinstance(v, dict)
+                        else _number(f"randomize.{k}", v, lo, hi, unit))
+    return randomize
+
+
 def parse_spec(data: dict) -> SweepSpec:
     """Validate a parsed TOML document."""
     _table("top level", data, {"sweep", "push", "controller", "randomize"})
@@ -191,12 +202,7 @@ def parse_spec(data: dict) -> SweepSpec:
     if both:
         raise SpecError(f"controller: {both} set both as fixed values and in [controller.grid]")
 
-    rand = _table("randomize", data.get("randomize", {}), RANDOMIZE_FIELDS)
-    randomize = {}
-    for k, v in rand.items():
-        lo, hi, unit = RANDOMIZE_FIELDS[k]
-        randomize[k] = (_uniform(f"randomize.{k}", v, lo, hi, unit) if isinstance(v, dict)
-                        else _number(f"randomize.{k}", v, lo, hi, unit))
+    randomize = parse_randomize(data)
     return SweepSpec(name=sweep.get("name", "sweep"), seed=sweep.get("seed", 0),
                      chunk_size=chunk, duration_s=duration, control=control,
                      push_grid=push_grid, push_random=push_random, n_random=n_random,

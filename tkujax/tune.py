@@ -76,7 +76,8 @@ from tkujax.metrics import FALL_BODY_CLEARANCE_M, FALL_PELVIS_HEIGHT_M, outcomes
 from tkujax.push import Push
 from tkujax.sim import RolloutConfig, model_index, rollout
 from tkujax.spec import (CONTROLLER_FIELDS, PUSH_FIELDS, RANDOMIZE_DEFAULTS, RANDOMIZE_FIELDS,
-                         SpecError, _number, _table, _uniform, _values, read_toml)
+                         SpecError, _number, _table, _uniform, _values, parse_randomize,
+                         read_toml)
 from tkujax.sweep import controller_params_from, randomize_model
 
 DEG = math.pi / 180.0
@@ -623,12 +624,7 @@ def parse_tune_spec(data: dict) -> TuneSpec:
     ctrl_raw = _table("controller", data.get("controller", {}), CONTROLLER_FIELDS)
     controller = {k: _number(f"controller.{k}", v, *CONTROLLER_FIELDS[k])
                   for k, v in ctrl_raw.items()}
-    rand_raw = _table("randomize", data.get("randomize", {}), RANDOMIZE_FIELDS)
-    randomize = {}
-    for k, v in rand_raw.items():
-        lo, hi, unit = RANDOMIZE_FIELDS[k]
-        randomize[k] = (_uniform(f"randomize.{k}", v, lo, hi, unit) if isinstance(v, dict)
-                        else _number(f"randomize.{k}", v, lo, hi, unit))
+    randomize = parse_randomize(data)
 
     base = _table("baseline", data.get("baseline", {}), {"method", "sigma", "seed",
                                                          "gate_temperature_deg"})
