@@ -14,9 +14,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from tkujax import backend_mujoco as bm
-from tkujax import push as push_lib
-from tkujax import sim
+from tkujax.sim import rollout_mujoco as bm
+from tkujax.sim import push as push_lib
+from tkujax.sim import rollout_mjx as sim
 from tkujax.control.params import ControllerParams
 
 # (impulse N s, azimuth deg, balance control 0/1): small/large pushes from behind and in front.

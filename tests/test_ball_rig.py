@@ -1,4 +1,4 @@
-"""The paper's ball rig (a MuJoCo pendulum) against the impulse model `tkujax.push`.
+"""The paper's ball rig (a MuJoCo pendulum) against the impulse model `tkujax.sim.push`.
 
 Tolerance on delivered momentum vs the impulse model's J = m v (`ball_momentum_ns`), from the
 physics: a perfectly inelastic hit on a free body of the robot's 4.5 kg would deliver
@@ -17,10 +17,10 @@ import mujoco
 import numpy as np
 import pytest
 
-from tkujax import physics
-from tkujax.ball_rig import (RIG_GAP_M, ball_rig_impulse, ball_rig_model, ball_rig_xml,
+from tkujax.sim import physics
+from tkujax.sim.ball_rig import (RIG_GAP_M, ball_rig_impulse, ball_rig_model, ball_rig_xml,
                              rig_geometry)
-from tkujax.push import BALLS, DEFAULT_HEIGHT_M, ball_momentum_ns, ball_speed_m_s, pendulum_length_m
+from tkujax.sim.push import BALLS, DEFAULT_HEIGHT_M, ball_momentum_ns, ball_speed_m_s, pendulum_length_m
 
 CASES = [(b, d) for b in ("baseball", "volleyball") for d in ("back", "front")]
 # delivered / J with the default model and contact (see tkujax/ball_rig.py's docstring).

@@ -25,10 +25,13 @@ import jax
 import numpy as np
 import pytest
 
-from tkujax import backend_mujoco, ball_rig, physics, sim
-from tkujax import push as push_lib
+from tkujax.sim import rollout_mujoco as backend_mujoco
+from tkujax.sim import ball_rig
+from tkujax.sim import physics
+from tkujax.sim import rollout_mjx as sim
+from tkujax.sim import push as push_lib
 from tkujax.control.params import ControllerParams
-from tkujax.push import G, ball_momentum_ns, ball_push, ball_speed_m_s, force_at, make_push
+from tkujax.sim.push import G, ball_momentum_ns, ball_push, ball_speed_m_s, force_at, make_push
 
 ROBOT_MASS_KG = 4.5
 ONSET_S = push_lib.PAPER_ONSET_S

@@ -9,7 +9,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from tkujax import physics
+from tkujax.sim import physics
 from tkujax.model import (FSR_SENSORS, JOINT_NAMES, LEG_ACTUATORS, MX28, MX64, ModelParams,
                           leg_geometry, load_model, model_xml, stand_joint_angles)
 

@@ -20,14 +20,15 @@ import os
 import numpy as np
 import pytest
 
-from tkujax import cli, paper
-from tkujax import push as push_lib
+from tkujax import cli
+from tkujax.studies import paper
+from tkujax.sim import push as push_lib
 
 COLUMNS = ["direction", "ball", "force_N", "control", "fell", "recovery_time_s",
            "step_length_cm"]
 # Liu et al. 2020, Tables 4 (back) and 5 (front): recovery time and step length as printed
 # there ("falls": the robot fell; "X": no step). Written out here, not taken from
-# tkujax.paper.PAPER_TABLE, so a typo there fails this test.
+# tkujax.studies.paper.PAPER_TABLE, so a typo there fails this test.
 PAPER = {
     ("back", "baseball", "off"): ("0.60 s", "X"), ("back", "baseball", "on"): ("0.25 s", "1.36 cm"),
     ("back", "volleyball", "off"): ("falls", "X"),

@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tkujax import capturability
+from tkujax.studies import capturability
 from tkujax.control.params import ControllerParams
-from tkujax.spec import SpecError, load_spec, parse_spec
-from tkujax.sweep import load, load_params_json, run_sweep
+from tkujax.studies.spec import SpecError, load_spec, parse_spec
+from tkujax.studies.sweep import load, load_params_json, run_sweep
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ROOT / "sweeps" / "tiny.toml"
@@ -181,7 +181,7 @@ def test_two_devices_give_the_same_records(full_run, tmp_path):
     _, _, reference = full_run
     code = ("import jax; from tkujax.cli import configure_runtime; configure_runtime(); "
             "assert jax.local_device_count() == 2, jax.devices(); "
-            f"from tkujax.sweep import run_sweep; "
+            f"from tkujax.studies.sweep import run_sweep; "
             f"run_sweep({str(TINY)!r}, {str(tmp_path)!r}, quiet=True, backend='mjx')")
     env = _subprocess_env(XLA_FLAGS="--xla_force_host_platform_device_count=2")
     proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
@@ -243,10 +243,10 @@ def test_capturability_bounds_by_hand():
 def test_map_boundary_matches_individual_rollouts(full_run):
     """The tiny sweep's map puts the fall boundary where independent single rollouts (MuJoCo C
     backend, one push at a time) put it."""
-    from tkujax.backend_mujoco import simulate_mujoco
-    from tkujax.maps import make_maps, max_recoverable_impulse
-    from tkujax.push import make_push, stack_pushes
-    from tkujax.sim import RolloutConfig
+    from tkujax.sim.rollout_mujoco import simulate_mujoco
+    from tkujax.studies.maps import make_maps, max_recoverable_impulse
+    from tkujax.sim.push import make_push, stack_pushes
+    from tkujax.sim.rollout_mjx import RolloutConfig
 
     out, _, rec = full_run
     result = make_maps(out)
@@ -270,7 +270,7 @@ def test_map_boundary_matches_individual_rollouts(full_run):
 def test_auto_backend_is_mujoco_c_on_cpu_and_agrees_with_mjx(full_run, tmp_path):
     """On a CPU, "auto" runs MuJoCo C; its outcomes agree with the MJX sweep (>= 95 %: all 8
     here, the tiny sweep's impulses being far from the fall boundary)."""
-    from tkujax.sweep import choose_backend
+    from tkujax.studies.sweep import choose_backend
 
     _, _, reference = full_run
     manifest = run_sweep(TINY, tmp_path, quiet=True)

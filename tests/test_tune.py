@@ -1,4 +1,4 @@
-"""Gradient tuning (tkujax.tune): finite-difference check of the rollout gradient, a short
+"""Gradient tuning (tkujax.studies.tune): finite-difference check of the rollout gradient, a short
 tuning run, the reparameterisation, NaN handling, and the spec / parameter files.
 
 Everything that runs the MJX rollout shares ONE compiled value_and_grad (module fixture
@@ -36,9 +36,9 @@ import numpy as np
 import pytest
 
 from tkujax.control.params import ControllerParams
-from tkujax.spec import RANDOMIZE_DEFAULTS, SpecError
-from tkujax.sweep import load_params_json
-from tkujax.tune import (DEG, TUNABLE, LossConfig, Reparam, TuneProblem, evolution_baseline,
+from tkujax.studies.spec import RANDOMIZE_DEFAULTS, SpecError
+from tkujax.studies.sweep import load_params_json
+from tkujax.studies.tune import (DEG, TUNABLE, LossConfig, Reparam, TuneProblem, evolution_baseline,
                          make_optimizer, optimise, params_json, parse_tune_spec,
                          temperature_schedule)
 

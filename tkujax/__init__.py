@@ -1,17 +1,43 @@
 """tkujax: a JAX-vectorised, differentiable simulator for humanoid push-recovery sweeps.
 
-Submodules are imported lazily so that the CLI can set MUJOCO_GL and XLA options first.
+Layers (imports go one way, left to right): model <- control <- sim <- studies <- cli.
+
+The public API, in one place (submodules are imported lazily so that the CLI can set
+MUJOCO_GL and XLA options first):
+
+  tkujax.ModelParams, tkujax.load_model      the TKU-X model (tkujax.model)
+  tkujax.ControllerParams                    the paper's controller (tkujax.control)
+  tkujax.make_push, tkujax.stack_pushes      pushes (tkujax.sim.push)
+  tkujax.simulate                            a batch of closed-loop rollouts on MJX
+  tkujax.simulate_mujoco                     the same on MuJoCo C (CPU)
+  tkujax.run_paper                           the paper's experiment
+  tkujax.run_sweep, tkujax.load              sweeps and their records
+  tkujax.make_maps                           stability maps
+  tkujax.run_tune                            gradient tuning
 """
 
 from __future__ import annotations
 
 import importlib
 
-__version__ = "0.1.0"
-__all__ = ["ModelParams", "load_model", "__version__"]
+__version__ = "0.2.0"
+
+_API = {
+    "ModelParams": "tkujax.model", "load_model": "tkujax.model",
+    "ControllerParams": "tkujax.control",
+    "Push": "tkujax.sim.push", "make_push": "tkujax.sim.push", "stack_pushes": "tkujax.sim.push",
+    "Series": "tkujax.sim.records", "Outcomes": "tkujax.sim.records",
+    "simulate": "tkujax.sim.rollout_mjx", "RolloutConfig": "tkujax.sim.rollout_mjx",
+    "simulate_mujoco": "tkujax.sim.rollout_mujoco",
+    "run_paper": "tkujax.studies.paper",
+    "run_sweep": "tkujax.studies.sweep", "load": "tkujax.studies.sweep",
+    "make_maps": "tkujax.studies.maps",
+    "run_tune": "tkujax.studies.tune",
+}
+__all__ = [*_API, "__version__"]
 
 
 def __getattr__(name: str):
-    if name in ("ModelParams", "load_model"):
-        return getattr(importlib.import_module("tkujax.model"), name)
+    if name in _API:
+        return getattr(importlib.import_module(_API[name]), name)
     raise AttributeError(f"module 'tkujax' has no attribute {name!r}")

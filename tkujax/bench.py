@@ -3,8 +3,8 @@
   a. raw MJX stepping of TKU-X holding fixed targets (no controller): physics steps/s;
   b. the closed-loop sweep (sensors, controller, metrics): physics steps/s and pushes/s;
   c. the CPU peer: MuJoCo C physics across all cores with the JAX controller between ticks
-     (when tkujax.backend_mujoco is available);
-  d. one tuning gradient step (when tkujax.tune is available): time and peak device memory;
+     (when tkujax.sim.rollout_mujoco is available);
+  d. one tuning gradient step (when tkujax.studies.tune is available): time and peak device memory;
   e. compile time of (b), cold (empty persistent cache) and from the persistent cache.
 Each figure is the median of `repeats` timed runs after a warm-up; the ratios b/a and b/c are
 printed. Speeds are reported, never asserted.
@@ -24,9 +24,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from tkujax import physics
+from tkujax.sim import physics
 from tkujax.control.params import ControllerParams
-from tkujax.sweep import make_chunk_fn
+from tkujax.studies.sweep import make_chunk_fn
 
 
 def _timed(fn, repeats: int) -> float:
@@ -112,11 +112,11 @@ def multi_device(batch: int, duration_s: float, repeats: int) -> list[dict]:
 
 def cpu_peer(batch: int, duration_s: float, repeats: int) -> dict | None:
     try:
-        from tkujax.backend_mujoco import simulate_mujoco
+        from tkujax.sim.rollout_mujoco import simulate_mujoco
     except ImportError:
         return None
-    from tkujax.push import Push
-    from tkujax.sim import RolloutConfig
+    from tkujax.sim.push import Push
+    from tkujax.sim.rollout_mjx import RolloutConfig
 
     r = {k: np.asarray(v) for k, v in _push_batch(batch).items()}
     pushes = Push(r["impulse_ns"], np.radians(r["azimuth_deg"]), r["height_m"], r["duration_s"],
@@ -132,7 +132,7 @@ def cpu_peer(batch: int, duration_s: float, repeats: int) -> dict | None:
 
 def gradient_step(batch: int, duration_s: float, repeats: int) -> dict | None:
     try:
-        from tkujax.tune import benchmark_gradient_step
+        from tkujax.studies.tune import benchmark_gradient_step
     except ImportError:
         return None
     return benchmark_gradient_step(batch, duration_s, repeats)

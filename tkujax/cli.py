@@ -29,7 +29,7 @@ def configure_runtime() -> None:
 
 
 def _cmd_stand(args) -> int:
-    from tkujax.stand import simulate_stand
+    from tkujax.studies.stand import simulate_stand
 
     result = simulate_stand(seconds=args.seconds, batch=args.batch, engine=args.engine,
                             perturb_deg=args.perturb_deg, seed=args.seed)
@@ -38,7 +38,8 @@ def _cmd_stand(args) -> int:
 
 
 def _cmd_render(args) -> int:
-    from tkujax import physics, render
+    from tkujax import render
+    from tkujax.sim import physics
 
     ok, why = render.rendering_available()
     if not ok:
@@ -52,7 +53,7 @@ def _cmd_render(args) -> int:
         frame = render.render_frames(model, data.qpos[None], args.width, args.height)[0]
         print(render.save_image(frame, args.out))
         return 0
-    from tkujax.paper import render_case
+    from tkujax.studies.paper import render_case
 
     print(render_case(args.case, args.control == "on", args.out, args.width, args.height,
                       impulse_scale=args.impulse_scale))
@@ -60,8 +61,7 @@ def _cmd_render(args) -> int:
 
 
 def _cmd_paper(args) -> int:
-    from tkujax.paper import run_paper
-
+    from tkujax.studies.paper import run_paper
     from tkujax.model import ModelParams
 
     model_params = ModelParams.from_overrides(args.model) if args.model else None
@@ -72,7 +72,7 @@ def _cmd_paper(args) -> int:
 
 
 def _cmd_sweep(args) -> int:
-    from tkujax.sweep import load_params_json, run_sweep
+    from tkujax.studies.sweep import load_params_json, run_sweep
 
     params = load_params_json(args.params) if args.params else None
     manifest = run_sweep(args.spec, args.out, params=params, max_chunks=args.max_chunks,
@@ -85,7 +85,7 @@ def _cmd_sweep(args) -> int:
 
 
 def _cmd_map(args) -> int:
-    from tkujax.maps import make_maps
+    from tkujax.studies.maps import make_maps
 
     result = make_maps(args.dir)
     print("\n".join(result["files"]))
@@ -108,7 +108,7 @@ def _cmd_bench(args) -> int:
 
 
 def _cmd_tune(args) -> int:
-    from tkujax.tune import run_tune
+    from tkujax.studies.tune import run_tune
 
     record = run_tune(args.spec, args.out, iterations=args.iterations,
                       baseline=not args.no_baseline, evaluation=not args.no_eval)

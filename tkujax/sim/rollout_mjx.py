@@ -5,7 +5,7 @@ quantise the leg targets to the servos' 0.088 deg resolution (straight-through g
 them for `substeps` physics steps while the push's force acts through `xfrc_applied`. A
 `lax.scan` over periods; `jax.vmap` over pushes, controller parameters and model parameters.
 
-Time series come back at control rate; `tkujax.metrics.outcomes` turns them into per-push
+Time series come back at control rate; `tkujax.sim.metrics.outcomes` turns them into per-push
 outcomes.
 """
 
@@ -13,21 +13,20 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import math
 
 import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from mujoco import mjx
+from tkujax.sim.mjx_import import mjx
 
-from tkujax import physics
-from tkujax.control.controller import Sensors, controller_init, controller_step
+from tkujax.sim import physics
+from tkujax.control.controller import controller_init
 from tkujax.control.params import ControllerParams
 from tkujax.model import FSR_SENSORS, LEG_ACTUATORS, ModelParams
-from tkujax.push import Push, force_at
-
-SERVO_RESOLUTION_RAD = math.radians(360.0 / 4096.0)   # 0.088 deg, Dynamixel MX [paper Table 1]
+from tkujax.sim.push import Push, force_at
+from tkujax.sim.records import Outcomes, Series
+from tkujax.sim.tick import SERVO_RESOLUTION_RAD, control_tick, quantise_targets  # noqa: F401
 
 
 @dataclasses.dataclass(frozen=True)
@@ -88,9 +87,7 @@ def model_index(params: ModelParams | None = None) -> ModelIndex:
     return ModelIndex.of(physics.host_model(params))
 
 
-def _quantise(q: jax.Array) -> jax.Array:
-    """Round to the servo resolution; the gradient passes straight through."""
-    return q + jax.lax.stop_gradient(jnp.round(q / SERVO_RESOLUTION_RAD) * SERVO_RESOLUTION_RAD - q)
+_quantise = quantise_targets   # the name the C backend and older code use
 
 
 def _push_wrench(idx: ModelIndex, d: mjx.Data, push: Push) -> jax.Array:
@@ -135,7 +132,7 @@ def _zmp(idx: ModelIndex, d: mjx.Data) -> tuple[jax.Array, jax.Array]:
 def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerParams,
             enabled: jax.Array, key: jax.Array, gyro_noise_std: jax.Array = 0.0,
             accel_noise_std: jax.Array = 0.0, config: RolloutConfig = RolloutConfig(),
-            index: ModelIndex | None = None) -> dict:
+            index: ModelIndex | None = None) -> Series:
     """Simulate one robot under one push with the controller in the loop.
 
     Args:
@@ -144,10 +141,8 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
       key: PRNG key for sensor noise. gyro_noise_std (rad/s), accel_noise_std (m/s^2).
       config: static settings. index: static model indices (default model when None).
     Returns:
-      dict of (n_ticks, ...) series at control rate, sampled at the end of each period:
-      t (s), pitch / roll (true pelvis inclination, rad), pitch_est / roll_est (Kalman), zmp
-      (2,) m, fsr_total N, com (3,) m, r_ankle / l_ankle (3,) m, pelvis_z m, lowest_body_z m,
-      gate, x_sup m, step_weight, reachable.
+      the Series (tkujax.sim.records), fields (n_ticks, ...), sampled at the end of each
+      control period.
     """
     idx = index or model_index()
     substeps = int(round(config.control_period_s / idx.timestep_s))
@@ -173,20 +168,19 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
         kg, ka = jax.random.split(tick_key)
         gyro = gyro + gyro_noise_std * jax.random.normal(kg, (3,), dtype)
         accel = accel + accel_noise_std * jax.random.normal(ka, (3,), dtype)
-        ctrl_state, out = controller_step(ctrl_state, Sensors(gyro, accel), params, enabled)
-        legs = _quantise(out.leg_targets) if config.quantise_targets else out.leg_targets
+        ctrl_state, legs, out = control_tick(ctrl_state, gyro, accel, params, enabled,
+                                             config.quantise_targets)
         d = d.replace(ctrl=stand_ctrl.at[legs_slice].set(legs.astype(dtype)))
         d, _ = jax.lax.scan(physics_step, d, None, length=substeps)
         pitch, roll = physics.pitch_roll_from_quat(d.qpos[3:7])
         zmp, fsr_total = _zmp(idx, d)
-        series = dict(
+        series = Series(
             t=d.time, pitch=pitch, roll=roll, pitch_est=out.phi, roll_est=out.roll, zmp=zmp,
             fsr_total=fsr_total, com=d.subtree_com[1], r_ankle=d.site_xpos[r_ankle],
             l_ankle=d.site_xpos[l_ankle], pelvis_z=d.qpos[2],
-            lowest_body_z=_lowest_body_point(idx, d), gate=out.gate, x_sup=ctrl_state.x_sup_m, y_sup=ctrl_state.y_sup_m,
-            step_weight=ctrl_state.step_weight, reachable=out.reachable)
-        if config.record_qpos:
-            series["qpos"] = d.qpos
+            lowest_body_z=_lowest_body_point(idx, d), gate=out.gate, x_sup=ctrl_state.x_sup_m,
+            y_sup=ctrl_state.y_sup_m, step_weight=ctrl_state.step_weight,
+            reachable=out.reachable, qpos=d.qpos if config.record_qpos else None)
         return (d, ctrl_state), series
 
     carry = (state, controller_init(params, dtype))
@@ -204,7 +198,7 @@ def batched_rollout(model_params: ModelParams | None = None,
     (series, outcomes), batched along axis 0; params is shared by the batch. Compiled once
     per batch shape; cached per model and config.
     """
-    from tkujax.metrics import outcomes
+    from tkujax.sim.metrics import outcomes
 
     host = physics.host_model(model_params)
     model, index = physics.device_model(model_params), model_index(model_params)
@@ -221,7 +215,7 @@ def batched_rollout(model_params: ModelParams | None = None,
 def simulate(pushes: Push, enabled, params: ControllerParams, seed: int = 0,
              gyro_noise_std: float = 0.0, accel_noise_std: float = 0.0,
              model_params: ModelParams | None = None,
-             config: RolloutConfig = RolloutConfig()) -> tuple[dict, dict]:
+             config: RolloutConfig = RolloutConfig()) -> tuple[Series, Outcomes]:
     """Run a batch of pushes (stacked Push, leading axis) and return numpy (series, outcomes)."""
     n = int(np.shape(pushes.impulse_ns)[0])
     enabled = jnp.broadcast_to(jnp.asarray(enabled, jnp.float32), (n,))

@@ -8,7 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from tkujax import physics
+from tkujax.sim import physics
 from tkujax.model import ModelParams
 
 ENGINES = ("mjx", "mujoco")

@@ -23,7 +23,7 @@ import math
 import mujoco
 import numpy as np
 
-from tkujax import physics
+from tkujax.sim import physics
 from tkujax.control.params import ControllerParams
 from tkujax.model import ModelParams
 

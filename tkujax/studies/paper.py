@@ -15,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from tkujax import push as push_lib
+from tkujax.sim import push as push_lib
 from tkujax.control.params import ControllerParams
 from tkujax.model import ModelParams
-from tkujax.sim import RolloutConfig, simulate
+from tkujax.sim.rollout_mjx import RolloutConfig, simulate
 
 BALL_NAMES = ("baseball", "volleyball")
 DIRECTION_NAMES = ("back", "front")
@@ -179,7 +179,9 @@ def render_case(case: str, control_on: bool, out: str | Path, width: int = 480,
                          f"in {DIRECTION_NAMES}, got {case!r}") from err
     import jax
 
-    from tkujax import physics, render, sim
+    from tkujax import render
+    from tkujax.sim import physics
+    from tkujax.sim import rollout_mjx as sim
 
     config = RolloutConfig(duration_s=2.1, record_qpos=True)
     host = physics.host_model()

@@ -33,13 +33,13 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from tkujax import physics
+from tkujax.sim import physics
 from tkujax.control.params import ControllerParams
-from tkujax.metrics import outcomes as rollout_outcomes
+from tkujax.sim.metrics import outcomes as rollout_outcomes
 from tkujax.model import ModelParams
-from tkujax.push import Push
-from tkujax.sim import RolloutConfig, model_index, rollout
-from tkujax.spec import CONTROLLER_FIELDS, SpecError, SweepSpec, load_spec
+from tkujax.sim.push import Push
+from tkujax.sim.rollout_mjx import RolloutConfig, model_index, rollout
+from tkujax.studies.spec import SpecError, SweepSpec, load_spec
 
 OUTCOME_KEYS = ("fell", "recovery_time_s", "step_length_m", "step_width_m", "peak_incl_deg",
                 "capture_point_m", "capture_point_y_m", "zmp_excursion_m")
@@ -134,7 +134,7 @@ def choose_backend(requested: str, spec: SweepSpec) -> str:
 def _mujoco_chunk(batch: dict, seed: int, base: ControllerParams, duration_s: float,
                   model_params: ModelParams | None) -> dict:
     """One chunk on MuJoCo C (tkujax.backend_mujoco), outcomes as numpy."""
-    from tkujax.backend_mujoco import simulate_mujoco
+    from tkujax.sim.rollout_mujoco import simulate_mujoco
 
     pushes = Push(*(jnp.asarray(v, jnp.float32) for v in (
         batch["impulse_ns"], np.radians(batch["azimuth_deg"]), batch["height_m"],
@@ -171,7 +171,7 @@ def _git_commit() -> str | None:
 
 def _record_inputs(spec: SweepSpec) -> dict[str, np.ndarray]:
     recs = spec.records()
-    from tkujax.spec import RANDOMIZE_DEFAULTS
+    from tkujax.studies.spec import RANDOMIZE_DEFAULTS
     n = len(recs["push_id"])
     for k, v in RANDOMIZE_DEFAULTS.items():
         if k not in recs:

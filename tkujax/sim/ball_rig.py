@@ -2,7 +2,7 @@
 
 Liu et al. 2020, Sec. 4 / Table 3 / Fig. 12: a baseball (160 g) or a volleyball (320 g) hangs on
 a pendulum, is raised to 45 deg and released; it falls for 0.34 s and hits the robot's chest at
-t = 0.75 s, from the back or from the front. `tkujax.push` turns that into a half-sine force
+t = 0.75 s, from the back or from the front. `tkujax.sim.push` turns that into a half-sine force
 pulse carrying the ball's momentum J = m v (`ball_momentum_ns`). Here the rig itself is built:
 
 * `ball_rig_xml(ball, direction, model_params=None)`: TKU-X (`tkujax.model.model_xml`) plus
@@ -11,7 +11,7 @@ pulse carrying the ball's momentum J = m v (`ball_momentum_ns`). Here the rig it
   45 deg) and a sphere of the ball's mass and radius. The ball's inertia about its centre is
   that of a solid sphere (2/5 m r^2) for the baseball and of a thin shell (2/3 m r^2) for the
   inflated volleyball, so the rig is a physical pendulum: it arrives ~0.1 % (baseball) / ~1.4 %
-  (volleyball) slower and ~0.3 / ~4 ms later than the point-mass formulas of `tkujax.push`
+  (volleyball) slower and ~0.3 / ~4 ms later than the point-mass formulas of `tkujax.sim.push`
   (which the paper's "derived facts" use). The pivot is placed so that at the bottom of the
   swing the ball's centre is DEFAULT_HEIGHT_M (0.36 m) above the floor and its surface is
   RIG_GAP_M (1.5 mm) off the `chest` collision box, measured along the box face normal in the
@@ -24,7 +24,7 @@ pulse carrying the ball's momentum J = m v (`ball_momentum_ns`). Here the rig it
   hinge's qpos0: the ball hanging at the bottom, 1.5 mm off the chest.)
 * `ball_rig_impulse(ball, direction, model_params=None, solref=None)`: MuJoCo C, float64, the
   model's own options (2 ms, Newton, 1 iteration). The robot holds its stand targets (control
-  off). Same clock as `tkujax.sim`: the rig first settles for 1 s with the ball held at 45 deg
+  off). Same clock as `tkujax.sim.rollout_mjx`: the rig first settles for 1 s with the ball held at 45 deg
   (its hinge qpos/qvel reset every step; the ball touches nothing, so this does not disturb the
   robot), the clock is reset to 0, the ball stays held until t = 0.75 - 0.34 s = 0.41 s and is
   then released. Returned: arrival speed and time, the momentum the ball delivered
@@ -75,7 +75,7 @@ import mujoco
 import numpy as np
 
 from tkujax.model import ModelParams, model_xml
-from tkujax.push import (BALLS, DEFAULT_HEIGHT_M, FALLING_TIME_S, PAPER_ONSET_S,
+from tkujax.sim.push import (BALLS, DEFAULT_HEIGHT_M, FALLING_TIME_S, PAPER_ONSET_S,
                          RELEASE_ANGLE_RAD, ball_momentum_ns, ball_speed_m_s, pendulum_length_m)
 
 __all__ = ["RIG_GAP_M", "RIG_DIRECTIONS", "BALL_INERTIA_FACTOR", "RigGeometry", "rig_geometry",
@@ -203,7 +203,7 @@ def ball_rig_impulse(ball: str, direction: str, model_params: ModelParams | None
                      solref: tuple[float, float] | None = None) -> dict:
     """Swing the ball into the standing robot (MuJoCo C, float64, control off) and measure.
 
-    Time t: the `tkujax.sim` clock (0 after 1 s of settling); the ball is released at
+    Time t: the `tkujax.sim.rollout_mjx` clock (0 after 1 s of settling); the ball is released at
     t = 0.41 s. Each step is split (mj_step1 / mj_step2) so that the contact flag, the ball's
     velocity and the robot's momentum are read at one state, before that step's contact force
     acts. `solref` overrides the ball-chest pair's (default MuJoCo's (0.02, 1)).

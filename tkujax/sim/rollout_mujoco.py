@@ -1,12 +1,12 @@
 """CPU backend: MuJoCo C physics, the JAX controller vectorised over all pushes.
 
-`simulate_mujoco` has the semantics and outputs of `tkujax.sim.simulate` (MJX), so callers can
+`simulate_mujoco` has the semantics and outputs of `tkujax.sim.rollout_mjx.simulate` (MJX), so callers can
 switch backends. Per control period:
 
   1. read every robot's IMU (gyro, accelerometer) from the sensordata of the previous physics
      step, add Gaussian noise (numpy RNG: same law as MJX, not the same realisation);
   2. run ONE jitted, vmapped `controller_step` over the whole batch (compiled once per batch
-     shape), quantise the leg targets to the servo resolution exactly like `sim._quantise`;
+     shape), quantise the leg targets to the servo resolution exactly as the MJX loop (`tkujax.sim.tick.control_tick`, shared);
   3. set ctrl = the stand ctrl with the leg actuators replaced, and advance every robot
      `substeps` physics steps with `mujoco.rollout` (a persistent `Rollout(nthread=...)` thread
      pool: the physics runs across all cores, the GIL released).
@@ -60,13 +60,15 @@ import mujoco
 import mujoco.rollout
 import numpy as np
 
-from tkujax import physics
-from tkujax.control.controller import Sensors, controller_init, controller_step
+from tkujax.sim import physics
+from tkujax.control.controller import controller_init
 from tkujax.control.params import ControllerParams
-from tkujax.metrics import outcomes as _outcomes
+from tkujax.sim.metrics import outcomes as _outcomes
 from tkujax.model import ModelParams
-from tkujax.push import Push
-from tkujax.sim import ModelIndex, RolloutConfig, _quantise, model_index
+from tkujax.sim.push import Push
+from tkujax.sim.records import Outcomes, Series
+from tkujax.sim.rollout_mjx import ModelIndex, RolloutConfig, model_index
+from tkujax.sim.tick import control_tick
 
 PUSH_WRENCH_MODES = ("exact", "period_start")
 
@@ -115,14 +117,12 @@ def _rollout_pool(nthread: int) -> mujoco.rollout.Rollout:
 @functools.partial(jax.jit, static_argnames=("quantise",))
 def _control_tick(states, gyro, accel, params, enabled, quantise: bool):
     """controller_step over the batch (states, gyro, accel, enabled batched; params shared)."""
-    step = jax.vmap(controller_step, in_axes=(0, 0, None, 0))
-    states, out = step(states, Sensors(gyro, accel), params, enabled)
-    legs = _quantise(out.leg_targets) if quantise else out.leg_targets
-    return states, legs, out
+    step = jax.vmap(control_tick, in_axes=(0, 0, 0, None, 0, None))
+    return step(states, gyro, accel, params, enabled, quantise)
 
 
 @jax.jit
-def _batched_outcomes(series: dict, onset_s: jax.Array) -> dict:
+def _batched_outcomes(series: Series, onset_s: jax.Array) -> Outcomes:
     return jax.vmap(_outcomes)(series, onset_s)
 
 
@@ -196,10 +196,10 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
                     gyro_noise_std: float = 0.0, accel_noise_std: float = 0.0,
                     model_params: ModelParams | None = None,
                     config: RolloutConfig = RolloutConfig(), n_threads: int | None = None,
-                    push_wrench: str = "exact") -> tuple[dict, dict]:
+                    push_wrench: str = "exact") -> tuple[Series, Outcomes]:
     """Run a batch of pushes with MuJoCo C physics; returns numpy (series, outcomes).
 
-    Same arguments, keys and shapes as `tkujax.sim.simulate`, plus n_threads (physics
+    Same arguments, keys and shapes as `tkujax.sim.rollout_mjx.simulate`, plus n_threads (physics
     threads; default: the CPUs this process may use) and push_wrench ("exact" or
     "period_start", see the module doc).
     """
@@ -323,6 +323,7 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
         if arr.dtype == np.float64:
             arr = arr.astype(np.float32)
         series[key] = arr
+    series = Series(**series)
     out = _batched_outcomes(jax.tree_util.tree_map(jnp.asarray, series),
                             jnp.asarray(pushes.onset_s, jnp.float32))
     return series, jax.tree_util.tree_map(np.asarray, out)

@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from mujoco import mjx
+from tkujax.sim.mjx_import import mjx
 
 from tkujax.model import ModelParams, load_model
 

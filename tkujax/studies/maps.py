@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
-from tkujax import capturability
+from tkujax.studies import capturability
 from tkujax.control.params import ControllerParams
-from tkujax.spec import parse_spec
-from tkujax.sweep import load
+from tkujax.studies.spec import parse_spec
+from tkujax.studies.sweep import load
 
 ROUND = 6
 

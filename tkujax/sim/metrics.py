@@ -21,19 +21,21 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
+from tkujax.sim.records import Outcomes, Series
+
 RECOVERY_BAND_DEG = 1.0
 FALL_PELVIS_HEIGHT_M = 0.12
 FALL_BODY_CLEARANCE_M = 0.005
 
 
-def fall_indicator(series: dict) -> jnp.ndarray:
+def fall_indicator(series: Series) -> jnp.ndarray:
     """(n_ticks,) bool: fallen at each period."""
     return ((series["pelvis_z"] < FALL_PELVIS_HEIGHT_M)
             | (series["lowest_body_z"] < FALL_BODY_CLEARANCE_M))
 
 
-def outcomes(series: dict, onset_s, band_deg: float = RECOVERY_BAND_DEG,
-             baseline_s: float = 0.3) -> dict:
+def outcomes(series: Series, onset_s, band_deg: float = RECOVERY_BAND_DEG,
+             baseline_s: float = 0.3) -> Outcomes:
     """Outcomes of one rollout (series fields (n_ticks, ...)); see the module docstring."""
     t = series["t"]
     pitch_deg, roll_deg = jnp.degrees(series["pitch"]), jnp.degrees(series["roll"])
@@ -59,7 +61,7 @@ def outcomes(series: dict, onset_s, band_deg: float = RECOVERY_BAND_DEG,
     step = series["l_ankle"][-1] - series["l_ankle"][jnp.maximum(i_onset - 1, 0)]
     zmp0 = jnp.sum(jnp.where(before[:, None], series["zmp"], 0.0), 0) / n_before
     zmp_dist = jnp.linalg.norm(series["zmp"] - zmp0, axis=-1)
-    return dict(
+    return Outcomes(
         fell=fell,
         recovery_time_s=recovery,
         step_length_m=step[0],

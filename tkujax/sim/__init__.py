@@ -1,0 +1,23 @@
+"""Simulation: MJX/MuJoCo physics plumbing, pushes and the ball rig, the closed-loop tick, the
+MJX and MuJoCo C rollouts, per-push metrics and the typed records they produce.
+
+  physics.py         host/device models, the stand state, stepping helpers
+  push.py            the Push pytree (half-sine force at a chest height) and the paper's balls
+  ball_rig.py        the paper's pendulum rig simulated with a real ball (impulse calibration)
+  tick.py            the control half of a tick, shared by both backends
+  rollout_mjx.py     rollout / batched_rollout / simulate on MJX (jit, vmap, grad)
+  rollout_mujoco.py  simulate_mujoco: the same loop on MuJoCo C (CPU)
+  metrics.py         outcomes of one rollout (fell, recovery time, step, ...)
+  records.py         the typed records: Series, Outcomes
+"""
+
+from __future__ import annotations
+
+from tkujax.sim.metrics import outcomes
+from tkujax.sim.push import Push, ball_push, make_push, stack_pushes
+from tkujax.sim.records import OUTCOME_FIELDS, SERIES_FIELDS, Outcomes, Series
+from tkujax.sim.rollout_mjx import RolloutConfig, batched_rollout, rollout, simulate
+
+__all__ = ["OUTCOME_FIELDS", "SERIES_FIELDS", "Outcomes", "Push", "RolloutConfig", "Series",
+           "ball_push", "batched_rollout", "make_push", "outcomes", "rollout", "simulate",
+           "stack_pushes"]

@@ -1,0 +1,48 @@
+"""Benchmark hook for `tkujax bench`: the time of one gradient step of the tuning loss."""
+
+from __future__ import annotations
+
+import time
+
+import jax
+import numpy as np
+
+from tkujax.studies.tune.problem import TuneProblem
+from tkujax.studies.tune.reparam import DEG, TUNABLE
+from tkujax.studies.tune.spec import parse_tune_spec, sample_pushes
+
+
+def benchmark_gradient_step(batch: int, duration_s: float, repeats: int = 3,
+                            remat: bool = True, float64: bool = False) -> dict:
+    """Time of one jitted value_and_grad of the tuning loss (all tunable parameters, sagittal
+    pushes of 0.3-2.0 N s) at `batch` pushes x `duration_s`, median of `repeats` after a
+    compile; peak device memory from memory_stats() where the backend reports it, else None."""
+    data = {"tune": {"batch": batch, "duration_s": duration_s, "iterations": 1,
+                     "params": list(TUNABLE), "remat": remat, "float64": float64},
+            "push": {"impulse_ns": {"uniform": [0.3, 2.0]}, "azimuth_deg": [0.0, 180.0],
+                     "azimuth_jitter_deg": 10.0, "onset_s": 0.3}}
+    spec = parse_tune_spec(data)
+    reparam, base = spec.reparam(), spec.base_params()
+    problem = TuneProblem(reparam, base, spec.loss, duration_s, remat, float64)
+    recs = sample_pushes(spec, batch, 0)
+    keys = jax.random.split(jax.random.PRNGKey(0), batch)
+    z = reparam.latent_of(base)
+    tau = 1.0 * DEG
+    t0 = time.perf_counter()
+    problem.value_and_grad(z, tau, recs, keys)
+    compile_s = time.perf_counter() - t0
+    times = []
+    for _ in range(max(repeats, 1)):
+        t0 = time.perf_counter()
+        _, _, g = problem.value_and_grad(z, tau, recs, keys)
+        times.append(time.perf_counter() - t0)
+    sec = float(np.median(times))
+    try:
+        stats = jax.devices()[0].memory_stats()
+    except Exception:  # noqa: BLE001 - backends without memory stats
+        stats = None
+    peak = int(stats["peak_bytes_in_use"]) if stats and "peak_bytes_in_use" in stats else None
+    return dict(batch=batch, duration_s=duration_s, seconds=sec, first_call_s=round(compile_s, 2),
+                pushes_per_s=batch / sec, physics_steps_per_s=batch * problem.steps_per_push / sec,
+                peak_device_bytes=peak, remat=remat, float64=float64,
+                grad_finite=bool(np.all(np.isfinite(g))), n_params=reparam.size)

@@ -1,0 +1,120 @@
+"""The differentiable tuning problem: one compiled loss and gradient per batch shape."""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from tkujax.sim.mjx_import import mjx
+
+from tkujax.control.params import ControllerParams
+from tkujax.sim import physics
+from tkujax.sim.metrics import outcomes
+from tkujax.sim.push import Push
+from tkujax.sim.rollout_mjx import RolloutConfig, model_index, rollout
+from tkujax.studies.spec import RANDOMIZE_FIELDS
+from tkujax.studies.sweep import randomize_model
+from tkujax.studies.tune.loss import LossConfig, push_loss
+from tkujax.studies.tune.reparam import CPU_COMPILER_OPTIONS, DEG, EVAL_KEYS, Reparam
+
+
+RECORD_KEYS = ("impulse_ns", "azimuth_deg", "height_m", "duration_s", "onset_s",
+               *RANDOMIZE_FIELDS)
+
+
+def _x64(enabled: bool):
+    return jax.enable_x64(True) if enabled else contextlib.nullcontext()
+
+
+class TuneProblem:
+    """The differentiable loss of latents z over a batch of push records.
+
+    All jitted functions are traced and called inside this problem's float64 context when
+    `float64` is set (the MJX model and state are put on the device in float64 too).
+    `loss(z, temperature, batch, keys)` -> (loss, aux); `value_and_grad` and `forward` are its
+    jitted gradient and forward-only versions (one compile each per batch size).
+    """
+
+    def __init__(self, reparam: Reparam, base: ControllerParams, loss_cfg: LossConfig = LossConfig(),
+                 duration_s: float = 1.2, remat: bool = True, float64: bool = False,
+                 model_params=None, compiler_options: dict | None = None,
+                 quantise_targets: bool = True):
+        self.reparam, self.base, self.loss_cfg = reparam, base, loss_cfg
+        self.float64 = float64
+        self.config = RolloutConfig(duration_s=duration_s, remat=remat,
+                                    quantise_targets=quantise_targets)
+        host = physics.host_model(model_params)
+        self.index = model_index(model_params)
+        with _x64(float64):
+            self.dtype = jnp.float64 if float64 else jnp.float32
+            self.model = mjx.put_model(host) if float64 else physics.device_model(model_params)
+            state = physics.stand_state(host, 1.0)
+            if float64:
+                # mjx.step returns some integer fields (contact geom ids) as int64 under x64
+                # while put_data makes int32: match the step's output types for lax.scan.
+                shapes = jax.eval_shape(mjx.step, self.model, state)
+                state = jax.tree_util.tree_map(lambda x, s: jnp.asarray(x, s.dtype), state,
+                                               shapes)
+            self.state = state
+        self.n_ticks = int(round(duration_s / self.config.control_period_s))
+        self.steps_per_push = int(round(duration_s / host.opt.timestep))
+        if compiler_options is None and jax.default_backend() == "cpu":
+            compiler_options = CPU_COMPILER_OPTIONS
+        opts = compiler_options or None
+        self._vg = jax.jit(jax.value_and_grad(self.loss, has_aux=True), compiler_options=opts)
+        self._fwd = jax.jit(self.loss, compiler_options=opts)
+
+    def loss(self, z, temperature, batch: dict, keys):
+        params = dataclasses.replace(self.reparam.apply(self.base, z),
+                                     gate_temperature=temperature)
+        idx, cfg = self.index, self.loss_cfg
+
+        def one(rec, key):
+            push = Push(rec["impulse_ns"], rec["azimuth_deg"] * DEG, rec["height_m"],
+                        rec["duration_s"], rec["onset_s"])
+            model = randomize_model(self.model, rec["link_mass_scale"],
+                                    rec["torso_com_offset_x_m"], rec["floor_friction"],
+                                    rec["servo_kp_scale"], idx.chest_body)
+            series = rollout(model, self.state, push, params, 1.0, key, rec["gyro_noise_std"],
+                             rec["accel_noise_std"], self.config, idx)
+            out = outcomes(series, push.onset_s)
+            return push_loss(series, push.onset_s, cfg), {k: out[k] for k in EVAL_KEYS}
+
+        terms, outs = jax.vmap(one)(batch, keys)
+        return jnp.mean(terms["total"]), dict(terms=terms, outcomes=outs)
+
+    def _args(self, z, temperature, batch, keys):
+        cast = lambda x: jnp.asarray(x, self.dtype)  # noqa: E731
+        return (cast(z), cast(temperature), {k: cast(batch[k]) for k in RECORD_KEYS}, keys)
+
+    def value_and_grad(self, z, temperature, batch, keys):
+        """(loss, aux, grad) as numpy (float64), computed in this problem's precision."""
+        with _x64(self.float64):
+            (loss, aux), g = self._vg(*self._args(z, temperature, batch, keys))
+            return _np(loss), _np(aux), _np(g)
+
+    def forward(self, z, temperature, batch, keys):
+        with _x64(self.float64):
+            loss, aux = self._fwd(*self._args(z, temperature, batch, keys))
+            return _np(loss), _np(aux)
+
+    def forward_padded(self, z, temperature, records: dict, keys, batch: int) -> dict:
+        """Forward over any number of records in chunks of `batch` (one compiled shape).
+        Returns the per-push aux (terms and outcomes) for the records, numpy."""
+        n = len(records["impulse_ns"])
+        parts = []
+        for lo in range(0, n, batch):
+            sel = np.resize(np.arange(lo, min(lo + batch, n)), batch)
+            chunk = {k: records[k][sel] for k in RECORD_KEYS}
+            _, aux = self.forward(z, temperature, chunk, keys[sel])
+            parts.append(jax.tree_util.tree_map(lambda x: x[:min(batch, n - lo)], aux))
+        return jax.tree_util.tree_map(lambda *xs: np.concatenate(xs), *parts)
+
+
+def _np(tree):
+    return jax.tree_util.tree_map(lambda x: np.asarray(x, np.float64)
+                                  if np.issubdtype(np.asarray(x).dtype, np.floating)
+                                  else np.asarray(x), tree)

@@ -1,0 +1,240 @@
+"""Tune specs: the TOML schema, validation, and the push batches drawn from it."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tkujax.control.params import ControllerParams
+from tkujax.studies.spec import (CONTROLLER_FIELDS, PUSH_FIELDS, RANDOMIZE_DEFAULTS, SpecError, _number,
+                                 _table, _uniform, _values, parse_randomize, read_toml)
+from tkujax.studies.sweep import controller_params_from
+from tkujax.studies.tune.loss import LOSS_FIELDS, LossConfig
+from tkujax.studies.tune.problem import RECORD_KEYS
+from tkujax.studies.tune.reparam import DEFAULT_TUNED, TUNABLE, Reparam, _user_factor
+
+
+@dataclasses.dataclass(frozen=True)
+class TuneSpec:
+    name: str
+    seed: int
+    iterations: int
+    batch: int
+    duration_s: float
+    learning_rate: float
+    clip_norm: float
+    params: tuple[str, ...]
+    ranges: dict[str, tuple[float, float]]
+    float64: bool
+    remat: bool
+    quantise_targets: bool
+    anneal: tuple[float, float, str]                 # start_deg, end_deg, schedule
+    loss: LossConfig
+    push: dict[str, Any]                             # field -> value | (lo, hi) | list
+    azimuth_jitter_deg: float
+    controller: dict[str, float]
+    randomize: dict[str, Any]
+    baseline_sigma: float
+    baseline_seed: int
+    baseline_temperature_deg: float
+    eval_seed: int
+    eval_n: int
+    eval_impulse_ns: np.ndarray
+    eval_azimuth_deg: np.ndarray
+    eval_duration_s: float
+    raw: dict
+
+    def reparam(self) -> Reparam:
+        return Reparam.make(self.params, self.ranges)
+
+    def base_params(self) -> ControllerParams:
+        return controller_params_from(ControllerParams.paper(), self.controller).validate()
+
+
+TUNE_FIELDS = {"name": str, "description": str, "seed": int, "iterations": int, "batch": int,
+               "duration_s": (int, float), "learning_rate": (int, float),
+               "clip_norm": (int, float), "params": list, "float64": bool, "remat": bool,
+               "quantise_targets": bool,
+               "anneal": dict, "loss": dict, "ranges": dict}
+TUNE_PUSH_FIELDS = set(PUSH_FIELDS) | {"azimuth_jitter_deg"}
+
+
+def _int(key: str, value, lo: int, hi: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+        raise SpecError(f"{key}: expected an integer in [{lo}, {hi}], got {value!r}")
+    return value
+
+
+def _bool(key: str, value) -> bool:
+    if not isinstance(value, bool):
+        raise SpecError(f"{key}: expected true or false, got {value!r}")
+    return value
+
+
+def parse_tune_spec(data: dict) -> TuneSpec:
+    """Validate a parsed tune TOML document (SpecError names the key and the allowed range)."""
+    _table("top level", data, {"tune", "push", "controller", "randomize", "baseline", "evaluate"})
+    tune = _table("tune", data.get("tune", {}), TUNE_FIELDS)
+    for k in ("name", "description"):
+        if k in tune and not isinstance(tune[k], str):
+            raise SpecError(f"tune.{k}: expected a string, got {tune[k]!r}")
+    seed = _int("tune.seed", tune.get("seed", 0), 0, 2**31 - 1)
+    iterations = _int("tune.iterations", tune.get("iterations", 50), 1, 100_000)
+    batch = _int("tune.batch", tune.get("batch", 64), 1, 1_048_576)
+    duration = _number("tune.duration_s", tune.get("duration_s", 1.5), 0.1, 30.0, "s")
+    lr = _number("tune.learning_rate", tune.get("learning_rate", 0.05), 1e-6, 10.0)
+    clip = _number("tune.clip_norm", tune.get("clip_norm", 1.0), 1e-6, 1e6)
+    float64 = _bool("tune.float64", tune.get("float64", False))
+    remat = _bool("tune.remat", tune.get("remat", True))
+    quantise = _bool("tune.quantise_targets", tune.get("quantise_targets", True))
+    params = tune.get("params", list(DEFAULT_TUNED))
+    if (not isinstance(params, list) or not params or len(set(params)) != len(params)
+            or any(p not in TUNABLE for p in params)):
+        raise SpecError(f"tune.params: expected a non-empty list of distinct names from "
+                        f"{sorted(TUNABLE)}, got {params!r}")
+
+    ranges_raw = _table("tune.ranges", tune.get("ranges", {}), {TUNABLE[f][0] for f in TUNABLE})
+    by_key = {TUNABLE[f][0]: f for f in TUNABLE}
+    ranges = {}
+    for key, value in ranges_raw.items():
+        f = by_key[key]
+        lo, hi, unit = CONTROLLER_FIELDS[key]
+        if TUNABLE[f][2]:
+            lo = max(lo, 1e-12)                       # log scale: strictly positive
+        if not (isinstance(value, list) and len(value) == 2):
+            raise SpecError(f"tune.ranges.{key}: expected [lo, hi] within [{lo}, {hi}] {unit}, "
+                            f"got {value!r}")
+        a = _number(f"tune.ranges.{key}[0]", value[0], lo, hi, unit)
+        b = _number(f"tune.ranges.{key}[1]", value[1], lo, hi, unit)
+        if not a < b:
+            raise SpecError(f"tune.ranges.{key}: lower bound {a} must be below upper bound {b}")
+        ranges[f] = (a, b)
+
+    anneal = _table("tune.anneal", tune.get("anneal", {}), {"start_deg", "end_deg", "schedule"})
+    start = _number("tune.anneal.start_deg", anneal.get("start_deg", 3.0), 1e-3, 30.0, "deg")
+    end = _number("tune.anneal.end_deg", anneal.get("end_deg", 0.5), 1e-3, start, "deg")
+    schedule = anneal.get("schedule", "geometric")
+    if schedule not in ("geometric", "linear"):
+        raise SpecError(f"tune.anneal.schedule: expected 'geometric' or 'linear', got {schedule!r}")
+
+    loss_raw = _table("tune.loss", tune.get("loss", {}), LOSS_FIELDS)
+    loss = LossConfig(**{k: _number(f"tune.loss.{k}", v, *LOSS_FIELDS[k])
+                         for k, v in loss_raw.items()})
+
+    push_raw = _table("push", data.get("push", {}), TUNE_PUSH_FIELDS)
+    push = {}
+    for k in PUSH_FIELDS:
+        lo, hi, default, unit = PUSH_FIELDS[k]
+        v = push_raw.get(k, default)
+        key = f"push.{k}"
+        if isinstance(v, dict):
+            push[k] = _uniform(key, v, lo, hi, unit)
+        elif isinstance(v, list):
+            push[k] = [float(x) for x in _values(key, v, lo, hi, unit)]
+        else:
+            push[k] = _number(key, v, lo, hi, unit)
+    jitter = _number("push.azimuth_jitter_deg", push_raw.get("azimuth_jitter_deg", 0.0),
+                     0.0, 180.0, "deg")
+    onset_hi = push["onset_s"][1] if isinstance(push["onset_s"], tuple) else max(
+        np.atleast_1d(push["onset_s"]))
+    if onset_hi + 0.03 >= duration:
+        raise SpecError(f"push.onset_s: onsets up to {onset_hi} s leave no time after the push "
+                        f"within tune.duration_s = {duration} s")
+
+    ctrl_raw = _table("controller", data.get("controller", {}), CONTROLLER_FIELDS)
+    controller = {k: _number(f"controller.{k}", v, *CONTROLLER_FIELDS[k])
+                  for k, v in ctrl_raw.items()}
+    randomize = parse_randomize(data)
+
+    base = _table("baseline", data.get("baseline", {}), {"method", "sigma", "seed",
+                                                         "gate_temperature_deg"})
+    if base.get("method", "es") != "es":
+        raise SpecError(f"baseline.method: expected 'es' ((1+1) evolution strategy), "
+                        f"got {base['method']!r}")
+    sigma = _number("baseline.sigma", base.get("sigma", 0.5), 1e-4, 10.0, "(latent units)")
+    bseed = _int("baseline.seed", base.get("seed", seed), 0, 2**31 - 1)
+    btemp = _number("baseline.gate_temperature_deg", base.get("gate_temperature_deg", end),
+                    0.0, 30.0, "deg")
+
+    ev = _table("evaluate", data.get("evaluate", {}), {"seed", "n", "impulse_ns", "azimuth_deg",
+                                                      "duration_s"})
+    eseed = _int("evaluate.seed", ev.get("seed", seed + 1), 0, 2**31 - 1)
+    if eseed == seed:
+        raise SpecError(f"evaluate.seed: must differ from tune.seed ({seed}): held-out pushes "
+                        "are never used for tuning")
+    en = _int("evaluate.n", ev.get("n", 4 * batch), 0, 10_000_000)
+    ej = _values("evaluate.impulse_ns", ev.get("impulse_ns", {"start": 0.2, "stop": 2.4,
+                                                              "num": 12}),
+                 *PUSH_FIELDS["impulse_ns"][:2], "N·s")
+    ea = _values("evaluate.azimuth_deg", ev.get("azimuth_deg", [0.0, 180.0]),
+                 *PUSH_FIELDS["azimuth_deg"][:2], "deg")
+    edur = _number("evaluate.duration_s", ev.get("duration_s", duration), 0.1, 30.0, "s")
+
+    spec = TuneSpec(name=tune.get("name", "tune"), seed=seed, iterations=iterations, batch=batch,
+                    duration_s=duration, learning_rate=lr, clip_norm=clip, params=tuple(params),
+                    ranges=ranges, float64=float64, remat=remat,
+                    quantise_targets=quantise, anneal=(start, end, schedule),
+                    loss=loss, push=push, azimuth_jitter_deg=jitter, controller=controller,
+                    randomize=randomize, baseline_sigma=sigma, baseline_seed=bseed,
+                    baseline_temperature_deg=btemp, eval_seed=eseed, eval_n=en,
+                    eval_impulse_ns=ej, eval_azimuth_deg=ea, eval_duration_s=edur, raw=data)
+    # Start values must lie strictly inside the ranges (their latents are finite).
+    rep, start_params = spec.reparam(), spec.base_params()
+    for f, (a, b) in rep.user_ranges().items():
+        v = float(getattr(start_params, f)) / _user_factor(f)
+        if not a < v < b:
+            raise SpecError(f"{TUNABLE[f][0]}: start value {v:g} (from [controller] or the "
+                            f"paper) must lie strictly inside tune.ranges ({a:g}, {b:g})")
+    return spec
+
+
+def load_tune_spec(path: str | Path) -> TuneSpec:
+    return parse_tune_spec(read_toml(path))
+
+
+def sample_pushes(spec: TuneSpec, n: int, seed: int) -> dict[str, np.ndarray]:
+    """n push records (RECORD_KEYS columns) from the spec's distribution, seeded."""
+    rng = np.random.default_rng(seed)
+    out = {}
+    for k in PUSH_FIELDS:
+        v = spec.push[k]
+        if isinstance(v, tuple):
+            out[k] = rng.uniform(v[0], v[1], n)
+        elif isinstance(v, list):
+            out[k] = np.resize(np.array(v, float), n)       # cycled: balanced directions
+        else:
+            out[k] = np.full(n, v)
+    if spec.azimuth_jitter_deg > 0:
+        out["azimuth_deg"] = out["azimuth_deg"] + rng.uniform(-spec.azimuth_jitter_deg,
+                                                              spec.azimuth_jitter_deg, n)
+    return _with_randomize(out, spec, rng, n)
+
+
+def grid_pushes(spec: TuneSpec) -> dict[str, np.ndarray]:
+    """The evaluation grid: impulses x azimuths, other push fields at their mid values."""
+    J, A = np.meshgrid(spec.eval_impulse_ns, spec.eval_azimuth_deg, indexing="ij")
+    n = J.size
+    out = dict(impulse_ns=J.ravel(), azimuth_deg=A.ravel())
+    for k in ("height_m", "duration_s", "onset_s"):
+        v = spec.push[k]
+        mid = (0.5 * (v[0] + v[1]) if isinstance(v, tuple)
+               else float(np.mean(v)) if isinstance(v, list) else v)
+        out[k] = np.full(n, mid)
+    # The grid uses the nominal model (no randomisation) and no sensor noise.
+    return _with_randomize(out, None, None, n)
+
+
+def _with_randomize(out: dict, spec: TuneSpec | None, rng, n: int) -> dict[str, np.ndarray]:
+    rand = spec.randomize if spec is not None else {}
+    for k, default in RANDOMIZE_DEFAULTS.items():
+        v = rand.get(k)
+        if isinstance(v, tuple):
+            out[k] = rng.uniform(v[0], v[1], n)
+        elif v is not None:
+            out[k] = np.full(n, v)
+        else:
+            out[k] = np.full(n, -1.0 if default is None else default)  # friction -1: model's
+    return {k: np.asarray(out[k], float) for k in RECORD_KEYS}
