@@ -1,6 +1,7 @@
 """Sweeps: spec validation, resume, sharding over 2 devices, 2 processes, bounds, maps."""
 
 import copy
+import dataclasses
 import json
 import math
 import os
@@ -9,6 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 
@@ -283,3 +285,53 @@ def test_auto_backend_is_mujoco_c_on_cpu_and_agrees_with_mjx(full_run, tmp_path)
     assert choose_backend("auto", parse_spec(randomized)) == "mjx"
     with pytest.raises(SpecError, match="cannot vary"):
         choose_backend("mujoco", parse_spec(randomized))
+
+
+# --- Controller parameters are traced inputs: one compile per batch shape ---
+
+def test_a_second_parameter_set_does_not_recompile(full_run, tmp_path):
+    """The tiny sweep again with other controller values (a tuned set, say): same compiled chunk
+    (the jit cache of make_chunk_fn holds exactly one program), different records."""
+    from tkujax.studies.sweep import make_chunk_fn
+
+    fn = make_chunk_fn((), 1.5, None)
+    assert fn._cache_size() == 1
+    other = dataclasses.replace(ControllerParams.paper(), eps_forward=math.radians(8.0),
+                                step_period=0.25)
+    run_sweep(TINY, tmp_path / "other", params=other, quiet=True, backend="mjx")
+    assert fn._cache_size() == 1, "a new controller parameter set recompiled the sweep"
+    rec = load(tmp_path / "other")
+    _, _, first = full_run
+    assert not np.allclose(rec["capture_point_m"], first["capture_point_m"], equal_nan=True)
+
+
+def test_persistent_cache_serves_a_new_process(full_run):
+    """A fresh process compiling the same chunk reads it from the persistent cache (counted by
+    JAX's own cache-hit event) instead of compiling again."""
+    code = (
+        "import os, jax, jax.numpy as jnp, numpy as np\n"
+        "jax.config.update('jax_compilation_cache_dir', os.environ['CACHE'])\n"
+        "jax.config.update('jax_persistent_cache_min_compile_time_secs', 0)\n"
+        "jax.config.update('jax_persistent_cache_min_entry_size_bytes', -1)\n"
+        "hits = []\n"
+        "jax.monitoring.register_event_listener("
+        "lambda e, **k: hits.append(e) if e == '/jax/compilation_cache/cache_hits' else None)\n"
+        "from tkujax.control import ControllerParams\n"
+        "from tkujax.studies.spec import load_spec\n"
+        "from tkujax.studies.sweep import make_chunk_fn, traced_params, _record_inputs\n"
+        f"spec = load_spec({str(TINY)!r})\n"
+        "recs = _record_inputs(spec)\n"
+        "keys_in = [k for k in recs if k not in ('push_id', 'from_grid')]\n"
+        "from jax.sharding import Mesh, NamedSharding, PartitionSpec\n"
+        "sh = NamedSharding(Mesh(np.array(jax.local_devices()), ('push',)), PartitionSpec('push'))\n"
+        "batch = {k: jax.device_put(np.asarray(recs[k][:4], np.float32), sh) for k in keys_in}\n"
+        "keys = jax.device_put(jax.random.split(jax.random.PRNGKey(0), 4), sh)\n"
+        "fn = make_chunk_fn((), spec.duration_s, None)\n"
+        "fn.lower(batch, keys, traced_params(ControllerParams.paper())).compile()\n"
+        "print('HITS', len(hits))\n")
+    cache = jax.config.jax_compilation_cache_dir
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env={**os.environ, "CACHE": cache}, timeout=600)
+    assert res.returncode == 0, res.stderr[-2000:]
+    hits = int(res.stdout.split("HITS")[-1])
+    assert hits >= 1, res.stdout

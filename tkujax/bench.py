@@ -26,7 +26,7 @@ import numpy as np
 
 from tkujax.sim import physics
 from tkujax.control.params import ControllerParams
-from tkujax.studies.sweep import make_chunk_fn
+from tkujax.studies.sweep import make_chunk_fn, traced_params
 
 
 def _timed(fn, repeats: int) -> float:
@@ -61,11 +61,11 @@ def raw_stepping(batch: int, n_steps: int, repeats: int) -> dict:
 
 
 def closed_loop(batch: int, duration_s: float, repeats: int) -> dict:
-    params = ControllerParams.paper()
-    fn = make_chunk_fn(params, (), duration_s)
+    params = traced_params(ControllerParams.paper())
+    fn = make_chunk_fn((), duration_s)
     recs = _push_batch(batch)
     keys = jax.random.split(jax.random.PRNGKey(0), batch)
-    sec = _timed(lambda: fn(recs, keys), repeats)
+    sec = _timed(lambda: fn(recs, keys, params), repeats)
     steps = int(round(duration_s / physics.host_model().opt.timestep))
     return dict(batch=batch, duration_s=duration_s, seconds=sec, pushes_per_s=batch / sec,
                 physics_steps_per_s=batch * steps / sec)
@@ -73,7 +73,7 @@ def closed_loop(batch: int, duration_s: float, repeats: int) -> dict:
 
 def compile_times(batch: int, duration_s: float) -> dict:
     """Cold compile into an empty persistent cache, then again from that cache."""
-    params = ControllerParams.paper()
+    params = traced_params(ControllerParams.paper())
     recs = _push_batch(batch)
     keys = jax.random.split(jax.random.PRNGKey(0), batch)
     old_dir = jax.config.jax_compilation_cache_dir
@@ -83,9 +83,9 @@ def compile_times(batch: int, duration_s: float) -> dict:
         out = {}
         for label in ("cold_s", "cached_s"):
             jax.clear_caches()
-            fn = make_chunk_fn(params, (), duration_s)
+            fn = make_chunk_fn((), duration_s)
             t0 = time.perf_counter()
-            fn.lower(recs, keys).compile()
+            fn.lower(recs, keys, params).compile()
             out[label] = time.perf_counter() - t0
     jax.config.update("jax_compilation_cache_dir", old_dir)
     return out
@@ -95,8 +95,8 @@ def multi_device(batch: int, duration_s: float, repeats: int) -> list[dict]:
     """The sharded closed-loop chunk at a fixed global batch on 1..n local devices."""
     from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-    params = ControllerParams.paper()
-    fn = make_chunk_fn(params, (), duration_s)
+    params = traced_params(ControllerParams.paper())
+    fn = make_chunk_fn((), duration_s)
     steps = int(round(duration_s / physics.host_model().opt.timestep))
     out = []
     devices = jax.local_devices()
@@ -104,7 +104,7 @@ def multi_device(batch: int, duration_s: float, repeats: int) -> list[dict]:
         sharding = NamedSharding(Mesh(np.array(devices[:n]), ("push",)), PartitionSpec("push"))
         recs = {k: jax.device_put(v, sharding) for k, v in _push_batch(batch).items()}
         keys = jax.device_put(jax.random.split(jax.random.PRNGKey(0), batch), sharding)
-        sec = _timed(lambda: fn(recs, keys), repeats)
+        sec = _timed(lambda: fn(recs, keys, params), repeats)
         out.append(dict(n_devices=n, batch=batch, seconds=sec, pushes_per_s=batch / sec,
                         physics_steps_per_s=batch * steps / sec))
     return out
