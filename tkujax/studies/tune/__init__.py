@@ -62,7 +62,8 @@ from tkujax.studies.tune.methods import (evolution_baseline, make_optimizer, opt
 from tkujax.studies.tune.benchmark import benchmark_gradient_step
 from tkujax.studies.tune.problem import RECORD_KEYS, TuneProblem
 from tkujax.studies.tune.reparam import (DEFAULT_RANGES, DEFAULT_TUNED, DEG, TUNABLE, Reparam)
-from tkujax.studies.tune.report import summary_markdown, verdict
+from tkujax.studies.tune.report import summary_markdown
+from tkujax.studies.tune.search import METHODS, SearchConfig, alpha_order_mix, run_search
 from tkujax.studies.tune.run import run_tune
 from tkujax.studies.tune.spec import (TuneSpec, grid_pushes, load_tune_spec, parse_tune_spec,
                                       sample_pushes)
@@ -71,4 +72,5 @@ __all__ = ["DEFAULT_RANGES", "DEFAULT_TUNED", "DEG", "LOSS_FIELDS", "RECORD_KEYS
            "LossConfig", "Reparam", "TuneProblem", "TuneSpec", "benchmark_gradient_step",
            "evaluate", "evolution_baseline", "grid_pushes", "load_tune_spec", "make_optimizer",
            "optimise", "params_json", "parse_tune_spec", "push_loss", "run_tune",
-           "sample_pushes", "summary_markdown", "temperature_schedule", "verdict"]
+           "sample_pushes", "summary_markdown", "temperature_schedule", "METHODS", "SearchConfig",
+           "alpha_order_mix", "run_search"]

@@ -66,6 +66,15 @@ class TuneProblem:
         opts = compiler_options or None
         self._vg = jax.jit(jax.value_and_grad(self.loss, has_aux=True), compiler_options=opts)
         self._fwd = jax.jit(self.loss, compiler_options=opts)
+        # Population methods (CMA-ES, zeroth-order gradients): every candidate of a generation
+        # on the whole batch in ONE call (candidates x pushes rollouts), the loss only.
+        self._pop = jax.jit(jax.vmap(lambda z, t, b, k: self.loss(z, t, b, k)[0],
+                                     in_axes=(0, None, None, None)), compiler_options=opts)
+        # The gradient per group of pushes (vmapped): the mean is the batch gradient, the
+        # spread between groups estimates its variance (for the alpha-order mix).
+        self._vg_groups = jax.jit(jax.vmap(jax.value_and_grad(
+            lambda z, t, b, k: self.loss(z, t, b, k)[0]), in_axes=(None, None, 0, 0)),
+            compiler_options=opts)
 
     def loss(self, z, temperature, batch: dict, keys):
         params = dataclasses.replace(self.reparam.apply(self.base, z),
@@ -95,6 +104,25 @@ class TuneProblem:
         with _x64(self.float64):
             (loss, aux), g = self._vg(*self._args(z, temperature, batch, keys))
             return _np(loss), _np(aux), _np(g)
+
+    def population(self, zs, temperature, batch, keys) -> np.ndarray:
+        """(P,) mean losses of the P latents zs (P, k) on the same batch, one call."""
+        with _x64(self.float64):
+            cast = lambda x: jnp.asarray(x, self.dtype)  # noqa: E731
+            out = self._pop(cast(zs), cast(temperature),
+                            {k: cast(batch[k]) for k in RECORD_KEYS}, keys)
+            return np.asarray(out, np.float64)
+
+    def grouped_value_and_grad(self, z, temperature, batch, keys, groups: int):
+        """(losses (G,), grads (G, k)) over `groups` equal groups of the batch (numpy)."""
+        n = len(keys)
+        if n % groups:
+            raise ValueError(f"batch {n} must be a multiple of the gradient groups {groups}")
+        with _x64(self.float64):
+            z, t, b, k = self._args(z, temperature, batch, keys)
+            split = lambda x: x.reshape((groups, n // groups) + x.shape[1:])  # noqa: E731
+            loss, g = self._vg_groups(z, t, {c: split(v) for c, v in b.items()}, split(k))
+            return np.asarray(loss, np.float64), np.asarray(g, np.float64)
 
     def forward(self, z, temperature, batch, keys):
         with _x64(self.float64):

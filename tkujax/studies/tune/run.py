@@ -1,10 +1,10 @@
-"""`tkujax tune SPEC --out DIR`: tune, run the baseline, evaluate, write the outputs."""
+"""`tkujax tune SPEC --out DIR`: run the spec's method (or the [compare] study), evaluate the
+result with the hard controller on held-out pushes, and write the outputs."""
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import sys
 import time
 from pathlib import Path
@@ -13,19 +13,20 @@ import jax
 import numpy as np
 
 from tkujax.studies.tune.evaluate import evaluate, params_json
-from tkujax.studies.tune.methods import _f, evolution_baseline, make_optimizer, optimise, temperature_schedule
 from tkujax.studies.tune.problem import TuneProblem, _x64
-from tkujax.studies.tune.reparam import DEG
-from tkujax.studies.tune.report import _plot, summary_markdown
-from tkujax.studies.tune.spec import TuneSpec, grid_pushes, load_tune_spec, parse_tune_spec, sample_pushes
+from tkujax.studies.tune.report import plot_outputs, summary_markdown
+from tkujax.studies.tune.search import SearchConfig, run_search
+from tkujax.studies.tune.spec import (TuneSpec, grid_pushes, load_tune_spec, parse_tune_spec,
+                                      sample_pushes)
 
 
 def run_tune(spec: TuneSpec | dict | str | Path, out_dir: str | Path, quiet: bool = False,
              iterations: int | None = None, compiler_options: dict | None = None,
-             baseline: bool = True, evaluation: bool = True) -> dict:
-    """Tune, run the baseline, evaluate, and write the outputs into out_dir. Returns a summary.
+             evaluation: bool = True, compare: bool = True) -> dict:
+    """Tune with the spec's method, evaluate, and write the outputs into out_dir.
 
-    spec: a TuneSpec, a parsed TOML dict, or a path. iterations overrides the spec's count.
+    spec: a TuneSpec, a parsed TOML dict, or a path. iterations overrides tune.iterations.
+    compare: also run the spec's [compare] study when it has one. Returns the record.
     """
     if isinstance(spec, dict):
         spec = parse_tune_spec(spec)
@@ -34,60 +35,39 @@ def run_tune(spec: TuneSpec | dict | str | Path, out_dir: str | Path, quiet: boo
     if iterations is not None:
         spec = dataclasses.replace(spec, iterations=int(iterations))
     with _x64(spec.float64):       # the optimiser's latents in the problem's precision too
-        return _run_tune(spec, Path(out_dir), quiet, compiler_options, baseline, evaluation)
+        return _run_tune(spec, Path(out_dir), quiet, compiler_options, evaluation, compare)
 
 
 def _run_tune(spec: TuneSpec, out: Path, quiet: bool, compiler_options: dict | None,
-              baseline: bool, evaluation: bool) -> dict:
+              evaluation: bool, compare: bool) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     log = (lambda s: None) if quiet else (lambda s: print(s, file=sys.stderr, flush=True))
     t_start = time.perf_counter()
-
     reparam, base = spec.reparam(), spec.base_params()
     z0 = reparam.latent_of(base)
     problem = TuneProblem(reparam, base, spec.loss, spec.duration_s, spec.remat, spec.float64,
                           compiler_options=compiler_options,
                           quantise_targets=spec.quantise_targets)
+    comparison = None
+    if compare and spec.compare is not None:
+        from tkujax.studies.tune.compare import run_compare
+
+        comparison = run_compare(spec, out, problem, log)
+
+    c = spec.compare or {}
+    cfg = SearchConfig(budget_s=c.get("budget_s", float("inf")), max_iterations=spec.iterations,
+                       popsize=spec.popsize, learning_rate=spec.learning_rate,
+                       clip_norm=spec.clip_norm, sigma0=spec.baseline_sigma,
+                       temperature_deg=c.get("temperature_deg", 0.5),
+                       groups=c.get("groups", 4 if spec.batch % 4 == 0 else 1))
     train = sample_pushes(spec, spec.batch, spec.seed)
-    train_keys = jax.random.split(jax.random.PRNGKey(spec.seed), spec.batch)
-    temps = temperature_schedule(*spec.anneal[:2], spec.iterations, spec.anneal[2])
-    log(f"tune {spec.name}: {spec.batch} pushes x {spec.duration_s} s, {spec.iterations} "
-        f"iterations, tuning {', '.join(reparam.fields)}; float64={spec.float64}, "
-        f"remat={spec.remat}. Compiling the gradient (minutes on a CPU) ...")
+    keys = jax.random.split(jax.random.PRNGKey(spec.seed), spec.batch)
+    log(f"tune {spec.name}: method {spec.method}, {spec.batch} pushes x {spec.duration_s} s, "
+        f"up to {spec.iterations} iterations, tuning {', '.join(reparam.fields)}. Compiling "
+        "(minutes on a CPU) ...")
+    run = run_search(spec.method, problem, z0, train, keys, cfg, seed=spec.seed, log=log)
+    cands = {"before": z0, "after": np.asarray(run["z_best"])}
 
-    # 1. Gradient descent.
-    t0 = time.perf_counter()
-    step_fn = lambda z, tau: problem.value_and_grad(z, tau, train, train_keys)  # noqa: E731
-    z_grad, history = optimise(step_fn, z0, temps, make_optimizer(spec.learning_rate,
-                                                                   spec.clip_norm),
-                               reparam, log, pushes_per_step=spec.batch)
-    grad_wall = time.perf_counter() - t0
-    compile_note = history[0]["wall_s"] if history else None
-
-    # 2. Gradient-free baseline, same loss (at a fixed temperature), same pushes simulated.
-    tau_b = spec.baseline_temperature_deg * DEG
-    es_rows, z_es, es_wall = [], None, 0.0
-    if baseline:
-        log(f"baseline: (1+1)-ES, {spec.iterations} evaluations x {spec.batch} pushes at "
-            f"gate temperature {spec.baseline_temperature_deg:g} deg ...")
-        t0 = time.perf_counter()
-        es_loss = lambda z: problem.forward(z, tau_b, train, train_keys)[0]  # noqa: E731
-        z_es, es_rows = evolution_baseline(es_loss, z0, spec.iterations, spec.baseline_sigma,
-                                           spec.baseline_seed, log, spec.batch)
-        es_wall = time.perf_counter() - t0
-
-    # 3. Same-objective comparison on the training batch: final soft temperature and hard.
-    cands = {"before": z0, "gradient": z_grad} | ({"baseline": z_es} if z_es is not None else {})
-    train_loss = {}
-    for name, z in cands.items():
-        soft = problem.forward(z, temps[-1], train, train_keys)[0]
-        hard = problem.forward(z, 0.0, train, train_keys)[0]
-        es_t = (None if not baseline else soft if math.isclose(tau_b, temps[-1])
-                else problem.forward(z, tau_b, train, train_keys)[0])
-        train_loss[name] = dict(final_temperature=_f(soft), hard=_f(hard), baseline_temperature=
-                                _f(es_t) if es_t is not None else None)
-
-    # 4. Honest evaluation: held-out pushes (another seed), hard controller.
     evals = {}
     if evaluation:
         log(f"evaluating (hard gate) on {spec.eval_n} held-out pushes (seed {spec.eval_seed}) "
@@ -99,33 +79,23 @@ def _run_tune(spec: TuneSpec, out: Path, quiet: bool, compiler_options: dict | N
         evals = evaluate(eval_problem, cands, heldout, grid_pushes(spec), spec.batch,
                          spec.eval_seed)
 
-    # 5. Outputs.
     params = {name: reparam.params_np(base, z) for name, z in cands.items()}
-    for name, fname in (("before", "params_before.json"), ("gradient", "params_after.json"),
-                        ("baseline", "params_baseline.json")):
-        if name in params:
-            (out / fname).write_text(json.dumps(params_json(params[name].validate()), indent=1))
-    n_skipped = sum(r["skipped"] for r in history)
+    (out / "params_before.json").write_text(json.dumps(params_json(params["before"].validate()),
+                                                       indent=1))
+    (out / "params_after.json").write_text(json.dumps(params_json(params["after"].validate()),
+                                                      indent=1))
     record = dict(
-        name=spec.name, spec=spec.raw, tuned=list(reparam.fields),
+        name=spec.name, spec=spec.raw, method=spec.method, tuned=list(reparam.fields),
         ranges_user_units=reparam.user_ranges(), batch=spec.batch, duration_s=spec.duration_s,
-        iterations=spec.iterations, float64=spec.float64, remat=spec.remat,
-        temperatures_deg=(temps / DEG).tolist(), history=history,
-        skipped_steps=[r["iteration"] for r in history if r["skipped"]], n_skipped=n_skipped,
-        baseline=dict(method="(1+1)-ES, 1/5 rule", sigma0=spec.baseline_sigma,
-                      gate_temperature_deg=spec.baseline_temperature_deg, rows=es_rows,
-                      wall_s=round(es_wall, 2)),
-        pushes_simulated=dict(gradient=spec.iterations * spec.batch,
-                              baseline=len(es_rows) * spec.batch),
+        iterations=run["iterations"], float64=spec.float64, remat=spec.remat, run=run,
         params_user={n: reparam.user(z) for n, z in cands.items()},
-        latents={n: np.asarray(z).tolist() for n, z in cands.items()},
-        train_loss=train_loss, evaluation=evals,
-        wall_s=dict(gradient=round(grad_wall, 2), first_iteration_incl_compile=compile_note,
-                    baseline=round(es_wall, 2), total=round(time.perf_counter() - t_start, 2)),
-        devices=[str(d) for d in jax.devices()])
+        latents={n: np.asarray(z).tolist() for n, z in cands.items()}, evaluation=evals,
+        compare=None if comparison is None else dict(winner=comparison["winner"],
+                                                     pooled=comparison["pooled"]),
+        wall_s=round(time.perf_counter() - t_start, 2), devices=[str(d) for d in jax.devices()])
     (out / "history.json").write_text(json.dumps(record, indent=1, default=_json_default))
-    _plot(out, record)
-    (out / "summary.md").write_text(summary_markdown(record))
+    plot_outputs(out, record)
+    (out / "summary.md").write_text(summary_markdown(record, comparison))
     log(f"wrote {out}/summary.md")
     return record
 

@@ -15,6 +15,7 @@ from tkujax.studies.sweep import controller_params_from
 from tkujax.studies.tune.loss import LOSS_FIELDS, LossConfig
 from tkujax.studies.tune.problem import RECORD_KEYS
 from tkujax.studies.tune.reparam import DEFAULT_TUNED, TUNABLE, Reparam, _user_factor
+from tkujax.studies.tune.search import METHODS
 
 
 @dataclasses.dataclass(frozen=True)
@@ -46,6 +47,10 @@ class TuneSpec:
     eval_azimuth_deg: np.ndarray
     eval_duration_s: float
     raw: dict
+    method: str = "cma"                              # what `tkujax tune` runs (see search.py)
+    popsize: int = 9                                 # CMA-ES population (odd)
+    compare: dict | None = None                      # [compare]: methods x seeds, one budget
+    shift: dict | None = None                        # [evaluate.shift]: model/push shift
 
     def reparam(self) -> Reparam:
         return Reparam.make(self.params, self.ranges)
@@ -58,7 +63,8 @@ TUNE_FIELDS = {"name": str, "description": str, "seed": int, "iterations": int, 
                "duration_s": (int, float), "learning_rate": (int, float),
                "clip_norm": (int, float), "params": list, "float64": bool, "remat": bool,
                "quantise_targets": bool,
-               "anneal": dict, "loss": dict, "ranges": dict}
+               "anneal": dict, "loss": dict, "ranges": dict, "method": str,
+               "popsize": int}
 TUNE_PUSH_FIELDS = set(PUSH_FIELDS) | {"azimuth_jitter_deg"}
 
 
@@ -76,7 +82,8 @@ def _bool(key: str, value) -> bool:
 
 def parse_tune_spec(data: dict) -> TuneSpec:
     """Validate a parsed tune TOML document (SpecError names the key and the allowed range)."""
-    _table("top level", data, {"tune", "push", "controller", "randomize", "baseline", "evaluate"})
+    _table("top level", data, {"tune", "push", "controller", "randomize", "baseline", "evaluate",
+                               "compare"})
     tune = _table("tune", data.get("tune", {}), TUNE_FIELDS)
     for k in ("name", "description"):
         if k in tune and not isinstance(tune[k], str):
@@ -160,7 +167,7 @@ def parse_tune_spec(data: dict) -> TuneSpec:
                     0.0, 30.0, "deg")
 
     ev = _table("evaluate", data.get("evaluate", {}), {"seed", "n", "impulse_ns", "azimuth_deg",
-                                                      "duration_s"})
+                                                      "duration_s", "shift"})
     eseed = _int("evaluate.seed", ev.get("seed", seed + 1), 0, 2**31 - 1)
     if eseed == seed:
         raise SpecError(f"evaluate.seed: must differ from tune.seed ({seed}): held-out pushes "
@@ -173,6 +180,15 @@ def parse_tune_spec(data: dict) -> TuneSpec:
                  *PUSH_FIELDS["azimuth_deg"][:2], "deg")
     edur = _number("evaluate.duration_s", ev.get("duration_s", duration), 0.1, 30.0, "s")
 
+    method = tune.get("method", "cma")
+    if method not in METHODS:
+        raise SpecError(f"tune.method: expected one of {list(METHODS)}, got {method!r}")
+    popsize = _int("tune.popsize", tune.get("popsize", 9), 3, 4096)
+    if popsize % 2 == 0:
+        raise SpecError(f"tune.popsize: expected an odd number, got {popsize}")
+    compare = _parse_compare(data["compare"], batch) if "compare" in data else None
+    shift = _parse_shift(ev["shift"]) if "shift" in ev else None
+
     spec = TuneSpec(name=tune.get("name", "tune"), seed=seed, iterations=iterations, batch=batch,
                     duration_s=duration, learning_rate=lr, clip_norm=clip, params=tuple(params),
                     ranges=ranges, float64=float64, remat=remat,
@@ -180,7 +196,8 @@ def parse_tune_spec(data: dict) -> TuneSpec:
                     loss=loss, push=push, azimuth_jitter_deg=jitter, controller=controller,
                     randomize=randomize, baseline_sigma=sigma, baseline_seed=bseed,
                     baseline_temperature_deg=btemp, eval_seed=eseed, eval_n=en,
-                    eval_impulse_ns=ej, eval_azimuth_deg=ea, eval_duration_s=edur, raw=data)
+                    eval_impulse_ns=ej, eval_azimuth_deg=ea, eval_duration_s=edur, raw=data,
+                    method=method, popsize=popsize, compare=compare, shift=shift)
     # Start values must lie strictly inside the ranges (their latents are finite).
     rep, start_params = spec.reparam(), spec.base_params()
     for f, (a, b) in rep.user_ranges().items():
@@ -189,6 +206,63 @@ def parse_tune_spec(data: dict) -> TuneSpec:
             raise SpecError(f"{TUNABLE[f][0]}: start value {v:g} (from [controller] or the "
                             f"paper) must lie strictly inside tune.ranges ({a:g}, {b:g})")
     return spec
+
+
+COMPARE_FIELDS = {"methods", "seeds", "budget_s", "popsize", "sigma0", "zo_sigma", "groups",
+                  "learning_rate", "temperature_deg", "eval_n"}
+
+
+def _parse_compare(raw, batch: int) -> dict:
+    c = _table("compare", raw, COMPARE_FIELDS)
+    methods = c.get("methods", ["cma", "hybrid", "es"])
+    if (not isinstance(methods, list) or not methods or any(m not in METHODS for m in methods)
+            or len(set(methods)) != len(methods)):
+        raise SpecError(f"compare.methods: expected distinct names from {list(METHODS)}, "
+                        f"got {methods!r}")
+    seeds = c.get("seeds", [0, 1, 2])
+    if not isinstance(seeds, list) or not seeds or any(
+            isinstance(x, bool) or not isinstance(x, int) or x < 0 for x in seeds):
+        raise SpecError(f"compare.seeds: expected a list of non-negative integers, got {seeds!r}")
+    groups = _int("compare.groups", c.get("groups", 4), 1, 1024)
+    if batch % groups:
+        raise SpecError(f"compare.groups: {groups} must divide tune.batch = {batch}")
+    popsize = _int("compare.popsize", c.get("popsize", 9), 3, 4096)   # its own, may differ
+    if popsize % 2 == 0:
+        raise SpecError(f"compare.popsize: expected an odd number (centre + antithetic pairs), "
+                        f"got {popsize}")
+    return dict(
+        methods=list(methods), seeds=list(seeds), groups=groups, popsize=popsize,
+        budget_s=_number("compare.budget_s", c.get("budget_s", 60.0), 1.0, 86400.0, "s"),
+        sigma0=_number("compare.sigma0", c.get("sigma0", 0.5), 1e-3, 10.0, "(latent)"),
+        zo_sigma=_number("compare.zo_sigma", c.get("zo_sigma", 0.3), 1e-3, 10.0, "(latent)"),
+        learning_rate=_number("compare.learning_rate", c.get("learning_rate", 0.1), 1e-5, 10.0),
+        temperature_deg=_number("compare.temperature_deg", c.get("temperature_deg", 0.5),
+                                1e-3, 30.0, "deg"),
+        eval_n=_int("compare.eval_n", c.get("eval_n", 4 * batch), 1, 10_000_000))
+
+
+def _parse_shift(raw) -> dict:
+    """[evaluate.shift]: model variations and contact heights never used in training."""
+    sh = _table("evaluate.shift", raw, set(RANDOMIZE_DEFAULTS) | {"height_m"})
+    out = {"randomize": parse_randomize({"randomize": {k: v for k, v in sh.items()
+                                                        if k != "height_m"}})}
+    if "height_m" in sh:
+        lo, hi, _, unit = PUSH_FIELDS["height_m"]
+        v = sh["height_m"]
+        out["height_m"] = (_uniform("evaluate.shift.height_m", v, lo, hi, unit)
+                           if isinstance(v, dict) else _number("evaluate.shift.height_m", v, lo,
+                                                               hi, unit))
+    return out
+
+
+def shifted(spec: TuneSpec) -> TuneSpec | None:
+    """The spec with [evaluate.shift] replacing its randomisation and contact heights."""
+    if spec.shift is None:
+        return None
+    push = dict(spec.push)
+    if "height_m" in spec.shift:
+        push["height_m"] = spec.shift["height_m"]
+    return dataclasses.replace(spec, push=push, randomize=spec.shift["randomize"])
 
 
 def load_tune_spec(path: str | Path) -> TuneSpec:

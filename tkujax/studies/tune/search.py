@@ -1,0 +1,203 @@
+"""Searches over the tuning latents under one wall-clock budget, for an honest comparison.
+
+Every method starts from the same latent z0 (the paper's values), sees the same training
+batch, and gets the same wall-clock budget with compilation excluded (each method's compiled
+functions are called once before the clock starts; that time is reported as compile_s). Each
+records the same convergence curve: the best HARD-gate training loss found so far (the loss
+that evaluation uses) against wall time and pushes simulated, and returns the best latent.
+
+  cma       CMA-ES (the `cmaes` library): a population of `popsize` candidates per generation,
+            all evaluated in one batched call on the hard loss.
+  gradient  Adam on the first-order gradient of the soft-gate loss at a FIXED small gate
+            temperature (no annealing schedule that could undo progress); the iterate kept is
+            the one with the best hard loss (one hard forward per step).
+  hybrid    the alpha-order gradient of Suh, Simchowitz, Zhang and Tedrake (ICML 2022): the
+            first-order gradient (soft gate, per group of pushes, giving its variance) mixed
+            with a zeroth-order randomised-smoothing gradient of the hard loss (antithetic
+            pairs, giving its variance): alpha = var_ZO / (var_FO + var_ZO), and alpha = 0 when
+            the two disagree by more than 2 standard errors (the first-order gradient is then
+            biased by a contact or gate discontinuity). Adam on the mix.
+  es        the (1+1)-ES with the 1/5 success rule on the hard loss (the simple baseline).
+
+Pushes simulated count a value-and-gradient rollout as one push.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from tkujax.studies.tune.problem import TuneProblem
+from tkujax.studies.tune.reparam import DEG
+
+METHODS = ("cma", "gradient", "hybrid", "es")
+_BIG = 1e6          # the loss a non-finite candidate gets (never selected, keeps CMA-ES sane)
+
+
+@dataclasses.dataclass(frozen=True)
+class SearchConfig:
+    budget_s: float = 60.0            # wall clock per method and seed, compile excluded
+    max_iterations: int = 10_000
+    popsize: int = 9                  # CMA-ES population; hybrid uses (popsize - 1) / 2 pairs
+    sigma0: float = 0.5               # CMA-ES / ES initial step (latent units)
+    zo_sigma: float = 0.3             # smoothing radius of the zeroth-order gradient (latent)
+    groups: int = 4                   # push groups of the first-order gradient
+    learning_rate: float = 0.1
+    clip_norm: float = 1.0
+    temperature_deg: float = 0.5      # soft gate of first-order gradients
+
+
+def _finite(x) -> float:
+    x = float(x)
+    return x if math.isfinite(x) else _BIG
+
+
+class _Tracker:
+    """Best-so-far hard loss, and the convergence curve."""
+
+    def __init__(self, z0, loss0: float, pushes_per_eval: int):
+        self.z, self.loss = np.asarray(z0, float), _finite(loss0)
+        self.t0 = time.perf_counter()
+        self.pushes = pushes_per_eval
+        self.curve = [dict(wall_s=0.0, pushes=pushes_per_eval, best_loss=self.loss)]
+
+    def offer(self, z, loss: float) -> None:
+        loss = _finite(loss)
+        if loss < self.loss:
+            self.z, self.loss = np.asarray(z, float), loss
+
+    def tick(self, pushes: int) -> None:
+        self.pushes += pushes
+        self.curve.append(dict(wall_s=round(self.elapsed(), 3), pushes=self.pushes,
+                               best_loss=self.loss))
+
+    def elapsed(self) -> float:
+        return time.perf_counter() - self.t0
+
+
+def run_search(method: str, problem: TuneProblem, z0, batch: dict, keys, cfg: SearchConfig,
+               seed: int, log: Callable[[str], None] | None = None) -> dict:
+    """Run one method within cfg.budget_s. Returns dict(method, seed, z_best, best_loss,
+    compile_s, iterations, curve, extra)."""
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    n = len(keys)
+    tau = cfg.temperature_deg * DEG
+    z0 = np.asarray(z0, float)
+    pairs = max((cfg.popsize - 1) // 2, 1)
+
+    # Compile (excluded from the budget): call what this method uses once.
+    t0 = time.perf_counter()
+    hard0 = problem.forward(z0, 0.0, batch, keys)[0]
+    if method in ("cma", "hybrid"):
+        problem.population(np.repeat(z0[None], cfg.popsize, 0), 0.0, batch, keys)
+    if method in ("gradient", "hybrid"):
+        problem.grouped_value_and_grad(z0, tau, batch, keys, cfg.groups)
+    compile_s = time.perf_counter() - t0
+
+    track = _Tracker(z0, hard0, n)
+    extra: dict = {}
+    it = 0
+    if method == "cma":
+        from cmaes import CMA
+
+        opt = CMA(mean=z0.copy(), sigma=cfg.sigma0, population_size=cfg.popsize, seed=seed)
+        while it < cfg.max_iterations and track.elapsed() < cfg.budget_s:
+            zs = np.stack([opt.ask() for _ in range(cfg.popsize)])
+            losses = problem.population(zs, 0.0, batch, keys)
+            opt.tell([(z, _finite(v)) for z, v in zip(zs, losses)])
+            for z, v in zip(zs, losses):
+                track.offer(z, v)
+            track.tick(cfg.popsize * n)
+            it += 1
+            if log:
+                log(f"cma  gen {it:3d}  best {track.loss:.4f}  sigma {opt._sigma:.3f}  "
+                    f"{track.elapsed():.0f}/{cfg.budget_s:g} s")
+    elif method == "es":
+        rng = jax.random.PRNGKey(seed)
+        z, best, sigma = z0.copy(), _finite(hard0), cfg.sigma0
+        while it < cfg.max_iterations and track.elapsed() < cfg.budget_s:
+            rng, sub = jax.random.split(rng)
+            cand = z + sigma * np.asarray(jax.random.normal(sub, z.shape), float)
+            loss = _finite(problem.forward(cand, 0.0, batch, keys)[0])
+            if loss < best:
+                z, best, sigma = cand, loss, sigma * 1.5
+            else:
+                sigma *= 1.5 ** -0.25
+            track.offer(cand, loss)
+            track.tick(n)
+            it += 1
+    else:   # gradient / hybrid: Adam on a (mixed) gradient
+        optimizer = optax.chain(optax.clip_by_global_norm(cfg.clip_norm),
+                                optax.adam(cfg.learning_rate))
+        z = jnp.asarray(z0)
+        state = optimizer.init(z)
+        apply = jax.jit(lambda z, s, g: _adam(optimizer, z, s, g))
+        key = np.random.default_rng(seed)
+        alphas = []
+        while it < cfg.max_iterations and track.elapsed() < cfg.budget_s:
+            zc = np.asarray(z, float)
+            _, grads = problem.grouped_value_and_grad(zc, tau, batch, keys, cfg.groups)
+            g_fo = grads.mean(0)
+            pushes = n
+            if method == "gradient":
+                track.offer(zc, problem.forward(zc, 0.0, batch, keys)[0])
+                g, alpha = g_fo, 1.0
+                pushes += n
+            else:
+                eps = key.standard_normal((pairs, zc.size))
+                zs = np.concatenate([zc[None], zc + cfg.zo_sigma * eps, zc - cfg.zo_sigma * eps])
+                losses = np.array([_finite(v) for v in problem.population(zs, 0.0, batch, keys)])
+                track.offer(zc, losses[0])
+                for zz, v in zip(zs[1:], losses[1:]):
+                    track.offer(zz, v)
+                g, alpha = alpha_order_mix(g_fo, grads, losses[1:pairs + 1],
+                                           losses[pairs + 1:], eps, cfg.zo_sigma)
+                pushes += len(zs) * n
+            alphas.append(alpha)
+            if np.all(np.isfinite(g)):
+                z, state = apply(z, state, jnp.asarray(g, z.dtype))
+            track.tick(pushes)
+            it += 1
+            if log:
+                log(f"{method}  it {it:3d}  best {track.loss:.4f}  alpha {alpha:.2f}  "
+                    f"{track.elapsed():.0f}/{cfg.budget_s:g} s")
+        extra["alpha"] = alphas
+    return dict(method=method, seed=seed, z_best=track.z.tolist(), best_loss=track.loss,
+                compile_s=round(compile_s, 2), iterations=it, curve=track.curve, extra=extra)
+
+
+def _adam(optimizer, z, state, g):
+    updates, state = optimizer.update(g, state, z)
+    return optax.apply_updates(z, updates), state
+
+
+def alpha_order_mix(g_fo: np.ndarray, group_grads: np.ndarray, loss_plus: np.ndarray,
+                    loss_minus: np.ndarray, eps: np.ndarray, sigma: float):
+    """Suh et al.'s alpha-order gradient: (g, alpha).
+
+    g_fo: first-order batch gradient; group_grads (G, k): its per-group samples. loss_plus /
+    loss_minus (N,): hard losses at z +- sigma eps_i; eps (N, k) standard normal."""
+    g_fo = np.asarray(g_fo, float)
+    samples = ((loss_plus - loss_minus) / (2.0 * sigma))[:, None] * eps        # (N, k)
+    g_zo = samples.mean(0)
+    var_zo = float(np.sum(samples.var(0, ddof=1)) / len(samples)) if len(samples) > 1 else math.inf
+    G = len(group_grads)
+    var_fo = float(np.sum(group_grads.var(0, ddof=1)) / G) if G > 1 else 0.0
+    if not np.all(np.isfinite(g_fo)) or not math.isfinite(var_fo):
+        return g_zo, 0.0
+    if not math.isfinite(var_zo):
+        return g_fo, 1.0
+    # Bias check: a first-order gradient further from the (unbiased, smoothed) zeroth-order one
+    # than their combined standard error allows is not trusted.
+    if np.linalg.norm(g_fo - g_zo) > 2.0 * math.sqrt(var_fo + var_zo):
+        return g_zo, 0.0
+    alpha = var_zo / (var_fo + var_zo) if var_fo + var_zo > 0 else 1.0
+    return alpha * g_fo + (1.0 - alpha) * g_zo, float(alpha)
