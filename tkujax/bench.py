@@ -138,10 +138,22 @@ def gradient_step(batch: int, duration_s: float, repeats: int) -> dict | None:
     return benchmark_gradient_step(batch, duration_s, repeats)
 
 
+def gradient_compile(batch: int, duration_s: float) -> list[dict]:
+    """Cold and cached compile of the tuning gradient, with XLA's defaults and, on a GPU, with
+    autotuning off (MJX's matrices are tiny: autotuning their kernels buys little run time and
+    costs compile time)."""
+    from tkujax.studies.tune.benchmark import gradient_compile_times
+
+    variants = [None]
+    if jax.default_backend() == "gpu":
+        variants.append({"xla_gpu_autotune_level": 0})
+    return [gradient_compile_times(batch, duration_s, compiler_options=v) for v in variants]
+
+
 def run_bench(out: str | Path, batches=(1024, 4096, 16384, 65536), duration_s: float = 1.5,
               raw_steps: int = 300, repeats: int = 3, cpu_batch: int | None = 256,
               grad_batch: int | None = 1024, compile_batch: int = 1024,
-              scaling_batch: int | None = None) -> dict:
+              scaling_batch: int | None = None, grad_compile_batch: int = 0) -> dict:
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     dev = jax.devices()[0]
@@ -162,6 +174,8 @@ def run_bench(out: str | Path, batches=(1024, 4096, 16384, 65536), duration_s: f
         result["cpu_peer"] = cpu_peer(cpu_batch, duration_s, repeats)
     if grad_batch:
         result["gradient_step"] = gradient_step(grad_batch, duration_s, repeats)
+    if grad_compile_batch:
+        result["gradient_compile"] = gradient_compile(grad_compile_batch, duration_s)
     _write(out, result)
     return result
 
@@ -203,6 +217,10 @@ def summary_markdown(r: dict) -> str:
         lines += ["", "| devices | batch | pushes/s | speed-up |", "|---|---|---|---|"]
         lines += [f"| {m['n_devices']} | {m['batch']} | {m['pushes_per_s']:.3g} | "
                   f"{m['pushes_per_s'] / base:.2f}x |" for m in md]
+    for gc in r.get("gradient_compile", []):
+        lines += ["", f"Compile of the tuning gradient (batch {gc['batch']}, options "
+                  f"{gc['compiler_options'] or 'XLA defaults'}): cold {gc['cold_s']:.1f} s, from "
+                  f"the persistent cache {gc['cached_s']:.1f} s."]
     comp = r.get("compile")
     if comp:
         lines += ["", f"Compile of the closed loop: cold {comp['cold_s']:.1f} s, "

@@ -100,7 +100,8 @@ def _cmd_bench(args) -> int:
     result = run_bench(args.out, batches=batches, duration_s=args.duration, repeats=args.repeats,
                        raw_steps=args.raw_steps, cpu_batch=args.cpu_batch or None,
                        grad_batch=args.grad_batch or None, compile_batch=args.compile_batch,
-                       scaling_batch=args.scaling_batch or None)
+                       scaling_batch=args.scaling_batch or None,
+                       grad_compile_batch=args.grad_compile_batch)
     from tkujax.bench import summary_markdown
 
     print(summary_markdown(result))
@@ -177,6 +178,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--compile-batch", type=int, default=1024, help="0 skips the compile timing")
     p.add_argument("--scaling-batch", type=int, default=65536,
                    help="global batch for the 1-vs-all-local-devices scaling run (0 skips)")
+    p.add_argument("--grad-compile-batch", type=int, default=256,
+                   help="batch of the cold/cached tuning-gradient compile timing (0 skips)")
     p.set_defaults(func=_cmd_bench)
 
     p = sub.add_parser("tune", help="tune T, gamma, H_Sup, eps_1, eps_2 (...) by CMA-ES, "

@@ -46,3 +46,38 @@ def benchmark_gradient_step(batch: int, duration_s: float, repeats: int = 3,
                 pushes_per_s=batch / sec, physics_steps_per_s=batch * problem.steps_per_push / sec,
                 peak_device_bytes=peak, remat=remat, float64=float64,
                 grad_finite=bool(np.all(np.isfinite(g))), n_params=reparam.size)
+
+
+def gradient_compile_times(batch: int, duration_s: float, remat: bool = True,
+                           compiler_options: dict | None = None) -> dict:
+    """Compile time of the tuning gradient (value_and_grad of the loss at `batch` pushes x
+    `duration_s`): cold, into an empty persistent cache, then from that cache in a cleared
+    process state (what a second `tkujax tune` run pays)."""
+    import tempfile
+
+    data = {"tune": {"batch": batch, "duration_s": duration_s, "iterations": 1,
+                     "params": list(TUNABLE), "remat": remat},
+            "push": {"impulse_ns": {"uniform": [0.3, 2.0]}, "azimuth_deg": [0.0, 180.0],
+                     "onset_s": 0.3}}
+    spec = parse_tune_spec(data)
+    reparam, base = spec.reparam(), spec.base_params()
+    recs = sample_pushes(spec, batch, 0)
+    keys = jax.random.split(jax.random.PRNGKey(0), batch)
+    z = reparam.latent_of(base)
+    old_dir = jax.config.jax_compilation_cache_dir
+    out = dict(batch=batch, duration_s=duration_s, remat=remat,
+               compiler_options=compiler_options or {})
+    try:
+        with tempfile.TemporaryDirectory() as cache:
+            jax.config.update("jax_compilation_cache_dir", cache)
+            jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
+            for label in ("cold_s", "cached_s"):
+                jax.clear_caches()
+                problem = TuneProblem(reparam, base, spec.loss, duration_s, remat, False,
+                                      compiler_options=compiler_options)
+                t0 = time.perf_counter()
+                problem._vg.lower(*problem._args(z, DEG, recs, keys)).compile()
+                out[label] = round(time.perf_counter() - t0, 2)
+    finally:
+        jax.config.update("jax_compilation_cache_dir", old_dir)
+    return out
