@@ -80,7 +80,8 @@ def _cmd_sweep(args) -> int:
                          coordinator=args.coordinator, backend=args.backend)
     state = "complete" if manifest["complete"] else "incomplete (rerun the same command to resume)"
     print(f"{manifest['n_pushes']} pushes in {args.out} ({manifest['backend']} backend): "
-          f"{state}; wall {manifest['wall_s']} s")
+          f"{state}; {manifest['n_diverged']} diverged (numerical blow-up: counted neither as "
+          f"fell nor as survived); wall {manifest['wall_s']} s")
     return 0
 
 

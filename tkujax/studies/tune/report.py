@@ -126,7 +126,9 @@ def summary_markdown(rec: dict) -> str:
             lines.append(
                 f"| {n} | {_pct(v.get('heldout_fall_rate'))} | "
                 f"{fmt(v.get('heldout_mean_recovery_s'))} | "
-                f"{v.get('heldout_recovered', '-')}/{v.get('heldout_n', '-')} | "
+                f"{v.get('heldout_recovered', '-')}/{v.get('heldout_n', '-')}"
+                + (f" ({v['heldout_diverged']} diverged, left out)" if v.get("heldout_diverged")
+                   else "") + " | "
                 f"{_mean_se(v.get('heldout_push_loss'))} | {_pct(v.get('grid_fall_rate'))} | "
                 + " | ".join(f"{v.get('max_impulse', {}).get(a, float('nan')):.2f}" for a in azs)
                 + " |")
