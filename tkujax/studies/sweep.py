@@ -113,14 +113,16 @@ def randomize_model(model, mass_scale, torso_com_dx, friction, kp_scale, chest_b
 
 @functools.lru_cache(maxsize=8)
 def make_chunk_fn(base_params: ControllerParams, varied: tuple[str, ...],
-                  duration_s: float, model_params: ModelParams | None = None):
+                  duration_s: float, model_params: ModelParams | None = None,
+                  with_qpos: bool = False):
     """jit(vmap) of one push record -> outcomes. `varied`: controller fields given per record.
+    with_qpos: also return the state at every control period ("qpos", for replay).
 
     Cached, so sweeps run in one process share the compiled function."""
     host = physics.host_model(model_params)
     model, index = physics.device_model(model_params), model_index(model_params)
     state = physics.stand_state(host, 1.0)
-    config = RolloutConfig(duration_s=duration_s)
+    config = RolloutConfig(duration_s=duration_s, record_qpos=with_qpos)
     chest = index.chest_body
 
     def one(rec, key):
@@ -132,7 +134,7 @@ def make_chunk_fn(base_params: ControllerParams, varied: tuple[str, ...],
         series = rollout(m, state, push, params, rec["control"], key, rec["gyro_noise_std"],
                          rec["accel_noise_std"], config, index)
         out = rollout_outcomes(series, push.onset_s)
-        return {k: out[k] for k in OUTCOME_KEYS}
+        return {k: out[k] for k in OUTCOME_KEYS} | ({"qpos": series.qpos} if with_qpos else {})
 
     return jax.jit(jax.vmap(one))
 
@@ -157,19 +159,21 @@ def choose_backend(requested: str, spec: SweepSpec) -> str:
     return "mjx" if jax.default_backend() != "cpu" or needs_mjx else "mujoco"
 
 
-def _mujoco_chunk(batch: dict, seed: int, base: ControllerParams, duration_s: float,
-                  model_params: ModelParams | None) -> dict:
-    """One chunk on MuJoCo C (tkujax.backend_mujoco), outcomes as numpy."""
+def mujoco_chunk(batch: dict, seed: int, base: ControllerParams, duration_s: float,
+                 model_params: ModelParams | None, with_qpos: bool = False) -> dict:
+    """One chunk on MuJoCo C (tkujax.sim.rollout_mujoco), outcomes (and qpos) as numpy."""
     from tkujax.sim.rollout_mujoco import simulate_mujoco
 
     pushes = Push(*(jnp.asarray(v, jnp.float32) for v in (
         batch["impulse_ns"], np.radians(batch["azimuth_deg"]), batch["height_m"],
         batch["duration_s"], batch["onset_s"])))
-    _, out = simulate_mujoco(pushes, batch["control"].astype(np.float32), base, seed=seed,
+    series, out = simulate_mujoco(pushes, batch["control"].astype(np.float32), base, seed=seed,
                              gyro_noise_std=float(batch["gyro_noise_std"][0]),
                              accel_noise_std=float(batch["accel_noise_std"][0]),
-                             model_params=model_params, config=RolloutConfig(duration_s=duration_s))
-    return {k: np.asarray(out[k]) for k in OUTCOME_KEYS}
+                             model_params=model_params,
+                             config=RolloutConfig(duration_s=duration_s, record_qpos=with_qpos))
+    res = {k: np.asarray(out[k]) for k in OUTCOME_KEYS}
+    return res | ({"qpos": np.asarray(series.qpos)} if with_qpos else {})
 
 
 def _spec_hash(spec: SweepSpec, params: ControllerParams) -> str:
@@ -195,7 +199,7 @@ def _git_commit() -> str | None:
         return None
 
 
-def _record_inputs(spec: SweepSpec) -> dict[str, np.ndarray]:
+def record_inputs(spec: SweepSpec) -> dict[str, np.ndarray]:
     recs = spec.records()
     from tkujax.studies.spec import RANDOMIZE_DEFAULTS
     n = len(recs["push_id"])
@@ -267,7 +271,7 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
         raise SpecError(f"{out} holds a different sweep (spec hash {old.get('spec_hash')} != "
                         f"{digest}); choose another --out")
 
-    recs = _record_inputs(spec)
+    recs = record_inputs(spec)
     n = len(recs["push_id"])
     n_chunks = math.ceil(n / spec.chunk_size)
     devices = jax.local_devices()
@@ -320,7 +324,7 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
                 if computed == 0:
                     progress.note("compiling the rollout (first chunk; minutes on a CPU) ...")
                 if backend == "mujoco":
-                    res = _mujoco_chunk({k: recs[k][lo:hi] for k in input_keys}, spec.seed + i,
+                    res = mujoco_chunk({k: recs[k][lo:hi] for k in input_keys}, spec.seed + i,
                                         base, spec.duration_s, model_params)
                 else:
                     batch = {k: np.resize(recs[k][lo:hi], padded).astype(np.float32)
