@@ -66,13 +66,13 @@ def load_params_json(path: str | Path) -> ControllerParams:
         data = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as err:
         raise SpecError(f"--params {path}: cannot read JSON: {err}") from err
+    if not isinstance(data, dict):
+        raise SpecError(f"--params {path}: expected a JSON object {{field: value}}, "
+                        f"got {type(data).__name__}")
     fields = {f.name for f in dataclasses.fields(ControllerParams)}
     unknown = sorted(set(data) - fields)
     if unknown:
         raise SpecError(f"--params {path}: unknown field(s) {unknown}; allowed: {sorted(fields)}")
-    if not isinstance(data, dict):
-        raise SpecError(f"--params {path}: expected a JSON object {{field: value}}, "
-                        f"got {type(data).__name__}")
     paper = ControllerParams.paper()
     values = {}
     for k, v in data.items():
@@ -358,8 +358,11 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
             time.sleep(1.0)
 
     def finish(m: dict) -> dict:
+        # Judged under the lock from the files themselves, so the last writer to finish
+        # states the final truth.
         entries = m.get("chunks", {})
-        recorded = [chunks.chunk_name(i) for i in range(n_chunks) if chunks.chunk_name(i) in entries]
+        recorded = [chunks.chunk_name(i) for i in range(n_chunks)
+                    if chunks.check_chunk(out, i, entries.get(chunks.chunk_name(i))) is None]
         return {**m, "complete": len(recorded) == n_chunks,
                 "wall_s": round(float(m.get("wall_s", 0.0)) + wall, 2),
                 "chunks_computed_last_run": computed,
