@@ -245,7 +245,7 @@ def main(argv: list[str] | None = None) -> int:
     configure_runtime()
     try:
         return args.func(args)
-    except ValueError as err:
+    except (ValueError, FileNotFoundError) as err:   # bad input, a missing file: one line
         print(f"tkujax {args.command}: error: {err}", file=sys.stderr)
         return 2
 
