@@ -13,6 +13,7 @@ MUJOCO_GL and XLA options first):
   tkujax.run_paper                           the paper's experiment
   tkujax.run_sweep, tkujax.load              sweeps and their records
   tkujax.make_maps                           stability maps
+  tkujax.replay                              one sweep record re-simulated
   tkujax.run_tune                            gradient tuning
 """
 
@@ -31,7 +32,7 @@ _API = {
     "simulate_mujoco": "tkujax.sim.rollout_mujoco",
     "run_paper": "tkujax.studies.paper",
     "run_sweep": "tkujax.studies.sweep", "load": "tkujax.studies.sweep",
-    "make_maps": "tkujax.studies.maps",
+    "make_maps": "tkujax.studies.maps", "replay": "tkujax.studies.replay",
     "run_tune": "tkujax.studies.tune",
 }
 __all__ = [*_API, "__version__"]

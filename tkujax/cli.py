@@ -80,8 +80,48 @@ def _cmd_sweep(args) -> int:
                          coordinator=args.coordinator, backend=args.backend)
     state = "complete" if manifest["complete"] else "incomplete (rerun the same command to resume)"
     print(f"{manifest['n_pushes']} pushes in {args.out} ({manifest['backend']} backend): "
-          f"{state}; wall {manifest['wall_s']} s")
+          f"{state}; {manifest['n_diverged']} diverged (numerical blow-up: counted neither as "
+          f"fell nor as survived); wall {manifest['wall_s']} s")
     return 0
+
+
+def _cmd_replay(args) -> int:
+    from tkujax.studies.replay import replay
+
+    result = replay(args.run_dir, args.index)
+    fmt = lambda d: ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"  # noqa: E731
+                              for k, v in d.items())
+    push = {k: result["stored"][k] for k in ("impulse_ns", "azimuth_deg", "height_m", "onset_s",
+                                             "control") if k in result["stored"]}
+    print(f"record {result['index']} (chunk {result['chunk']}, {result['backend']} backend): "
+          f"{fmt(push)}")
+    print(f"stored:   {fmt({k: result['stored'][k] for k in result['replayed']})}")
+    print(f"replayed: {fmt(result['replayed'])}")
+    if result["identical"]:
+        print("replayed outcome equals the stored one (every column)")
+    elif result["same_outcome"]:
+        print("replayed outcome equals the stored one (fell, diverged); numbers differ beyond "
+              f"rounding in {sorted(result['differences'])}")
+    else:
+        print(f"replayed outcome DIFFERS from the stored one: {result['differences']}")
+    if args.out:
+        from tkujax import render
+
+        ok, why = render.rendering_available()
+        if not ok:
+            print(f"tkujax replay: no video written: offscreen rendering is unavailable: {why}. "
+                  "Install EGL (apt-get install libegl1 libgl1-mesa-dri) and set MUJOCO_GL=egl, "
+                  "or OSMesa (libosmesa6) and MUJOCO_GL=osmesa.", file=sys.stderr)
+        else:
+            from tkujax.sim import physics
+            from tkujax.studies.replay import model_params_from
+            from tkujax.studies.chunks import read_manifest
+
+            host = physics.host_model(model_params_from(read_manifest(Path(args.run_dir))
+                                                        .get("model_params")))
+            frames = render.render_frames(host, result["qpos"], args.width, args.height)
+            print(render.save_gif(frames, args.out, fps=1.0 / result["control_period_s"]))
+    return 0 if result["same_outcome"] else 1
 
 
 def _cmd_map(args) -> int:
@@ -163,6 +203,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--coordinator", default=None, help="multi-process: HOST:PORT of process 0")
     p.set_defaults(func=_cmd_sweep)
 
+    p = sub.add_parser("replay", help="re-simulate one record of a sweep, check its outcome "
+                                      "against the stored one, and render it")
+    p.add_argument("run_dir", help="a sweep output folder")
+    p.add_argument("--index", type=int, required=True, help="the record's push_id")
+    p.add_argument("--out", default=None, help="GIF to write (needs EGL or OSMesa)")
+    p.add_argument("--width", type=int, default=480)
+    p.add_argument("--height", type=int, default=400)
+    p.set_defaults(func=_cmd_replay)
+
     p = sub.add_parser("map", help="stability maps and capturability checks of a sweep folder")
     p.add_argument("dir")
     p.set_defaults(func=_cmd_map)
@@ -201,7 +250,7 @@ def main(argv: list[str] | None = None) -> int:
     configure_runtime()
     try:
         return args.func(args)
-    except ValueError as err:
+    except (ValueError, FileNotFoundError) as err:   # bad input, a missing file: one line
         print(f"tkujax {args.command}: error: {err}", file=sys.stderr)
         return 2
 

@@ -7,6 +7,7 @@ sets egl when MUJOCO_GL is unset), or `apt-get install libosmesa6` and MUJOCO_GL
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 
 import mujoco
@@ -15,10 +16,13 @@ import numpy as np
 
 def rendering_available() -> tuple[bool, str]:
     """Whether an offscreen GL context can be made here, and why not."""
+    # A context can appear to be made and still be unusable (GLFW without a display only
+    # warns), so render one frame of an empty model; GLFW's warnings are not the user's business.
     try:
-        ctx = mujoco.GLContext(64, 64)
-        ctx.make_current()
-        ctx.free()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            with mujoco.Renderer(mujoco.MjModel.from_xml_string("<mujoco/>"), 16, 16) as r:
+                r.render()
         return True, ""
     except Exception as err:  # noqa: BLE001 - any GL failure means "cannot render"
         return False, f"{type(err).__name__}: {err} (MUJOCO_GL={os.environ.get('MUJOCO_GL')})"

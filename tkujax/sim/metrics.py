@@ -15,6 +15,14 @@ Definitions (the band and thresholds are arguments, defaults documented here):
                    standing position after onset.
   capture_point_m  x_Sup latched by the controller (0 when no push was detected);
                    capture_point_y_m the lateral y_Sup (0 unless lateral steps are on).
+  diverged         the simulation blew up: a non-finite value anywhere in the series, or a
+                   CoM or pelvis (height) speed between successive samples above
+                   DIVERGED_SPEED_M_S = 20 m/s. Why 20: a 56 cm robot toppling from standing
+                   reaches sqrt(2 g 0.3 m) = 2.4 m/s, and the largest spec impulse (10 N s on
+                   4.5 kg) gives 2.2 m/s, so 20 m/s is ~8x anything physical: only numerical
+                   blow-up crosses it. A diverged push also has fell = True (NaN is never read as
+                   survived), but maps, summaries and tuning count it apart, never as fell or
+                   survived.
 """
 
 from __future__ import annotations
@@ -26,12 +34,26 @@ from tkujax.sim.records import Outcomes, Series
 RECOVERY_BAND_DEG = 1.0
 FALL_PELVIS_HEIGHT_M = 0.12
 FALL_BODY_CLEARANCE_M = 0.005
+DIVERGED_SPEED_M_S = 20.0
 
 
 def fall_indicator(series: Series) -> jnp.ndarray:
-    """(n_ticks,) bool: fallen at each period."""
-    return ((series["pelvis_z"] < FALL_PELVIS_HEIGHT_M)
-            | (series["lowest_body_z"] < FALL_BODY_CLEARANCE_M))
+    """(n_ticks,) bool: fallen at each period. Written as "not standing" so that NaN (all of
+    whose comparisons are False) counts as fallen, never as survived."""
+    return ~((series["pelvis_z"] >= FALL_PELVIS_HEIGHT_M)
+             & (series["lowest_body_z"] >= FALL_BODY_CLEARANCE_M))
+
+
+def diverged_indicator(series: Series, bound_m_s: float = DIVERGED_SPEED_M_S) -> jnp.ndarray:
+    """() bool: any non-finite float in the series, or a CoM / pelvis-height speed between
+    successive samples above `bound_m_s` (see the module docstring)."""
+    finite = jnp.all(jnp.array([jnp.all(jnp.isfinite(v)) for _, v in series.items()
+                                if jnp.issubdtype(jnp.asarray(v).dtype, jnp.floating)]))
+    dt = jnp.maximum(jnp.diff(series["t"]), 1e-6)
+    com_speed = jnp.linalg.norm(jnp.diff(series["com"], axis=0), axis=-1) / dt
+    pelvis_speed = jnp.abs(jnp.diff(series["pelvis_z"])) / dt
+    too_fast = jnp.any(com_speed > bound_m_s) | jnp.any(pelvis_speed > bound_m_s)
+    return ~finite | too_fast
 
 
 def outcomes(series: Series, onset_s, band_deg: float = RECOVERY_BAND_DEG,
@@ -71,4 +93,5 @@ def outcomes(series: Series, onset_s, band_deg: float = RECOVERY_BAND_DEG,
         capture_point_m=series["x_sup"][-1],
         capture_point_y_m=series["y_sup"][-1],
         standing_pitch_deg=standing,
+        diverged=diverged_indicator(series),
     )

@@ -92,6 +92,7 @@ class Outcomes(_Columns):
     capture_point_m: jax.Array
     capture_point_y_m: jax.Array
     standing_pitch_deg: jax.Array
+    diverged: jax.Array
 
 
 OUTCOME_FIELDS = tuple(f.name for f in dataclasses.fields(Outcomes))

@@ -2,7 +2,9 @@
 
 Cells are (control, azimuth, impulse); when a sweep varies more (height, onset, controller
 grid, randomisation) a cell's value is the mean over those records (fall *fraction*), and the
-fall boundary is where that fraction crosses 1/2.
+fall boundary is where that fraction crosses 1/2. Diverged records (numerical blow-up,
+`tkujax.sim.metrics`) are neither fell nor survived: they are left out of every cell and
+fraction, and counted on their own in the summary.
 """
 
 from __future__ import annotations
@@ -48,6 +50,8 @@ def _axis(values: np.ndarray, max_bins: int, period: float | None = None):
 def _cells(rec: dict, key: str, control: bool):
     """(azimuths, impulses, mean of rec[key] per cell as (n_az, n_J)), NaN where empty."""
     sel = rec["control"].astype(bool) == control
+    if "diverged" in rec:
+        sel &= ~rec["diverged"].astype(bool)
     azs, ia = _axis(np.mod(rec["azimuth_deg"][sel], 360.0), MAX_AZIMUTH_BINS, 360.0)
     js, ij = _axis(rec["impulse_ns"][sel], MAX_IMPULSE_BINS)
     v = rec[key][sel].astype(float)
@@ -106,6 +110,9 @@ def make_maps(out_dir: str | Path, params: ControllerParams | None = None) -> di
     if "from_grid" not in everything:   # sweeps written before the column existed
         everything["from_grid"] = parse_spec(manifest["spec"]).records()["from_grid"][
             everything["push_id"]]
+    diverged = everything.get("diverged", np.zeros(len(everything["fell"]), bool)).astype(bool)
+    n_diverged = int(diverged.sum())
+    everything = {k: v[~diverged] for k, v in everything.items()}
     grid = everything["from_grid"].astype(bool)
     rec = {k: v[grid] for k, v in everything.items()} if grid.any() else everything
     params = params or ControllerParams(**manifest.get("controller_params", {}))
@@ -217,16 +224,21 @@ def make_maps(out_dir: str | Path, params: ControllerParams | None = None) -> di
                        "pushes): fall fraction " + ", ".join(
                            f"{name(c)} {r['fell'][r['control'].astype(bool) == c].mean():.3f}"
                            for c in controls) + "; the maps and table below use the grid.")
-    text = (f"# Sweep `{manifest['name']}`: {n} pushes\n\n"
+    diverged_note = (f" {n_diverged} diverged (numerical blow-up; left out of every figure "
+                     "and fraction, neither fell nor survived)." if n_diverged else
+                     " None diverged.")
+    text = (f"# Sweep `{manifest['name']}`: {n + n_diverged} pushes\n\n"
             f"Devices: {', '.join(manifest.get('devices', []))}; wall {manifest.get('wall_s')} s "
             f"(compile included); fall fraction: "
             + ", ".join(f"{name(c)} {rec['fell'][rec['control'].astype(bool) == c].mean():.3f}"
                         for c in controls)
-            + f".{random_note}\n\nLIP: m = {lip.mass_kg:.2f} kg, z0 = {lip.com_height_m:.3f} m, "
+            + f".{diverged_note}{random_note}\n\n"
+            f"LIP: m = {lip.mass_kg:.2f} kg, z0 = {lip.com_height_m:.3f} m, "
             f"ω = {lip.omega:.2f} 1/s, l_max = {capturability.step_reach_m(params):.3f} m, "
             f"Δt_s = {capturability.step_time_s(params):.3f} s. Sim max = largest tested impulse "
             "below which every impulse was survived (grid resolution applies).\n\n"
             + "\n".join(rows) + "\n")
     (maps / "summary.md").write_text(text)
     (maps / "summary.json").write_text(json.dumps(summary, indent=1))
-    return dict(files=[str(f) for f in files], summary=str(maps / "summary.md"))
+    return dict(files=[str(f) for f in files], summary=str(maps / "summary.md"),
+                n_diverged=n_diverged)

@@ -1,9 +1,10 @@
 """`tkujax sweep`: thousands of pushes in batches, written in chunks, resumable.
 
 Records are columnar `.npz` chunks (numpy's own format: readable with plain numpy, no extra
-dependency, one file per chunk so a crash loses at most the chunk in flight). Each chunk is
-written to a temporary name and renamed, so a chunk file either is complete or does not exist;
-a rerun skips the chunks that exist and a finished sweep is not recomputed.
+dependency, one file per chunk so a crash loses at most the chunk in flight). The chunk store
+(`tkujax.studies.chunks`) writes each chunk atomically, records its sha256 and row count in the
+manifest, and lets several writers share one folder through claims; a rerun verifies every
+chunk, recomputes a missing, truncated or corrupted one, and recomputes nothing else.
 
 Devices: each chunk is sharded along the push axis over this process's local devices
 (`jax.sharding`: a 1-D mesh, NamedSharding P("push")); the rollout is embarrassingly parallel,
@@ -39,11 +40,12 @@ from tkujax.sim.metrics import outcomes as rollout_outcomes
 from tkujax.model import ModelParams
 from tkujax.sim.push import Push
 from tkujax.sim.rollout_mjx import RolloutConfig, model_index, rollout
+from tkujax.studies import chunks
 from tkujax.studies.spec import SpecError, SweepSpec, load_spec
 
-OUTCOME_KEYS = ("fell", "recovery_time_s", "step_length_m", "step_width_m", "peak_incl_deg",
-                "capture_point_m", "capture_point_y_m", "zmp_excursion_m")
-MANIFEST = "manifest.json"
+OUTCOME_KEYS = ("fell", "diverged", "recovery_time_s", "step_length_m", "step_width_m",
+                "peak_incl_deg", "capture_point_m", "capture_point_y_m", "zmp_excursion_m")
+MANIFEST = chunks.MANIFEST
 
 
 def controller_params_from(base: ControllerParams, overrides: dict) -> ControllerParams:
@@ -64,12 +66,36 @@ def load_params_json(path: str | Path) -> ControllerParams:
         data = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as err:
         raise SpecError(f"--params {path}: cannot read JSON: {err}") from err
+    if not isinstance(data, dict):
+        raise SpecError(f"--params {path}: expected a JSON object {{field: value}}, "
+                        f"got {type(data).__name__}")
     fields = {f.name for f in dataclasses.fields(ControllerParams)}
     unknown = sorted(set(data) - fields)
     if unknown:
         raise SpecError(f"--params {path}: unknown field(s) {unknown}; allowed: {sorted(fields)}")
-    return dataclasses.replace(ControllerParams.paper(), **{k: float(v) for k, v in data.items()}
-                               ).validate()
+    paper = ControllerParams.paper()
+    values = {}
+    for k, v in data.items():
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise SpecError(f"--params {path}: {k} must be a number in {_allowed(paper, k)}, "
+                            f"got {v!r}")
+        values[k] = float(v)
+    try:
+        return dataclasses.replace(paper, **values).validate()
+    except ValueError as err:
+        raise SpecError(f"--params {path}: {err}") from err
+
+
+def _allowed(params: ControllerParams, field: str) -> str:
+    """The range ControllerParams.validate allows for `field` (one source of truth): the
+    message validate gives for NaN there, which no range admits."""
+    try:
+        dataclasses.replace(params, **{field: math.nan}).validate()
+    except ValueError as err:
+        text = str(err)
+        if " must be in " in text:
+            return text.split(" must be in ", 1)[1].rsplit(", got", 1)[0]
+    return "(a finite number)"
 
 
 def randomize_model(model, mass_scale, torso_com_dx, friction, kp_scale, chest_body: int):
@@ -93,18 +119,19 @@ def traced_params(params: ControllerParams) -> ControllerParams:
 
 @functools.lru_cache(maxsize=8)
 def make_chunk_fn(varied: tuple[str, ...], duration_s: float,
-                  model_params: ModelParams | None = None):
+                  model_params: ModelParams | None = None, with_qpos: bool = False):
     """jit(vmap) of push records -> outcomes: f(batch, keys, params) with `params` a
     ControllerParams shared by the batch (pass it through `traced_params`), and `varied` the
     controller fields given per record instead (a [controller.grid]).
 
     The controller parameters are traced inputs, so one compile serves every parameter set of a
     batch shape (tuned sets, the paper's, a grid); cached per (varied, duration, model), so
-    sweeps, `tkujax paper`-style evaluations and the bench in one process share it."""
+    sweeps, `tkujax paper`-style evaluations and the bench in one process share it.
+    with_qpos: also return the state at every control period ("qpos", for replay)."""
     host = physics.host_model(model_params)
     model, index = physics.device_model(model_params), model_index(model_params)
     state = physics.stand_state(host, 1.0)
-    config = RolloutConfig(duration_s=duration_s)
+    config = RolloutConfig(duration_s=duration_s, record_qpos=with_qpos)
     chest = index.chest_body
 
     def one(rec, key, base_params):
@@ -116,7 +143,7 @@ def make_chunk_fn(varied: tuple[str, ...], duration_s: float,
         series = rollout(m, state, push, params, rec["control"], key, rec["gyro_noise_std"],
                          rec["accel_noise_std"], config, index)
         out = rollout_outcomes(series, push.onset_s)
-        return {k: out[k] for k in OUTCOME_KEYS}
+        return {k: out[k] for k in OUTCOME_KEYS} | ({"qpos": series.qpos} if with_qpos else {})
 
     return jax.jit(jax.vmap(one, in_axes=(0, 0, None)))
 
@@ -141,19 +168,21 @@ def choose_backend(requested: str, spec: SweepSpec) -> str:
     return "mjx" if jax.default_backend() != "cpu" or needs_mjx else "mujoco"
 
 
-def _mujoco_chunk(batch: dict, seed: int, base: ControllerParams, duration_s: float,
-                  model_params: ModelParams | None) -> dict:
-    """One chunk on MuJoCo C (tkujax.backend_mujoco), outcomes as numpy."""
+def mujoco_chunk(batch: dict, seed: int, base: ControllerParams, duration_s: float,
+                 model_params: ModelParams | None, with_qpos: bool = False) -> dict:
+    """One chunk on MuJoCo C (tkujax.sim.rollout_mujoco), outcomes (and qpos) as numpy."""
     from tkujax.sim.rollout_mujoco import simulate_mujoco
 
     pushes = Push(*(jnp.asarray(v, jnp.float32) for v in (
         batch["impulse_ns"], np.radians(batch["azimuth_deg"]), batch["height_m"],
         batch["duration_s"], batch["onset_s"])))
-    _, out = simulate_mujoco(pushes, batch["control"].astype(np.float32), base, seed=seed,
+    series, out = simulate_mujoco(pushes, batch["control"].astype(np.float32), base, seed=seed,
                              gyro_noise_std=float(batch["gyro_noise_std"][0]),
                              accel_noise_std=float(batch["accel_noise_std"][0]),
-                             model_params=model_params, config=RolloutConfig(duration_s=duration_s))
-    return {k: np.asarray(out[k]) for k in OUTCOME_KEYS}
+                             model_params=model_params,
+                             config=RolloutConfig(duration_s=duration_s, record_qpos=with_qpos))
+    res = {k: np.asarray(out[k]) for k in OUTCOME_KEYS}
+    return res | ({"qpos": np.asarray(series.qpos)} if with_qpos else {})
 
 
 def _spec_hash(spec: SweepSpec, params: ControllerParams) -> str:
@@ -179,7 +208,7 @@ def _git_commit() -> str | None:
         return None
 
 
-def _record_inputs(spec: SweepSpec) -> dict[str, np.ndarray]:
+def record_inputs(spec: SweepSpec) -> dict[str, np.ndarray]:
     recs = spec.records()
     from tkujax.studies.spec import RANDOMIZE_DEFAULTS
     n = len(recs["push_id"])
@@ -215,10 +244,6 @@ class Progress:
         print(file=self.stream, flush=True)
 
 
-def _chunk_path(out: Path, i: int) -> Path:
-    return out / f"chunk_{i:06d}.npz"
-
-
 def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerParams | None = None,
               model_params: ModelParams | None = None, max_chunks: int | None = None,
               process_id: int | None = None, num_processes: int | None = None,
@@ -250,93 +275,133 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
 
     backend = choose_backend(backend, spec)
     digest = _spec_hash(spec, params)
-    manifest_path = out / MANIFEST
-    old = json.loads(manifest_path.read_text()) if manifest_path.exists() else {}
-    if old:
-        if old.get("spec_hash") != digest:
-            raise SpecError(f"{out} holds a different sweep (spec hash {old.get('spec_hash')} != "
-                            f"{digest}); choose another --out")
+    old = chunks.read_manifest(out)
+    if old and old.get("spec_hash") != digest:
+        raise SpecError(f"{out} holds a different sweep (spec hash {old.get('spec_hash')} != "
+                        f"{digest}); choose another --out")
 
-    recs = _record_inputs(spec)
+    recs = record_inputs(spec)
     n = len(recs["push_id"])
     n_chunks = math.ceil(n / spec.chunk_size)
-    mine = [i for i in range(n_chunks) if i % num_processes == process_id]
-    todo = [i for i in mine if not _chunk_path(out, i).exists()]
-    manifest = dict(name=spec.name, spec=spec.raw, spec_hash=digest, n_pushes=n,
-                    chunk_size=spec.chunk_size, n_chunks=n_chunks,
-                    controller_params=dataclasses.asdict(params), versions=_versions(),
-                    git_commit=_git_commit(), devices=[str(d) for d in jax.devices()],
-                    num_processes=num_processes, backend=backend,
-                    format="npz chunks, one record per push")
-    previous_wall = float(old.get("wall_s", 0.0))
-    if process_id == 0:
-        manifest_path.write_text(json.dumps({**manifest, "complete": False, "wall_s": previous_wall},
-                                            indent=1, default=str))
-
     devices = jax.local_devices()
-    mesh = Mesh(np.array(devices), ("push",))
-    sharding = NamedSharding(mesh, PartitionSpec("push"))
     # Pad every chunk to one shape (a multiple of the device count): one compile for all.
     padded = math.ceil(spec.chunk_size / len(devices)) * len(devices)
+    manifest = dict(name=spec.name, spec=spec.raw, spec_hash=digest, n_pushes=n,
+                    chunk_size=spec.chunk_size, n_chunks=n_chunks, padded_chunk=padded,
+                    controller_params=dataclasses.asdict(params),
+                    model_params=dataclasses.asdict(model_params) if model_params else None,
+                    versions=_versions(), git_commit=_git_commit(),
+                    devices=[str(d) for d in jax.devices()], num_processes=num_processes,
+                    backend=backend, format="npz chunks, one record per push")
+    chunks.clean_temporaries(out)
+    # Every writer (re)states the description; the chunk entries are kept (see chunks.py).
+    chunks.update_manifest(out, lambda m: {**manifest, "complete": False,
+                                           "wall_s": float(m.get("wall_s", 0.0)),
+                                           "chunks": m.get("chunks", {})})
+    mine = [i for i in range(n_chunks) if i % num_processes == process_id]
+    done = chunks.done_chunks(out, n_chunks)
+    pending = [i for i in mine if i not in done]
+
+    mesh = Mesh(np.array(devices), ("push",))
+    sharding = NamedSharding(mesh, PartitionSpec("push"))
     varied = tuple(sorted(spec.controller_grid))
     base = controller_params_from(params, spec.controller)
     fn = make_chunk_fn(varied, spec.duration_s, model_params) if backend == "mjx" else None
     base_traced = traced_params(base)
     input_keys = [k for k in recs if k not in ("push_id", "from_grid")]
 
-    progress = Progress(len(mine) * spec.chunk_size, (len(mine) - len(todo)) * spec.chunk_size,
+    progress = Progress(len(mine) * spec.chunk_size, (len(mine) - len(pending)) * spec.chunk_size,
                         open(os.devnull, "w") if quiet else sys.stderr)
     t_start = time.perf_counter()
+    deadline = time.monotonic() + wait_for_others_s
     computed = 0
-    for i in todo:
+    # Claim each pending chunk (another writer may hold it); once only chunks claimed by
+    # others remain, poll until they are done or their claims go stale (bounded).
+    while pending and (max_chunks is None or computed < max_chunks):
+        waiting = []
+        for i in pending:
+            if max_chunks is not None and computed >= max_chunks:
+                waiting.append(i)
+                continue
+            if not chunks.try_claim(out, i):
+                waiting.append(i)
+                continue
+            try:
+                entries = chunks.read_manifest(out).get("chunks", {})
+                if chunks.check_chunk(out, i, entries.get(chunks.chunk_name(i))) is None:
+                    continue                      # another writer finished it meanwhile
+                lo, hi = i * spec.chunk_size, min((i + 1) * spec.chunk_size, n)
+                if computed == 0:
+                    progress.note("compiling the rollout (first chunk; minutes on a CPU) ...")
+                if backend == "mujoco":
+                    res = mujoco_chunk({k: recs[k][lo:hi] for k in input_keys}, spec.seed + i,
+                                        base, spec.duration_s, model_params)
+                else:
+                    batch = {k: np.resize(recs[k][lo:hi], padded).astype(np.float32)
+                             for k in input_keys}
+                    batch = {k: jax.device_put(v, sharding) for k, v in batch.items()}
+                    keys = jax.device_put(chunk_keys(spec.seed, i, padded), sharding)
+                    res = jax.tree_util.tree_map(lambda x: np.asarray(x)[:hi - lo],
+                                                 fn(batch, keys, base_traced))
+                chunks.write_chunk(out, i, {k: recs[k][lo:hi] for k in recs} | res)
+            finally:
+                chunks.release(out, i)
+            computed += 1
+            progress.update(hi - lo)
+            if computed == 1:
+                progress.restart()   # later rates and ETAs exclude the compile
         if max_chunks is not None and computed >= max_chunks:
             break
-        lo, hi = i * spec.chunk_size, min((i + 1) * spec.chunk_size, n)
-        if computed == 0:
-            progress.note("compiling the rollout (first chunk; minutes on a CPU) ...")
-        if backend == "mujoco":
-            res = _mujoco_chunk({k: recs[k][lo:hi] for k in input_keys}, spec.seed + i, base,
-                                spec.duration_s, model_params)
-        else:
-            batch = {k: np.resize(recs[k][lo:hi], padded).astype(np.float32) for k in input_keys}
-            batch = {k: jax.device_put(v, sharding) for k, v in batch.items()}
-            keys = jax.device_put(jax.random.split(jax.random.fold_in(
-                jax.random.PRNGKey(spec.seed), i), padded), sharding)
-            res = jax.tree_util.tree_map(lambda x: np.asarray(x)[:hi - lo], fn(batch, keys, base_traced))
-        record = {k: recs[k][lo:hi] for k in recs} | res
-        tmp = out / f".chunk_{i:06d}.tmp.npz"
-        np.savez(tmp, **record)
-        os.replace(tmp, _chunk_path(out, i))
-        computed += 1
-        progress.update(hi - lo)
-        if computed == 1:
-            progress.restart()   # later rates and ETAs exclude the compile
+        pending = [i for i in waiting if i not in chunks.done_chunks(out, n_chunks)]
+        if pending:
+            if time.monotonic() > deadline:
+                break
+            time.sleep(0.5)
     progress.close()
     wall = time.perf_counter() - t_start
 
-    if process_id == 0 and num_processes > 1 and (max_chunks is None):
+    if process_id == 0 and num_processes > 1 and max_chunks is None:
         # The other processes write their chunks into the same folder: wait for them (bounded)
         # so that the manifest says whether the sweep as a whole is complete.
-        deadline = time.monotonic() + wait_for_others_s
         while (time.monotonic() < deadline
-               and not all(_chunk_path(out, i).exists() for i in range(n_chunks))):
+               and len(chunks.done_chunks(out, n_chunks)) < n_chunks):
             time.sleep(1.0)
-    complete = all(_chunk_path(out, i).exists() for i in range(n_chunks))
-    manifest.update(complete=complete, wall_s=round(previous_wall + wall, 2),
-                    chunks_computed_last_run=computed)
-    if process_id == 0:
-        manifest_path.write_text(json.dumps(manifest, indent=1, default=str))
-    return manifest
+
+    def finish(m: dict) -> dict:
+        # Judged under the lock from the files themselves, so the last writer to finish
+        # states the final truth.
+        entries = m.get("chunks", {})
+        recorded = [chunks.chunk_name(i) for i in range(n_chunks)
+                    if chunks.check_chunk(out, i, entries.get(chunks.chunk_name(i))) is None]
+        return {**m, "complete": len(recorded) == n_chunks,
+                "wall_s": round(float(m.get("wall_s", 0.0)) + wall, 2),
+                "chunks_computed_last_run": computed,
+                "n_diverged": sum(entries[c].get("n_diverged", 0) for c in recorded)}
+
+    return chunks.update_manifest(out, finish)
 
 
-def load(out: str | Path) -> dict[str, np.ndarray]:
-    """All records of a sweep folder as a dict of columns (chunks in order)."""
+def chunk_keys(seed: int, chunk: int, padded: int) -> jax.Array:
+    """The MJX noise keys of one chunk: one per (padded) record."""
+    return jax.random.split(jax.random.fold_in(jax.random.PRNGKey(seed), chunk), padded)
+
+
+def load(out: str | Path, as_frame: bool = False):
+    """All verified records of a sweep folder as a dict of columns (chunks in order), or a
+    pandas DataFrame with as_frame=True (pandas is optional: not a tkujax dependency).
+
+    Every chunk is checked against its manifest entry (sha256, rows); a missing, truncated or
+    corrupted one raises ChunkError naming the file. Chunks still in flight are not loaded."""
     out = Path(out)
-    files = sorted(out.glob("chunk_*.npz"))
-    if not files:
+    parts = chunks.read_chunks(out, chunks.read_manifest(out))
+    if not parts:
         raise FileNotFoundError(f"no sweep chunks in {out}")
-    parts = []
-    for f in files:
-        with np.load(f) as z:
-            parts.append({k: z[k] for k in z.files})
-    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    cols = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    if not as_frame:
+        return cols
+    try:
+        import pandas as pd
+    except ImportError as err:
+        raise ImportError("load(..., as_frame=True) needs pandas, which tkujax does not "
+                          "install: pip install pandas") from err
+    return pd.DataFrame(cols)

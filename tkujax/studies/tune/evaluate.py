@@ -30,13 +30,17 @@ def evaluate(problem: TuneProblem, latents: dict[str, np.ndarray], heldout: dict
         r: dict[str, Any] = {}
         if len(heldout["impulse_ns"]):
             aux = problem.forward_padded(z, 0.0, heldout, keys_held, batch)
-            fell = aux["outcomes"]["fell"].astype(bool)
-            rec_t = aux["outcomes"]["recovery_time_s"]
-            r.update(heldout_n=int(fell.size), heldout_fall_rate=float(fell.mean()),
+            # Diverged pushes are counted apart, never as fell or survived.
+            div = aux["outcomes"]["diverged"].astype(bool)
+            fell = aux["outcomes"]["fell"].astype(bool)[~div]
+            rec_t = aux["outcomes"]["recovery_time_s"][~div]
+            r.update(heldout_n=int(fell.size), heldout_diverged=int(div.sum()),
+                     heldout_fall_rate=float(fell.mean()) if fell.size else None,
                      heldout_mean_recovery_s=_f(np.nanmean(rec_t)) if np.isfinite(rec_t).any()
                      else None,
                      heldout_recovered=int(np.isfinite(rec_t).sum()),
-                     heldout_loss=float(np.mean(aux["terms"]["total"])),
+                     heldout_loss=float(np.mean(aux["terms"]["total"][~div])) if fell.size
+                     else None,
                      heldout_push_loss=aux["terms"]["total"].tolist(),
                      heldout_fell=fell.tolist(),
                      heldout_terms={k: float(np.mean(aux["terms"][k]))
@@ -44,10 +48,12 @@ def evaluate(problem: TuneProblem, latents: dict[str, np.ndarray], heldout: dict
         if len(grid["impulse_ns"]):
             aux = problem.forward_padded(z, 0.0, grid, keys_grid, batch)
             fell = aux["outcomes"]["fell"].astype(bool)
+            div = aux["outcomes"]["diverged"].astype(bool)
             rec = dict(control=np.ones(fell.size, bool), azimuth_deg=grid["azimuth_deg"],
-                       impulse_ns=grid["impulse_ns"], fell=fell)
+                       impulse_ns=grid["impulse_ns"], fell=fell, diverged=div)
             azs, jmax = max_recoverable_impulse(rec, True)
-            r.update(grid_fall_rate=float(fell.mean()),
+            r.update(grid_fall_rate=float(fell[~div].mean()) if (~div).any() else None,
+                     grid_diverged=int(div.sum()),
                      max_impulse={f"{a:g}": float(j) for a, j in zip(azs, jmax)},
                      grid_fell=fell.tolist(),
                      grid_recovery_s=[_f(x) for x in aux["outcomes"]["recovery_time_s"]])

@@ -93,7 +93,11 @@ class TuneProblem:
             return push_loss(series, push.onset_s, cfg), {k: out[k] for k in EVAL_KEYS}
 
         terms, outs = jax.vmap(one)(batch, keys)
-        return jnp.mean(terms["total"]), dict(terms=terms, outcomes=outs)
+        # A diverged push (numerical blow-up) is neither fell nor survived: it is left out of
+        # the mean (its NaN would poison it) and reported in outcomes["diverged"].
+        kept = ~outs["diverged"]
+        total = jnp.sum(jnp.where(kept, terms["total"], 0.0)) / jnp.maximum(jnp.sum(kept), 1)
+        return total, dict(terms=terms, outcomes=outs)
 
     def _args(self, z, temperature, batch, keys):
         cast = lambda x: jnp.asarray(x, self.dtype)  # noqa: E731

@@ -80,7 +80,9 @@ def summary_markdown(rec: dict, comparison: dict | None = None) -> str:
             v = ev.get(n, {})
             lines.append(
                 f"| {'paper' if n == 'before' else 'tuned'} | {_pct(v.get('heldout_fall_rate'))} "
-                f"| {v.get('heldout_recovered', '-')}/{v.get('heldout_n', '-')} | "
+                f"| {v.get('heldout_recovered', '-')}/{v.get('heldout_n', '-')}"
+                + (f" ({v['heldout_diverged']} diverged, left out)" if v.get("heldout_diverged")
+                   else "") + " | "
                 f"{_mean_se(v.get('heldout_push_loss'))} | {_pct(v.get('grid_fall_rate'))} | "
                 + " | ".join(f"{v.get('max_impulse', {}).get(a, float('nan')):.2f}" for a in azs)
                 + " |")

@@ -1,0 +1,114 @@
+"""`tkujax replay RUN_DIR --index N`: re-simulate one record of a sweep, exactly as the sweep ran it.
+
+Everything comes from the run folder: the spec (the push, the per-record controller-grid values
+and model randomisation, all re-expanded from it), the controller and model parameters, and the
+backend recorded in the manifest. The noise is the sweep's too:
+
+  MuJoCo C: the whole chunk is re-run (seed = spec seed + chunk; the numpy noise of one robot
+    depends on the batch it was drawn with), so the replay is the sweep's own computation.
+  MJX: the record alone, with its key from the sweep's per-chunk derivation:
+    split(fold_in(PRNGKey(seed), chunk), padded_chunk)[position]. A batch of one compiles
+    differently from the sweep's batch, so floats may differ in the last bits (and, after a
+    fall, by more: the tumbling is chaotic); fell and diverged are what must agree.
+
+The state at every control period comes back for rendering (`tkujax.render`, in the CLI: this
+layer does not draw).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from tkujax.control.params import ControllerParams
+from tkujax.model import ModelParams
+from tkujax.model.params import ServoParams
+from tkujax.sim.rollout_mjx import RolloutConfig
+from tkujax.studies import chunks
+from tkujax.studies.spec import parse_spec
+from tkujax.studies.sweep import (OUTCOME_KEYS, chunk_keys, controller_params_from, make_chunk_fn,
+                                  mujoco_chunk, record_inputs, traced_params)
+
+RTOL, ATOL = 1e-4, 1e-5     # "identical" numbers; fell and diverged must be equal exactly
+
+
+def model_params_from(d: dict | None) -> ModelParams | None:
+    """ModelParams from its manifest form (dataclasses.asdict), or None for the default."""
+    if not d:
+        return None
+    fields = {f.name: f for f in dataclasses.fields(ModelParams)}
+    values = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            v = ServoParams(**v)
+        elif isinstance(v, list):
+            v = tuple(v)
+        values[k] = v
+    unknown = sorted(set(values) - set(fields))
+    if unknown:
+        raise ValueError(f"manifest model_params: unknown field(s) {unknown}")
+    return ModelParams(**values).validate()
+
+
+def _stored_record(run_dir: Path, manifest: dict, chunk: int, pos: int) -> dict:
+    entry = manifest.get("chunks", {}).get(chunks.chunk_name(chunk))
+    why = chunks.check_chunk(run_dir, chunk, entry) if "chunks" in manifest else None
+    if why:
+        raise chunks.ChunkError(f"{why}; rerun the sweep command to recompute it")
+    with np.load(run_dir / chunks.chunk_name(chunk)) as z:
+        return {k: z[k][pos] for k in z.files}
+
+
+def replay(run_dir: str | Path, index: int) -> dict:
+    """Re-simulate record `index` (its push_id) of the sweep in `run_dir`.
+
+    Returns dict(index, chunk, backend, stored, replayed (outcome columns), same_outcome
+    (fell and diverged equal), identical (every column within RTOL/ATOL), differences
+    {column: (stored, replayed)}, qpos (n_ticks, nq), control_period_s)."""
+    run_dir = Path(run_dir)
+    manifest = chunks.read_manifest(run_dir)
+    if not manifest:
+        raise FileNotFoundError(f"{run_dir} holds no sweep ({chunks.MANIFEST} not found)")
+    n = int(manifest["n_pushes"])
+    if not 0 <= index < n:
+        raise ValueError(f"--index must be in [0, {n - 1}] (the sweep's push_id), got {index}")
+    spec = parse_spec(manifest["spec"])
+    size = int(manifest["chunk_size"])
+    chunk, pos = divmod(index, size)
+    stored = _stored_record(run_dir, manifest, chunk, pos)
+    params = ControllerParams(**manifest["controller_params"])
+    model_params = model_params_from(manifest.get("model_params"))
+    base = controller_params_from(params, spec.controller)
+    recs = record_inputs(spec)
+    lo, hi = chunk * size, min((chunk + 1) * size, n)
+    inputs = {k: recs[k][lo:hi] for k in recs if k not in ("push_id", "from_grid")}
+    backend = manifest.get("backend", "mjx")
+    if backend == "mujoco":
+        res = mujoco_chunk(inputs, spec.seed + chunk, base, spec.duration_s, model_params,
+                           with_qpos=True)
+        res = {k: v[pos] for k, v in res.items()}
+    else:
+        import jax
+
+        padded = int(manifest.get("padded_chunk", size))
+        fn = make_chunk_fn(tuple(sorted(spec.controller_grid)), spec.duration_s,
+                           model_params, with_qpos=True)
+        one = {k: np.asarray(v[pos:pos + 1], np.float32) for k, v in inputs.items()}
+        key = chunk_keys(spec.seed, chunk, padded)[pos:pos + 1]
+        res = jax.tree_util.tree_map(lambda x: np.asarray(x)[0], fn(one, key, traced_params(base)))
+    replayed = {k: res[k] for k in OUTCOME_KEYS if k in stored}
+    differences = {}
+    for k, v in replayed.items():
+        a, b = np.asarray(stored[k]), np.asarray(v)
+        same = (a == b) if a.dtype.kind == "b" else np.allclose(a, b, RTOL, ATOL, equal_nan=True)
+        if not same:
+            differences[k] = (a.item(), b.item())
+    return dict(index=index, chunk=chunk, backend=backend,
+                stored={k: stored[k].item() for k in stored},
+                replayed={k: np.asarray(v).item() for k, v in replayed.items()},
+                same_outcome=not ({"fell", "diverged"} & set(differences)),
+                identical=not differences, differences=differences,
+                qpos=np.asarray(res["qpos"], np.float64),
+                control_period_s=RolloutConfig().control_period_s)
