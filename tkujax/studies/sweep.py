@@ -44,6 +44,7 @@ from tkujax.studies.spec import SpecError, SweepSpec, load_spec
 OUTCOME_KEYS = ("fell", "recovery_time_s", "step_length_m", "step_width_m", "peak_incl_deg",
                 "capture_point_m", "capture_point_y_m", "zmp_excursion_m")
 MANIFEST = "manifest.json"
+_LATER_FIELDS = {"accel_gate": 0.0}   # ControllerParams fields added after sweeps were published
 
 
 def controller_params_from(base: ControllerParams, overrides: dict) -> ControllerParams:
@@ -116,14 +117,12 @@ BACKENDS = ("auto", "mjx", "mujoco")
 
 def choose_backend(requested: str, spec: SweepSpec) -> str:
     """"auto": MJX on a GPU/TPU; on a CPU, MuJoCo C (about 5x faster there) when the spec
-    allows it. The MuJoCo C path takes one controller parameter set and one model per sweep:
-    [controller.grid] and per-push model randomisation need MJX."""
+    allows it. The MuJoCo C path takes one model per sweep: per-push model randomisation needs
+    MJX. A [controller.grid] runs on both (MuJoCo C: one batch per grid point of a chunk)."""
     if requested not in BACKENDS:
         raise SpecError(f"backend must be one of {BACKENDS}, got {requested!r}")
     needs_mjx = [k for k in spec.randomize if k not in ("gyro_noise_std", "accel_noise_std")
                  or isinstance(spec.randomize[k], tuple)]
-    if spec.controller_grid:
-        needs_mjx.append("controller.grid")
     if requested == "mujoco" and needs_mjx:
         raise SpecError(f"backend 'mujoco' cannot vary {needs_mjx} per push; use backend 'mjx'")
     if requested != "auto":
@@ -131,23 +130,42 @@ def choose_backend(requested: str, spec: SweepSpec) -> str:
     return "mjx" if jax.default_backend() != "cpu" or needs_mjx else "mujoco"
 
 
-def _mujoco_chunk(batch: dict, seed: int, base: ControllerParams, duration_s: float,
-                  model_params: ModelParams | None) -> dict:
-    """One chunk on MuJoCo C (tkujax.backend_mujoco), outcomes as numpy."""
+def _mujoco_chunk(batch: dict, seed: int, base: ControllerParams, varied: tuple[str, ...],
+                  duration_s: float, model_params: ModelParams | None) -> dict:
+    """One chunk on MuJoCo C (tkujax.sim.rollout_mujoco), outcomes as numpy: one batch per
+    controller-grid point present in the chunk (the controller's parameters are shared by a
+    batch there)."""
     from tkujax.sim.rollout_mujoco import simulate_mujoco
 
-    pushes = Push(*(jnp.asarray(v, jnp.float32) for v in (
-        batch["impulse_ns"], np.radians(batch["azimuth_deg"]), batch["height_m"],
-        batch["duration_s"], batch["onset_s"])))
-    _, out = simulate_mujoco(pushes, batch["control"].astype(np.float32), base, seed=seed,
-                             gyro_noise_std=float(batch["gyro_noise_std"][0]),
-                             accel_noise_std=float(batch["accel_noise_std"][0]),
-                             model_params=model_params, config=RolloutConfig(duration_s=duration_s))
-    return {k: np.asarray(out[k]) for k in OUTCOME_KEYS}
+    n = len(batch["impulse_ns"])
+    grid = np.stack([batch[k] for k in varied], 1) if varied else np.zeros((n, 0))
+    points, which = np.unique(grid, axis=0, return_inverse=True)
+    res = {}
+    for j, point in enumerate(points):
+        sel = np.flatnonzero(which.ravel() == j)
+        # Python floats: one compiled controller tick for every grid point (values are traced).
+        params = controller_params_from(base, {k: float(v) for k, v in zip(varied, point)})
+        pushes = Push(*(jnp.asarray(v[sel], jnp.float32) for v in (
+            batch["impulse_ns"], np.radians(batch["azimuth_deg"]), batch["height_m"],
+            batch["duration_s"], batch["onset_s"])))
+        _, out = simulate_mujoco(pushes, batch["control"][sel].astype(np.float32), params,
+                                 seed=seed, gyro_noise_std=float(batch["gyro_noise_std"][0]),
+                                 accel_noise_std=float(batch["accel_noise_std"][0]),
+                                 model_params=model_params,
+                                 config=RolloutConfig(duration_s=duration_s))
+        for k in OUTCOME_KEYS:
+            res.setdefault(k, np.empty(n, np.asarray(out[k]).dtype))[sel] = np.asarray(out[k])
+    return res
 
 
 def _spec_hash(spec: SweepSpec, params: ControllerParams) -> str:
-    blob = json.dumps([spec.raw, dataclasses.asdict(params)], sort_keys=True, default=str)
+    # Fields added later enter the hash only when set, so older sweeps still resume.
+    p = {k: v for k, v in dataclasses.asdict(params).items()
+         if not (k in _LATER_FIELDS and v == _LATER_FIELDS[k])}
+    parts = [spec.raw, p]
+    if spec.phase_default:   # random onsets changed meaning when the phase axis came in
+        parts.append("push.random.onset_phase: uniform [0, 1) by default")
+    blob = json.dumps(parts, sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
@@ -285,7 +303,7 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
             progress.note("compiling the rollout (first chunk; minutes on a CPU) ...")
         if backend == "mujoco":
             res = _mujoco_chunk({k: recs[k][lo:hi] for k in input_keys}, spec.seed + i, base,
-                                spec.duration_s, model_params)
+                                varied, spec.duration_s, model_params)
         else:
             batch = {k: np.resize(recs[k][lo:hi], padded).astype(np.float32) for k in input_keys}
             batch = {k: jax.device_put(v, sharding) for k, v in batch.items()}
