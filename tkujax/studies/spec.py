@@ -221,7 +221,10 @@ def parse_spec(data: dict) -> SweepSpec:
     push_random = {k: _uniform(f"push.random.{k}", v, *PUSH_FIELDS[k][:2], PUSH_FIELDS[k][3])
                    for k, v in rnd.items() if k not in ("n", PHASE_KEY)}
     if PHASE_KEY in rnd:
-        lo, hi = _uniform(f"push.random.{PHASE_KEY}", rnd[PHASE_KEY], 0.0, 1.0, PHASE_UNIT)
+        try:
+            lo, hi = _uniform(f"push.random.{PHASE_KEY}", rnd[PHASE_KEY], 0.0, 1.0, PHASE_UNIT)
+        except SpecError as err:
+            raise SpecError(str(err).replace("[0.0, 1.0]", "[0, 1)")) from None
         if lo >= 1.0:   # draws are in [lo, hi): hi = 1 is fine, lo = 1 would give phase 1
             raise SpecError(f"push.random.{PHASE_KEY}.uniform[0]: {lo!r} is out of range [0, 1) "
                             f"{PHASE_UNIT}")
