@@ -1,6 +1,6 @@
 """The push's phase in the 30 ms control period, and the robust detection option (issue 16).
 
-One push, 1.3 N·s from the front at mid-chest, on the MuJoCo C backend (fast on a CPU; the
+One push, 1.3 N·s from the front at 0.30 m (the issue's contact height), on the MuJoCo C backend (fast on a CPU; the
 controller tick it compiles is shared by the 4 runs, parameters being traced values):
 - mid-tick: onset on the 0.75 s controller tick (phase 0, as the paper): no IMU sample falls
   inside the 20 ms pulse;
@@ -26,7 +26,8 @@ from tkujax.sim.rollout_mjx import RolloutConfig
 from tkujax.sim.rollout_mujoco import simulate_mujoco
 
 PHASES = (0.0, 0.6)      # mid-tick (onset on a tick), on-tick (peak on the IMU sample)
-CONFIG = RolloutConfig(duration_s=1.5)
+CONFIG = RolloutConfig(duration_s=2.0)   # a fall completes within it
+HEIGHT_M = 0.30
 
 
 def test_phase_definition():
@@ -43,7 +44,7 @@ def test_phase_definition():
 
 @pytest.fixture(scope="module")
 def runs():
-    pushes = stack_pushes([make_push(1.3, 180.0, onset_s=float(onset_from_phase(0.75, ph)))
+    pushes = stack_pushes([make_push(1.3, 180.0, height_m=HEIGHT_M, onset_s=float(onset_from_phase(0.75, ph)))
                            for ph in PHASES])
     out = {}
     for name, gate in (("paper", 0.0), ("robust", 0.5)):
@@ -85,7 +86,8 @@ def test_sweep_runs_the_phase_axis_and_accel_gate_grid_on_mujoco_c(runs, tmp_pat
     spec = parse_spec({
         "sweep": {"name": "phase_test", "chunk_size": 8, "duration_s": CONFIG.duration_s,
                   "control": ["on"]},
-        "push": {"grid": {"impulse_ns": [1.3], "azimuth_deg": [180], "onset_s": [0.75],
+        "push": {"grid": {"impulse_ns": [1.3], "azimuth_deg": [180], "height_m": [HEIGHT_M],
+                          "onset_s": [0.75],
                           "onset_phase": list(PHASES)}},
         "controller": {"grid": {"accel_gate": [0.0, 0.5]}}})
     manifest = run_sweep(spec, tmp_path, quiet=True, backend="mujoco")
