@@ -18,8 +18,8 @@ import pytest
 from tkujax.control.capture_point import capture_point, push_detected, push_gate, push_recovery
 from tkujax.control.cpg import cpg_feet
 from tkujax.control.ik import LegAngles, leg_ik, paper_leg_ik, paper_to_model_angles
-from tkujax.control.kalman import (KalmanState, accel_to_angle, gyro_to_rates, kalman_init,
-                                   kalman_step)
+from tkujax.control.kalman import (KalmanState, accel_to_angle, accel_variance, gyro_to_rates,
+                                   kalman_init, kalman_step)
 from tkujax.control.params import ControllerParams
 
 # Default-model geometry, given explicitly (tests do not call ControllerParams.paper()).
@@ -113,6 +113,8 @@ def test_params_defaults_and_pytree():
     ("kalman_r", 0.0, "(0, inf)"),
     ("gate_temperature", -1e-3, "[0, 1]"),
     ("hip_to_ankle_z", 0.3, "thigh_length + calf_length"),
+    ("accel_gate", -0.5, "[0, 100] m/s^2"),
+    ("accel_gate", float("nan"), "[0, 100] m/s^2"),
 ])
 def test_params_validate_rejects(field, value, msg):
     bad = dataclasses.replace(P, **{field: value})
@@ -174,6 +176,52 @@ def test_kalman_step_formula():
     k = p_pred / (p_pred + P.kalman_r)
     np.testing.assert_allclose(s1.phi, phi_pred + k * (np.array([0.13, -0.04]) - phi_pred), rtol=1e-6)
     np.testing.assert_allclose(s1.p, [(1 - k) * p_pred] * 2, rtol=1e-6)
+
+
+def test_robust_kalman_closed_form():
+    """accel_gate > 0: R_eff = r (1 + ((|a| - g) / gate)^2), K = p / (p + R_eff); 0: the paper."""
+    gate = 0.5
+    robust = dataclasses.replace(P, accel_gate=gate).validate()
+    # Specific forces of magnitude g + e along a tilted direction (pitch 0.1 rad): the angle is
+    # the same, only the magnitude differs.
+    u = rot_y(0.1).T @ np.array([0.0, 0.0, 1.0])
+    devs = np.array([-9.0, -2.0, -0.3, 0.0, 0.1, 0.5, 1.0, 5.0, 30.0])
+    acc = jnp.asarray((G + devs)[:, None] * u, jnp.float32)
+    np.testing.assert_allclose(accel_variance(acc, robust),
+                               P.kalman_r * (1 + (devs / gate) ** 2), rtol=1e-4)
+    np.testing.assert_allclose(accel_variance(acc, P), np.full(len(devs), P.kalman_r), rtol=1e-7)
+    s0 = kalman_init(jnp.full((len(devs), 2), 0.05), P)
+    rate, z = jnp.zeros((len(devs), 2)), accel_to_angle(acc)
+    p_pred = P.kalman_r + P.kalman_q
+    k = p_pred / (p_pred + P.kalman_r * (1 + (devs / gate) ** 2))
+    s1 = jax.jit(kalman_step)(s0, rate, z, P, accel_variance(acc, robust))
+    np.testing.assert_allclose(s1.phi[:, 0], 0.05 + k * (0.1 - 0.05), rtol=1e-4)
+    np.testing.assert_allclose(s1.p[:, 1], (1 - k) * p_pred, rtol=1e-4)
+    # A 30 m/s^2 impact sample barely moves the estimate; at |a| = g it is the paper's update.
+    assert abs(float(s1.phi[-1, 0]) - 0.05) < 1e-3 * (0.1 - 0.05)   # < 0.1 % of the innovation
+    paper = jax.jit(kalman_step)(s0, rate, z, P)
+    np.testing.assert_allclose(s1.phi[3], paper.phi[3], rtol=1e-6)
+    # Off (gate 0): bit-identical to the paper's filter, whatever the magnitude.
+    off = jax.jit(kalman_step)(s0, rate, z, P, accel_variance(acc, P))
+    np.testing.assert_array_equal(off.phi, paper.phi)
+
+
+@pytest.mark.parametrize("gate", [0.0, 0.5])
+def test_robust_kalman_grads(gate):
+    """Finite gradients at gate 0 (the safe where) and correct ones where it is on."""
+    acc = jnp.asarray([[-3.0, 0.5, 9.5], [0.0, 0.0, G], [-20.0, 0.0, 9.0]])
+
+    def loss(p):
+        st = kalman_init(jnp.zeros((3, 2)), p)
+        st = kalman_step(st, jnp.zeros((3, 2)), accel_to_angle(acc), p, accel_variance(acc, p))
+        return jnp.sum(st.phi ** 2)
+
+    params = dataclasses.replace(P, accel_gate=gate)
+    with jax.enable_x64(True):
+        g = jax.grad(loss)(jax.tree_util.tree_map(jnp.float64, params))
+    assert all(np.isfinite(float(v)) for v in jax.tree_util.tree_leaves(g))
+    if gate > 0:
+        check_grad_fd(grad_wrt_field(loss, P, "accel_gate"), gate, h=1e-6, rtol=1e-5)
 
 
 def _run_filter(params, rates, zs, phi0):

@@ -9,11 +9,15 @@ that the simulated outcomes match the paper. That fidelity comparison (7/8 fall 
 the paper with the estimated model: the paper's volleyball-from-the-back, control-off fall does
 not happen here) is what table.md reports and the README discusses.
 
+The phase table runs at 3 phases here (0, 1/3, 2/3 of the period: 2 more batches of the same
+compiled rollout, ~5 s); the command's default is 15.
+
 `render_case` compiles its own unbatched rollout (~40 s+): only its argument check runs by
 default; the video itself runs with TKUJAX_SLOW_TESTS=1.
 """
 
 import csv
+import json
 import math
 import os
 
@@ -38,6 +42,7 @@ PAPER = {
     ("front", "volleyball", "off"): ("0.97 s", "X"),
     ("front", "volleyball", "on"): ("0.37 s", "3.88 cm"),
 }
+N_PHASES = 3
 FIGURES = ["fig13_back_control_off.png", "fig14_back_control_on.png",
            "fig15_front_control_off.png", "fig16_front_control_on.png"]
 
@@ -45,7 +50,7 @@ FIGURES = ["fig13_back_control_off.png", "fig14_back_control_on.png",
 @pytest.fixture(scope="module")
 def out(tmp_path_factory):
     path = tmp_path_factory.mktemp("paper")
-    summary = paper.run_paper(path, figures=True)
+    summary = paper.run_paper(path, figures=True, phases=N_PHASES)
     print("\n" + summary)
     return path, summary
 
@@ -116,7 +121,7 @@ def _md_rows(md):
 def test_markdown_puts_paper_numbers_beside_simulated(out, rows):
     path, summary = out
     md = (path / "table.md").read_text()
-    assert md == summary
+    assert summary == md + "\n" + (path / "phase.md").read_text()
     for number in ("0.60 s", "0.25 s", "0.65 s", "0.20 s", "0.97 s", "0.37 s",
                    "1.36 cm", "4.15 cm", "1.09 cm", "3.88 cm"):
         assert number in md
@@ -136,6 +141,27 @@ def test_markdown_puts_paper_numbers_beside_simulated(out, rows):
         assert cells[8] == ("yes" if same else "**no**")
     n_same = sum(c[8] == "yes" for c in table.values())
     assert f"Fall/no-fall outcomes as in the paper: {n_same}/8" in md
+
+
+def test_phase_table(out, rows):
+    """phase.csv/phase.md: each case across the period; phase 0 is table.csv's run."""
+    path, summary = out
+    with open(path / "phase.csv", newline="") as fh:
+        prows = list(csv.DictReader(fh))
+    rows = json.loads((path / "outcomes.json").read_text())   # table.csv's rows, all columns
+    assert [(r["direction"], r["ball"], r["control"]) for r in prows] == [
+        (r["direction"], r["ball"], r["control"]) for r in rows]
+    for p, r in zip(prows, rows):
+        assert int(p["phases"]) == N_PHASES
+        fell_at = p["fell_at_phases"].split()
+        assert float(p["fall_fraction"]) == pytest.approx(len(fell_at) / N_PHASES, abs=0.005)
+        assert ("0.00" in fell_at) == (r["fell"] == "true")
+        assert float(p["peak_min_deg"]) <= float(r["peak_incl_deg"]) <= float(p["peak_max_deg"])
+        if r["step_length_cm"]:
+            assert float(p["step_min_cm"]) <= float(r["step_length_cm"]) <= float(p["step_max_cm"])
+    md = (path / "phase.md").read_text()
+    assert f"({N_PHASES} phases)" in md and md in summary
+    assert sum(line.startswith(("| back", "| front")) for line in md.splitlines()) == 8
 
 
 def test_series_saved(out):
@@ -168,6 +194,12 @@ def test_cli_rejects_zero_impulse_scale(tmp_path, capsys):
     assert rc == 2
     assert "impulse_scale" in capsys.readouterr().err
     assert not target.exists()
+
+
+def test_cli_rejects_bad_phases(tmp_path, capsys):
+    rc = cli.main(["paper", "--phases", "-1", "--out", str(tmp_path / "never")])
+    assert rc == 2
+    assert "phases must be an integer in [0, 100]" in capsys.readouterr().err
 
 
 def test_render_case_rejects_unknown_case(tmp_path):

@@ -50,6 +50,15 @@ def _with(path: str, value):
     ("push.grid.mass", [1], r"\[push.grid\]: unknown key"),
     ("push.random.impulse_ns", {"uniform": [2.0, 1.0]}, r"lower bound 2.0 exceeds upper bound 1.0"),
     ("push.random.n", -1, r"push.random.n: expected an integer in \[0, 10000000\]"),
+    ("push.grid.onset_phase", [0.5, 1.0], r"push.grid.onset_phase: 1.0 is out of range \[0, 1\)"),
+    ("push.grid.onset_phase", {"start": 0, "stop": 1, "num": 4},
+     r"push.grid.onset_phase: 1.0 is out of range \[0, 1\)"),
+    ("push.grid.onset_phase", [-0.1], r"push.grid.onset_phase\[0\]: -0.1 is out of range \[0, 1\)"),
+    ("push.random.onset_phase", {"uniform": [1.0, 1.0]},
+     r"push.random.onset_phase.uniform\[0\]: 1.0 is out of range \[0, 1\)"),
+    ("push.random.onset_phase", {"uniform": [0.0, 1.5]},
+     r"push.random.onset_phase.uniform\[1\]: 1.5 is out of range \[0, 1\)"),
+    ("controller.accel_gate", -1.0, r"controller.accel_gate: -1.0 is out of range \[0.0, 100.0\] m/s\^2"),
     ("controller.step_period", 5.0, r"controller.step_period: 5.0 is out of range \[0.05, 2.0\] s"),
     ("controller.T", 0.3, r"\[controller\]: unknown key\(s\) \['T'\]"),
     ("controller.grid.lift_height", [0.01, 0.5], r"controller.grid.lift_height\[1\]: 0.5 is out of range"),
@@ -77,6 +86,32 @@ def test_shipped_specs_expand():
          if not f.stem.startswith("tune")}
     assert n["stability_map"] >= 10_000
     assert n["paper"] == 8 and n["tiny"] == 8 and n["stability_map_cpu"] == 128
+    assert n["phase_cpu"] == 2520 and n["phase"] == 4 * (15 * 24 * 15 + 4000)
+
+
+def test_onset_phase_axis():
+    """onset = the tick at or before onset_s + phase * 30 ms; random pushes default to a uniform
+    phase; specs without the key keep their onsets (and get the derived phase column)."""
+    data = _with("push.grid.onset_phase", {"start": 0, "stop": 1, "num": 3, "endpoint": False})
+    data["push"]["grid"]["onset_s"] = [0.75, 0.5]
+    rec = parse_spec(data).records()
+    assert len(rec["push_id"]) == 8 * 2 * 3 * 2
+    got = {(round(o, 6), round(p, 6)) for o, p in zip(rec["onset_s"], rec["onset_phase"])}
+    assert got == {(0.75, 0.0), (0.76, round(1 / 3, 6)), (0.77, round(2 / 3, 6)),
+                   (0.48, 0.0), (0.49, round(1 / 3, 6)), (0.5, round(2 / 3, 6))}
+    old = parse_spec(_with("push.grid.onset_s", [0.3, 0.51])).records()
+    assert set(np.round(old["onset_s"], 9)) == {0.3, 0.51}
+    np.testing.assert_allclose(old["onset_phase"], 0.0, atol=1e-9)
+    rnd = parse_spec(_with("push.random", {"n": 200})).records()
+    sel = ~rnd["from_grid"]
+    assert parse_spec(_with("push.random", {"n": 200})).phase_default
+    ph = rnd["onset_phase"][sel]
+    assert ph.min() < 0.1 and ph.max() > 0.9 and (ph < 1).all()
+    np.testing.assert_allclose(rnd["onset_s"][sel], 0.75 + 0.03 * ph)
+    given = parse_spec(_with("push.random", {"n": 5, "onset_s": {"uniform": [0.3, 0.4]}}))
+    assert not given.phase_default
+    r = given.records()
+    assert ((r["onset_s"][~r["from_grid"]] >= 0.3) & (r["onset_s"][~r["from_grid"]] <= 0.4)).all()
 
 
 def test_expand_grid_random_controller_grid():

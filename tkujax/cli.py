@@ -66,7 +66,8 @@ def _cmd_paper(args) -> int:
 
     model_params = ModelParams.from_overrides(args.model) if args.model else None
     summary = run_paper(Path(args.out), figures=not args.no_figures,
-                        impulse_scale=args.impulse_scale, model_params=model_params)
+                        impulse_scale=args.impulse_scale, model_params=model_params,
+                        phases=args.phases)
     print(summary)
     return 0
 
@@ -189,6 +190,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", action="append", default=[], metavar="KEY=VALUE",
                    help="override a ModelParams field, e.g. foot_forward_offset_m=-0.03 "
                         "(repeatable; the controller's geometry follows the model)")
+    p.add_argument("--phases", type=int, default=15,
+                   help="also replay the cases at this many onsets across the 30 ms control "
+                        "period (phase.csv, phase.md; 0 skips)")
     p.set_defaults(func=_cmd_paper)
 
     p = sub.add_parser("sweep", help="run (or resume) a push sweep from a TOML spec")

@@ -26,7 +26,8 @@ import jax.numpy as jnp
 
 from tkujax.control.capture_point import band_gate, capture_point, push_gate
 from tkujax.control.cpg import cpg_feet, cpg_feet_lateral
-from tkujax.control.kalman import KalmanState, accel_to_angle, gyro_to_rates, kalman_init, kalman_step
+from tkujax.control.kalman import (KalmanState, accel_to_angle, accel_variance, gyro_to_rates,
+                                   kalman_init, kalman_step)
 from tkujax.control.params import ControllerParams
 from tkujax.control.solve import solve_legs
 
@@ -84,8 +85,9 @@ def stand_leg_targets(params: ControllerParams) -> jax.Array:
 def controller_step(state: ControllerState, sensors: Sensors, params: ControllerParams,
                     enabled: jax.Array = 1.0) -> tuple[ControllerState, ControllerOutput]:
     """One control period. `enabled` (scalar, 0 or 1) switches the balance strategy on."""
+    # accel_variance is kalman_r exactly when accel_gate = 0 (the paper's mode).
     kalman = kalman_step(state.kalman, gyro_to_rates(sensors.gyro), accel_to_angle(sensors.accel),
-                         params)
+                         params, accel_variance(sensors.accel, params))
     phi = kalman.phi[..., 0]
     psi = -kalman.phi[..., 1]                            # lateral lean, positive toward +y
     enabled = jnp.asarray(enabled, phi.dtype)

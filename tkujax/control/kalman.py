@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 
 from tkujax.control.params import ControllerParams
-from tkujax.control.safe_math import safe_atan2, safe_sqrt
+from tkujax.control.safe_math import safe_atan2, safe_norm, safe_sqrt
 
 
 def accel_to_angle(accel: jax.Array) -> jax.Array:
@@ -81,8 +81,27 @@ def kalman_init(phi0: jax.Array, params: ControllerParams, p0: jax.Array | None 
     return KalmanState(phi=phi0, p=jnp.broadcast_to(jnp.asarray(p0, phi0.dtype), phi0.shape))
 
 
+def accel_variance(accel: jax.Array, params: ControllerParams) -> jax.Array:
+    """(...) measurement variance R (rad^2) for one accelerometer sample (a tkujax extension).
+
+    The accelerometer angle is only the inclination when the specific force is gravity alone.
+    A push (or the robot's own motion) adds an acceleration a_h and the angle is off by about
+    a_h / g, while the magnitude |a| departs from g by about a_h^2 / (2 g). Attitude
+    estimators therefore inflate R with that departure e = |a| - g (adaptive measurement
+    noise): R_eff = kalman_r * (1 + (e / accel_gate)^2), i.e. R doubles at e = accel_gate, and a
+    large departure (the impact itself, tens of m/s^2) removes the sample (K ~ 0). With
+    accel_gate = 0 (the paper's mode, the default) R_eff = kalman_r exactly.
+    Smooth in every argument; the double `where` keeps the unselected branch finite.
+    """
+    gate = params.accel_gate
+    on = gate > 0
+    dev = (safe_norm(accel[..., 0], accel[..., 1], accel[..., 2]) - params.gravity
+           ) / jnp.where(on, gate, 1.0)
+    return jnp.where(on, params.kalman_r * (1.0 + dev * dev), params.kalman_r)
+
+
 def kalman_step(state: KalmanState, gyro_rate: jax.Array, accel_angle: jax.Array,
-                params: ControllerParams) -> KalmanState:
+                params: ControllerParams, accel_r: jax.Array | None = None) -> KalmanState:
     """One 30 ms update of Eq. 1-2 with A = 1, B = control_period, H = 1.
 
     Args:
@@ -90,6 +109,8 @@ def kalman_step(state: KalmanState, gyro_rate: jax.Array, accel_angle: jax.Array
       gyro_rate: (..., 2) [pitch_rate, roll_rate], rad/s (the input omega_Gyro, Eq. 1).
       accel_angle: (..., 2) [pitch, roll] from `accel_to_angle`, rad (the measurement, Eq. 2).
       params: control_period (s), kalman_q and kalman_r (rad^2).
+      accel_r: optional (...) measurement variance of this sample (`accel_variance`), shared
+        by pitch and roll; None uses params.kalman_r (the paper).
     Returns:
       The posterior state.
     """
@@ -97,7 +118,8 @@ def kalman_step(state: KalmanState, gyro_rate: jax.Array, accel_angle: jax.Array
     phi = state.phi + params.control_period * gyro_rate
     p = state.p + params.kalman_q
     # Update with the accelerometer angle. p + r > 0 because r > 0 (validate()).
-    k = p / (p + params.kalman_r)
+    r = params.kalman_r if accel_r is None else jnp.asarray(accel_r)[..., None]
+    k = p / (p + r)
     phi = phi + k * (accel_angle - phi)
     p = (1.0 - k) * p
     return KalmanState(phi=phi, p=p)

@@ -47,6 +47,10 @@ class ControllerParams:
                                    from the robot's own accelerations (3e-3 = (3.1 deg)^2).
                                    q/r = 1/30 gives a steady-state gain ~0.17: the accelerometer
                                    corrects the gyro integral with a ~0.18 s time constant.
+      accel_gate            m/s^2  robust detection (tkujax extension; 0 = off, the paper): the
+                                   accelerometer's R is inflated by (1 + ((|a| - g)/accel_gate)^2)
+                                   so that samples taken during an impact barely move the angle
+                                   (`kalman.accel_variance`). A float leaf: traceable, gridable.
     Geometry (Fig. 3, Fig. 7, Fig. 11); defaults are the default model's numbers
       hip_offset_y          m      d_y, waist P_W to hip joint centre (lateral).
       hip_to_ankle_z        m      d_z, hip joint centre to ankle centre in the stand pose.
@@ -71,6 +75,7 @@ class ControllerParams:
     gravity: float = 9.81
     kalman_q: float = 1e-4
     kalman_r: float = 3e-3
+    accel_gate: float = 0.0
     hip_offset_y: float = 0.045
     hip_to_ankle_z: float = 0.20
     thigh_length: float = 0.11
@@ -132,6 +137,7 @@ class ControllerParams:
         check("gravity", lambda v: 0.0 < v < 100.0, "(0, 100) m/s^2")
         check("kalman_q", lambda v: 0.0 <= v < math.inf, "[0, inf) rad^2")
         check("kalman_r", lambda v: 0.0 < v < math.inf, "(0, inf) rad^2")
+        check("accel_gate", lambda v: 0.0 <= v <= 100.0, "[0, 100] m/s^2 (0 = off)")
         for name in ("hip_offset_y", "thigh_length", "calf_length", "leg_length", "com_height"):
             check(name, lambda v: 0.0 < v <= 2.0, "(0, 2] m")
         reach = val("thigh_length") + val("calf_length")

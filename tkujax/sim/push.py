@@ -20,6 +20,7 @@ import math
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 G = 9.81
 RELEASE_ANGLE_RAD = math.radians(45.0)
@@ -27,6 +28,8 @@ FALLING_TIME_S = 0.34               # paper Table 3: release to impact
 PAPER_ONSET_S = 0.75                # paper Sec. 4: hit at 0.75 s
 DEFAULT_HEIGHT_M = 0.36             # mid-chest of the stand pose [est]; the rig's ball height
 DEFAULT_DURATION_S = 0.020          # ball-on-robot contact time [est]
+CONTROL_PERIOD_S = 0.030            # paper Sec. 4; the controller ticks at t = k * period
+PHYSICS_DT_S = 0.002                # the model's time step (tkujax.model: 2 ms)
 
 
 @jax.tree_util.register_dataclass
@@ -52,6 +55,35 @@ def make_push(impulse_ns: float, azimuth_deg: float = 0.0, height_m: float = DEF
             raise ValueError(f"{name} must be a number in [{lo}, {hi}], got {value!r}")
     f = lambda v: jnp.asarray(v, jnp.float32)  # noqa: E731
     return Push(f(impulse_ns), f(math.radians(azimuth_deg)), f(height_m), f(duration_s), f(onset_s))
+
+
+def onset_from_phase(onset_s, phase, period: float = CONTROL_PERIOD_S):
+    """Onset (s) at `phase` in [0, 1) of the control period: tick + phase * period, where tick
+    is the last controller tick at or before onset_s (ticks at k * period from t = 0; the
+    1e-6 absorbs the float error of 0.75 / 0.03). numpy or python floats."""
+    tick = period * np.floor(np.asarray(onset_s) / period + 1e-6)
+    return tick + np.asarray(phase) * period
+
+
+def onset_phase(onset_s, period: float = CONTROL_PERIOD_S):
+    """Phase in [0, 1) of an onset within the control period (the inverse of the above)."""
+    x = np.asarray(onset_s) / period
+    frac = x - np.floor(x + 1e-6)
+    return np.where(frac < 0, 0.0, frac)
+
+
+def peak_on_sample_phase(duration_s: float = DEFAULT_DURATION_S,
+                         period: float = CONTROL_PERIOD_S, dt: float = PHYSICS_DT_S) -> float:
+    """The phase whose pulse peak lands on the controller's IMU sample.
+
+    The sample a tick reads at d.time = k * period is the sensordata of the last physics step,
+    computed from the state at k * period - dt under the force F(k * period - dt) (both
+    backends). The half-sine peaks at onset + duration / 2, so the peak is sampled when
+    phase = 1 - (duration / 2 + dt) / period (mod 1): 0.6 for the 20 ms push. The sample sees
+    some of the pulse for phase in (1 - (dt + duration) / period, 1 - dt / period], i.e.
+    (0.27, 0.93] for 20 ms; phase 0 (an onset on a tick, as the paper's 0.75 s) is never sampled.
+    """
+    return float(np.mod(1.0 - (0.5 * duration_s + dt) / period, 1.0))
 
 
 def stack_pushes(pushes: list[Push]) -> Push:

@@ -24,7 +24,7 @@ from tkujax.sim import physics
 from tkujax.control.controller import controller_init
 from tkujax.control.params import ControllerParams
 from tkujax.model import FSR_SENSORS, LEG_ACTUATORS, ModelParams
-from tkujax.sim.push import Push, force_at
+from tkujax.sim.push import CONTROL_PERIOD_S, Push, force_at
 from tkujax.sim.records import Outcomes, Series
 from tkujax.sim.tick import SERVO_RESOLUTION_RAD, control_tick, quantise_targets  # noqa: F401
 
@@ -34,7 +34,7 @@ class RolloutConfig:
     """Static settings (changing them recompiles)."""
 
     duration_s: float = 2.4
-    control_period_s: float = 0.030
+    control_period_s: float = CONTROL_PERIOD_S
     quantise_targets: bool = True
     record_qpos: bool = False      # add the full qpos to the series (for rendering)
     remat: bool = False            # jax.checkpoint the control tick (less memory under grad)

@@ -1,10 +1,12 @@
 """`tkujax map DIR`: stability maps, capture regions and capturability checks of a sweep.
 
-Cells are (control, azimuth, impulse); when a sweep varies more (height, onset, controller
-grid, randomisation) a cell's value is the mean over those records (fall *fraction*), and the
-fall boundary is where that fraction crosses 1/2. Diverged records (numerical blow-up,
-`tkujax.sim.metrics`) are neither fell nor survived: they are left out of every cell and
-fraction, and counted on their own in the summary.
+Cells are (control, azimuth, impulse); when a sweep varies more (height, onset and its phase
+in the control period, controller grid, randomisation) a cell's value is the mean over those
+records (fall *fraction*), and the fall boundary is where that fraction crosses 1/2.
+`fall_vs_phase.png` and the summary's phase table split the fall rate by the push's phase in
+the 30 ms control period instead, per control setting and controller-grid point.
+Diverged records (numerical blow-up, `tkujax.sim.metrics`) are neither fell nor survived: they
+are left out of every cell and fraction, and counted on their own in the summary.
 """
 
 from __future__ import annotations
@@ -17,7 +19,8 @@ import numpy as np
 
 from tkujax.studies import capturability
 from tkujax.control.params import ControllerParams
-from tkujax.studies.spec import parse_spec
+from tkujax.sim.push import onset_phase, peak_on_sample_phase
+from tkujax.studies.spec import PHASE_KEY, parse_spec
 from tkujax.studies.sweep import load
 
 ROUND = 6
@@ -25,6 +28,7 @@ ROUND = 6
 
 MAX_AZIMUTH_BINS = 72     # 5 deg
 MAX_IMPULSE_BINS = 48
+MAX_PHASE_BINS = 15      # 2 ms: the physics time step
 
 
 def _axis(values: np.ndarray, max_bins: int, period: float | None = None):
@@ -74,6 +78,60 @@ def max_recoverable_impulse(rec: dict, control: bool) -> tuple[np.ndarray, np.nd
         first = np.argmax(fell) if fell.any() else len(js)
         out[i] = js[first - 1] if first > 0 else 0.0
     return azs, out
+
+
+def fall_by_phase(rec: dict, variant_keys: tuple[str, ...] = ()) -> dict:
+    """Fall fraction per phase bin, per (control, controller-grid point).
+
+    Returns {"phases": bin centres, "rows": [(label, fall fractions (n_phase,), counts)]},
+    everything else (impulse, azimuth, ...) marginalised. Sweeps written before the phase
+    column existed get it from onset_s."""
+    phase = rec[PHASE_KEY] if PHASE_KEY in rec else onset_phase(rec["onset_s"])
+    phases, ip = _axis(np.asarray(phase, float), MAX_PHASE_BINS, 1.0)
+    keys = ["control"] + [k for k in variant_keys if k in rec]
+    combos = np.unique(np.stack([np.asarray(rec[k], float) for k in keys], 1), axis=0)
+    rows = []
+    for combo in combos:
+        sel = np.all(np.stack([np.asarray(rec[k], float) == v for k, v in zip(keys, combo)], 1), 1)
+        fell = np.bincount(ip[sel], rec["fell"][sel].astype(float), len(phases))
+        count = np.bincount(ip[sel], minlength=len(phases)).astype(float)
+        label = ("control on" if combo[0] else "control off") + "".join(
+            f", {k}={v:g}" for k, v in zip(keys[1:], combo[1:]))
+        with np.errstate(invalid="ignore"):
+            rows.append((label, np.where(count > 0, fell / np.maximum(count, 1), np.nan), count))
+    return dict(phases=phases, rows=rows)
+
+
+def _phase_outputs(rec: dict, variant_keys, maps: Path, plt) -> tuple[Path, str]:
+    """fall_vs_phase.png and the summary's markdown table."""
+    by = fall_by_phase(rec, variant_keys)
+    peak = peak_on_sample_phase(float(np.median(rec["duration_s"])))
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for label, frac, _ in by["rows"]:
+        ax.plot(by["phases"], 100 * frac, "o-", ms=4, label=label)
+    ax.axvline(peak, color="k", ls=":", lw=1,
+               label=f"pulse peak on the IMU sample ({1000 * np.median(rec['duration_s']):.0f} ms)")
+    ax.set_xlabel("push onset phase in the 30 ms control period (0 = on a controller tick)")
+    ax.set_ylabel("fall rate (%)")
+    ax.set_xlim(-0.02, 1.0)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    path = maps / "fall_vs_phase.png"
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    head = "| phase | " + " | ".join(r[0] for r in by["rows"]) + " |"
+    lines = [head, "|---" * (1 + len(by["rows"])) + "|"]
+    for i, ph in enumerate(by["phases"]):
+        lines.append(f"| {ph:.2f} | " + " | ".join(
+            f"{100 * r[1][i]:.1f} % ({int(r[2][i])})" for r in by["rows"]) + " |")
+    spread = "; ".join(f"{label}: {100 * np.nanmin(f):.1f}-{100 * np.nanmax(f):.1f} %"
+                       for label, f, _ in by["rows"])
+    text = (f"## Fall rate against the push's phase in the control period\n\n"
+            f"Phase 0 = onset on a controller tick; {peak:.2f} puts the pulse's peak on the "
+            f"IMU sample. Range over phase: {spread}. Cells: fall rate (records).\n\n"
+            + "\n".join(lines) + "\n")
+    return path, text
 
 
 def _polar_mesh(azs, js):
@@ -200,6 +258,11 @@ def make_maps(out_dir: str | Path, params: ControllerParams | None = None) -> di
     fig.savefig(files[-1], dpi=90)
     plt.close(fig)
 
+    # 5. Fall rate against the push's phase in the control period.
+    variant_keys = tuple(sorted(parse_spec(manifest["spec"]).controller_grid))
+    phase_png, phase_md = _phase_outputs(rec, variant_keys, maps, plt)
+    files.append(phase_png)
+
     # Summary table.
     azs_all = sorted({a for a, _, _ in table})
     lookup = {(a, c): j for a, c, j in table}
@@ -237,7 +300,7 @@ def make_maps(out_dir: str | Path, params: ControllerParams | None = None) -> di
             f"ω = {lip.omega:.2f} 1/s, l_max = {capturability.step_reach_m(params):.3f} m, "
             f"Δt_s = {capturability.step_time_s(params):.3f} s. Sim max = largest tested impulse "
             "below which every impulse was survived (grid resolution applies).\n\n"
-            + "\n".join(rows) + "\n")
+            + "\n".join(rows) + "\n\n" + phase_md)
     (maps / "summary.md").write_text(text)
     (maps / "summary.json").write_text(json.dumps(summary, indent=1))
     return dict(files=[str(f) for f in files], summary=str(maps / "summary.md"),

@@ -3,6 +3,11 @@
 Baseball and volleyball, from the back and from the front, balance control off and on, hit at
 0.75 s. Each ball is applied as the impulse it carries at impact (m v of the pendulum rig,
 `tkujax.push.ball_momentum_ns`), a 20 ms half-sine at mid-chest height.
+
+0.75 s is a controller tick, so the 20 ms pulse falls between two IMU samples. The paper's robot
+was hit at an unknown phase of its 30 ms period, so `run_paper` also replays each case at
+`phases` onsets 0.75 + phase * 30 ms (phase.csv, phase.md): the fall fraction and the range of
+step length, x_Sup and peak inclination across the period.
 """
 
 from __future__ import annotations
@@ -37,13 +42,14 @@ def paper_cases() -> list[tuple[str, str, str]]:
 
 
 def run_cases(params: ControllerParams | None = None, model_params: ModelParams | None = None,
-              impulse_scale: float = 1.0, config: RolloutConfig = RolloutConfig()):
+              impulse_scale: float = 1.0, config: RolloutConfig = RolloutConfig(),
+              onset_s: float = push_lib.PAPER_ONSET_S):
     """Simulate the 8 cases. Returns (cases, series, outcomes, pushes as numpy dict)."""
     params = params or ControllerParams.paper(model_params)
     cases = paper_cases()
     pushes = push_lib.stack_pushes([
         push_lib.make_push(impulse_scale * push_lib.ball_momentum_ns(b),
-                           push_lib.DIRECTIONS[d]) for d, b, _ in cases])
+                           push_lib.DIRECTIONS[d], onset_s=onset_s) for d, b, _ in cases])
     enabled = np.array([1.0 if c == "on" else 0.0 for *_, c in cases], np.float32)
     series, outcomes = simulate(pushes, enabled, params, model_params=model_params, config=config)
     return cases, series, outcomes, pushes
@@ -65,6 +71,46 @@ def _rows(cases, outcomes, pushes) -> list[dict]:
             peak_incl_deg=f"{float(outcomes['peak_incl_deg'][i]):.2f}",
             capture_point_cm=f"{100 * float(outcomes['capture_point_m'][i]):.2f}"))
     return rows
+
+
+PHASE_COLUMNS = ["direction", "ball", "control", "phases", "fall_fraction", "fell_at_phases",
+                 "step_min_cm", "step_max_cm", "x_sup_min_cm", "x_sup_max_cm", "peak_min_deg",
+                 "peak_max_deg"]
+
+
+def phase_rows(cases, by_phase: list[tuple[float, dict]]) -> list[dict]:
+    """Per case, its outcomes across the phases: by_phase = [(phase, outcomes of the 8)]."""
+    rows = []
+    for i, (d, b, c) in enumerate(cases):
+        fell = np.array([bool(o["fell"][i]) for _, o in by_phase])
+        # Steps of the pushes that stayed up (a fall drags the feet: not a step, as table.md).
+        steps = [100 * float(o["step_length_m"][i]) for _, o in by_phase
+                 if not o["fell"][i] and abs(float(o["step_length_m"][i])) >= NO_STEP_M]
+        xs = [100 * float(o["capture_point_m"][i]) for _, o in by_phase]
+        peaks = [float(o["peak_incl_deg"][i]) for _, o in by_phase]
+        rng = lambda v, f: ("", "") if not v else (f"{min(v):{f}}", f"{max(v):{f}}")  # noqa: E731
+        rows.append(dict(zip(PHASE_COLUMNS, (
+            d, b, c, len(by_phase), f"{fell.mean():.2f}",
+            " ".join(f"{ph:.2f}" for (ph, _), f in zip(by_phase, fell) if f),
+            *rng(steps, ".2f"), *rng(xs, ".2f"), *rng(peaks, ".2f")))))
+    return rows
+
+
+def _phase_markdown(rows: list[dict], n: int) -> str:
+    peak = push_lib.peak_on_sample_phase()
+    lines = [f"## The 8 cases across the 30 ms control period ({n} phases)", "",
+             f"Onset 0.75 s + phase x 30 ms, phase = 0, {1 / n:g}, ..., {(n - 1) / n:g}; phase 0 "
+             f"is the table above, {peak:.1f} puts the 20 ms pulse's peak on the controller's "
+             "IMU sample. Steps: pushes that stayed up and stepped >= 5 mm.", "",
+             "| direction | ball | control | falls (fraction) | falls at phases | step (cm) | "
+             "x_Sup (cm) | peak dev. (deg) |", "|---|---|---|---|---|---|---|---|"]
+    span = lambda lo, hi: "X" if not lo else (lo if lo == hi else f"{lo} to {hi}")  # noqa: E731
+    for r in rows:
+        lines.append(f"| {r['direction']} | {r['ball']} | {r['control']} | {r['fall_fraction']} "
+                     f"| {r['fell_at_phases'] or '-'} | {span(r['step_min_cm'], r['step_max_cm'])}"
+                     f" | {span(r['x_sup_min_cm'], r['x_sup_max_cm'])} | "
+                     f"{span(r['peak_min_deg'], r['peak_max_deg'])} |")
+    return "\n".join(lines) + "\n"
 
 
 def _fmt_paper(rec, step):
@@ -125,14 +171,19 @@ def _figures(out: Path, cases, series) -> list[Path]:
 
 
 def run_paper(out: Path, figures: bool = True, params: ControllerParams | None = None,
-              model_params: ModelParams | None = None, impulse_scale: float = 1.0) -> str:
-    """Write table.csv, table.md, series.npz and Figs. 13-16 to `out`; return a summary.
+              model_params: ModelParams | None = None, impulse_scale: float = 1.0,
+              phases: int = 15) -> str:
+    """Write table.csv, table.md, series.npz, Figs. 13-16 and (phases > 0) phase.csv and
+    phase.md to `out`; return a summary (table.md, then phase.md).
 
     impulse_scale multiplies both balls' momenta (1 = the paper's rig); other values are
-    labelled as such in table.md.
+    labelled as such in table.md. phases: onsets 0.75 s + k / phases * 30 ms, k < phases
+    (each a batch of the 8 cases with the table's compiled rollout); 0 skips them.
     """
     if not (0.0 < impulse_scale <= 10.0):
         raise ValueError(f"impulse_scale must be in (0, 10], got {impulse_scale!r}")
+    if isinstance(phases, bool) or not isinstance(phases, int) or not 0 <= phases <= 100:
+        raise ValueError(f"phases must be an integer in [0, 100], got {phases!r}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -162,7 +213,21 @@ def run_paper(out: Path, figures: bool = True, params: ControllerParams | None =
     (out / "outcomes.json").write_text(json.dumps(rows, indent=1))
     if figures:
         _figures(out, cases, series)
-    return md
+    if phases == 0:
+        return md
+    # Phase 0 is the run above; the others change only the onset (a traced value: no compile).
+    by_phase = [(0.0, outcomes)] + [
+        (k / phases, run_cases(params, model_params, impulse_scale, onset_s=float(
+            push_lib.onset_from_phase(push_lib.PAPER_ONSET_S, k / phases)))[2])
+        for k in range(1, phases)]
+    prow = phase_rows(cases, by_phase)
+    with open(out / "phase.csv", "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=PHASE_COLUMNS)
+        writer.writeheader()
+        writer.writerows(prow)
+    phase_md = _phase_markdown(prow, phases)
+    (out / "phase.md").write_text(phase_md)
+    return md + "\n" + phase_md
 
 
 def render_case(case: str, control_on: bool, out: str | Path, width: int = 480,

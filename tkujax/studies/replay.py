@@ -87,7 +87,7 @@ def replay(run_dir: str | Path, index: int) -> dict:
     backend = manifest.get("backend", "mjx")
     if backend == "mujoco":
         res = mujoco_chunk(inputs, spec.seed + chunk, base, spec.duration_s, model_params,
-                           with_qpos=True)
+                           with_qpos=True, varied=tuple(sorted(spec.controller_grid)))
         res = {k: v[pos] for k, v in res.items()}
     else:
         import jax

@@ -16,8 +16,19 @@ out-of-range values raise SpecError naming the key and the allowed range.
     impulse_ns = {start = 0.2, stop = 3.0, num = 15}
     azimuth_deg = {start = 0, stop = 360, num = 24, endpoint = false}
 
+    onset_phase = {start = 0, stop = 1, num = 10, endpoint = false}
+
     [push.random]              # seeded samples, added to the grid ({uniform = [lo, hi]})
     n = 0
+
+onset_phase (a tkujax axis): the push's phase within the 30 ms control period, in [0, 1).
+The two onset keys combine: onset = the last controller tick at or before onset_s (ticks at
+k * 30 ms) + onset_phase * 30 ms (`tkujax.sim.push.onset_from_phase`); onset_s = 0.75 with
+phases 0, 0.1, ... gives 0.750, 0.753, ... s. Without onset_phase, onset_s is used as given
+(specs written before the key run unchanged). In [push.random] the phase is drawn uniformly
+over [0, 1) by default unless onset_s or onset_phase is given there. Phase 0.6 puts a 20 ms
+pulse's peak on the controller's IMU sample (`tkujax.sim.push.peak_on_sample_phase`). Every
+record carries an onset_phase column (derived from onset_s when not given).
 
     [controller]               # fixed ControllerParams overrides (angles in degrees)
     step_period = 0.3
@@ -36,6 +47,8 @@ from typing import Any
 
 import numpy as np
 
+from tkujax.sim.push import onset_from_phase, onset_phase
+
 
 class SpecError(ValueError):
     """A spec problem; the message names the key and what is allowed."""
@@ -49,6 +62,10 @@ PUSH_FIELDS = {
     "onset_s": (0.05, 20.0, 0.75, "s"),
     "duration_s": (0.002, 0.5, 0.02, "s"),
 }
+# The push's phase in the control period (see the module doc): its own key, not in PUSH_FIELDS
+# (the tune specs share PUSH_FIELDS and have no phase).
+PHASE_KEY = "onset_phase"
+PHASE_UNIT = "(fraction of the 30 ms control period; 1 excluded)"
 # ControllerParams fields a spec may set; *_deg fields are converted to radians.
 CONTROLLER_FIELDS = {
     "step_period": (0.05, 2.0, "s"),
@@ -63,6 +80,7 @@ CONTROLLER_FIELDS = {
     "eps_lateral_deg": (0.0, 60.0, "deg"),
     "kalman_q": (0.0, 1.0, "rad^2"),
     "kalman_r": (1e-9, 1.0, "rad^2"),
+    "accel_gate": (0.0, 100.0, "m/s^2 (0 = off: the paper; robust detection, see README)"),
 }
 # Randomisation: multiplicative scales and additive values applied per push.
 RANDOMIZE_FIELDS = {
@@ -95,6 +113,7 @@ class SweepSpec:
     controller_grid: dict[str, np.ndarray]
     randomize: dict[str, Any]
     raw: dict
+    phase_default: bool = False   # [push.random] draws onset_phase uniformly by default
 
     def records(self) -> dict[str, np.ndarray]:
         """Expand into one record per push (columns of equal length, deterministic order)."""
@@ -143,6 +162,17 @@ def _uniform(key: str, value, lo: float, hi: float, unit: str = "") -> tuple[flo
     return a, b
 
 
+def _phase_values(key: str, value) -> np.ndarray:
+    """Grid phases: in [0, 1) (a range may use stop = 1 with endpoint = false)."""
+    try:
+        vals = _values(key, value, 0.0, 1.0, PHASE_UNIT)
+    except SpecError as err:   # the range is half-open: say so
+        raise SpecError(str(err).replace("[0.0, 1.0]", "[0, 1)")) from None
+    if (vals >= 1.0).any():
+        raise SpecError(f"{key}: {float(vals.max())!r} is out of range [0, 1) {PHASE_UNIT}")
+    return vals
+
+
 def _table(key: str, value, allowed) -> dict:
     if not isinstance(value, dict):
         raise SpecError(f"[{key}]: expected a table, got {type(value).__name__}")
@@ -180,15 +210,29 @@ def parse_spec(data: dict) -> SweepSpec:
         raise SpecError(f"sweep.control: expected a list of distinct 'on'/'off', got {list(control)!r}")
 
     push = _table("push", data.get("push", {}), {"grid", "random"})
-    grid = _table("push.grid", push.get("grid", {}), PUSH_FIELDS)
-    push_grid = {k: _values(f"push.grid.{k}", v, *PUSH_FIELDS[k][:2], PUSH_FIELDS[k][3])
+    grid = _table("push.grid", push.get("grid", {}), set(PUSH_FIELDS) | {PHASE_KEY})
+    push_grid = {k: (_phase_values(f"push.grid.{k}", v) if k == PHASE_KEY else
+                     _values(f"push.grid.{k}", v, *PUSH_FIELDS[k][:2], PUSH_FIELDS[k][3]))
                  for k, v in grid.items()}
-    rnd = _table("push.random", push.get("random", {}), set(PUSH_FIELDS) | {"n"})
+    rnd = _table("push.random", push.get("random", {}), set(PUSH_FIELDS) | {PHASE_KEY, "n"})
     n_random = rnd.get("n", 0)
     if isinstance(n_random, bool) or not isinstance(n_random, int) or not 0 <= n_random <= 10_000_000:
         raise SpecError(f"push.random.n: expected an integer in [0, 10000000], got {n_random!r}")
     push_random = {k: _uniform(f"push.random.{k}", v, *PUSH_FIELDS[k][:2], PUSH_FIELDS[k][3])
-                   for k, v in rnd.items() if k != "n"}
+                   for k, v in rnd.items() if k not in ("n", PHASE_KEY)}
+    if PHASE_KEY in rnd:
+        try:
+            lo, hi = _uniform(f"push.random.{PHASE_KEY}", rnd[PHASE_KEY], 0.0, 1.0, PHASE_UNIT)
+        except SpecError as err:
+            raise SpecError(str(err).replace("[0.0, 1.0]", "[0, 1)")) from None
+        if lo >= 1.0:   # draws are in [lo, hi): hi = 1 is fine, lo = 1 would give phase 1
+            raise SpecError(f"push.random.{PHASE_KEY}.uniform[0]: {lo!r} is out of range [0, 1) "
+                            f"{PHASE_UNIT}")
+        push_random[PHASE_KEY] = (lo, hi)
+    # Random pushes without an onset of their own sample the whole control period.
+    phase_default = n_random > 0 and not {"onset_s", PHASE_KEY} & set(rnd)
+    if phase_default:
+        push_random[PHASE_KEY] = (0.0, 1.0)
     if not push_grid and n_random == 0:
         raise SpecError("[push]: give a [push.grid] or [push.random] with n > 0: nothing to run")
 
@@ -207,7 +251,7 @@ def parse_spec(data: dict) -> SweepSpec:
                      chunk_size=chunk, duration_s=duration, control=control,
                      push_grid=push_grid, push_random=push_random, n_random=n_random,
                      controller=controller, controller_grid=controller_grid,
-                     randomize=randomize, raw=data)
+                     randomize=randomize, raw=data, phase_default=phase_default)
 
 
 def read_toml(path: str | Path) -> dict:
@@ -234,13 +278,15 @@ def expand(spec: SweepSpec) -> dict[str, np.ndarray]:
     """
     rng = np.random.default_rng(spec.seed)
     defaults = {k: v[2] for k, v in PUSH_FIELDS.items()}
-    # Grid pushes: Cartesian product over the given fields (others at their defaults).
-    cols = {k: np.array([defaults[k]]) for k in PUSH_FIELDS}
+    # Grid pushes: Cartesian product over the given fields (others at their defaults); the phase
+    # is crossed last, so the order of specs without it is unchanged. NaN: no phase given.
+    fields = list(PUSH_FIELDS) + [PHASE_KEY]
+    cols = {k: np.array([defaults[k]]) for k in PUSH_FIELDS} | {PHASE_KEY: np.array([np.nan])}
     grid_cols = {}
     if spec.push_grid:
         cols.update(spec.push_grid)
-        mesh = np.meshgrid(*[cols[k] for k in PUSH_FIELDS], indexing="ij")
-        grid_cols = {k: m.ravel() for k, m in zip(PUSH_FIELDS, mesh)}
+        mesh = np.meshgrid(*[cols[k] for k in fields], indexing="ij")
+        grid_cols = {k: m.ravel() for k, m in zip(fields, mesh)}
     n_grid = len(next(iter(grid_cols.values()))) if grid_cols else 0
     rand_cols = {}
     for k in PUSH_FIELDS:
@@ -249,20 +295,28 @@ def expand(spec: SweepSpec) -> dict[str, np.ndarray]:
             rand_cols[k] = rng.uniform(lo, hi, spec.n_random)
         else:
             rand_cols[k] = np.full(spec.n_random, defaults[k])
-    pushes = {k: np.concatenate([grid_cols.get(k, np.zeros(0)), rand_cols[k]]) for k in PUSH_FIELDS}
+    # Drawn after the other fields: their values do not depend on whether a phase is drawn.
+    rand_cols[PHASE_KEY] = (rng.uniform(*spec.push_random[PHASE_KEY], spec.n_random)
+                            if PHASE_KEY in spec.push_random else np.full(spec.n_random, np.nan))
+    pushes = {k: np.concatenate([grid_cols.get(k, np.zeros(0)), rand_cols[k]]) for k in fields}
+    given = np.isfinite(pushes[PHASE_KEY])
+    pushes["onset_s"] = np.where(given, onset_from_phase(pushes["onset_s"],
+                                                         np.where(given, pushes[PHASE_KEY], 0.0)),
+                                 pushes["onset_s"])
+    pushes[PHASE_KEY] = np.where(given, pushes[PHASE_KEY], onset_phase(pushes["onset_s"]))
     n_push = n_grid + spec.n_random
 
     cgrid = spec.controller_grid
     combos = list(itertools.product(*cgrid.values())) if cgrid else [()]
     is_grid = np.arange(n_push) < n_grid
-    records: dict[str, list] = {k: [] for k in PUSH_FIELDS}
+    records: dict[str, list] = {k: [] for k in fields}
     records["control"] = []
     records["from_grid"] = []
     for k in cgrid:
         records[k] = []
     for control in spec.control:
         for combo in combos:
-            for k in PUSH_FIELDS:
+            for k in fields:
                 records[k].append(pushes[k])
             records["control"].append(np.full(n_push, control == "on"))
             records["from_grid"].append(is_grid)

@@ -46,6 +46,7 @@ from tkujax.studies.spec import SpecError, SweepSpec, load_spec
 OUTCOME_KEYS = ("fell", "diverged", "recovery_time_s", "step_length_m", "step_width_m",
                 "peak_incl_deg", "capture_point_m", "capture_point_y_m", "zmp_excursion_m")
 MANIFEST = chunks.MANIFEST
+_LATER_FIELDS = {"accel_gate": 0.0}   # ControllerParams fields added after sweeps were published
 
 
 def controller_params_from(base: ControllerParams, overrides: dict) -> ControllerParams:
@@ -153,14 +154,12 @@ BACKENDS = ("auto", "mjx", "mujoco")
 
 def choose_backend(requested: str, spec: SweepSpec) -> str:
     """"auto": MJX on a GPU/TPU; on a CPU, MuJoCo C (about 5x faster there) when the spec
-    allows it. The MuJoCo C path takes one controller parameter set and one model per sweep:
-    [controller.grid] and per-push model randomisation need MJX."""
+    allows it. The MuJoCo C path takes one model per sweep: per-push model randomisation needs
+    MJX. A [controller.grid] runs on both (MuJoCo C: one batch per grid point of a chunk)."""
     if requested not in BACKENDS:
         raise SpecError(f"backend must be one of {BACKENDS}, got {requested!r}")
     needs_mjx = [k for k in spec.randomize if k not in ("gyro_noise_std", "accel_noise_std")
                  or isinstance(spec.randomize[k], tuple)]
-    if spec.controller_grid:
-        needs_mjx.append("controller.grid")
     if requested == "mujoco" and needs_mjx:
         raise SpecError(f"backend 'mujoco' cannot vary {needs_mjx} per push; use backend 'mjx'")
     if requested != "auto":
@@ -169,24 +168,45 @@ def choose_backend(requested: str, spec: SweepSpec) -> str:
 
 
 def mujoco_chunk(batch: dict, seed: int, base: ControllerParams, duration_s: float,
-                 model_params: ModelParams | None, with_qpos: bool = False) -> dict:
-    """One chunk on MuJoCo C (tkujax.sim.rollout_mujoco), outcomes (and qpos) as numpy."""
+                 model_params: ModelParams | None, with_qpos: bool = False,
+                 varied: tuple[str, ...] = ()) -> dict:
+    """One chunk on MuJoCo C (tkujax.sim.rollout_mujoco), outcomes (and qpos) as numpy: one
+    batch per controller-grid point present in the chunk (`varied` names the grid's fields; the
+    controller's parameters are shared by a batch there)."""
     from tkujax.sim.rollout_mujoco import simulate_mujoco
 
-    pushes = Push(*(jnp.asarray(v, jnp.float32) for v in (
-        batch["impulse_ns"], np.radians(batch["azimuth_deg"]), batch["height_m"],
-        batch["duration_s"], batch["onset_s"])))
-    series, out = simulate_mujoco(pushes, batch["control"].astype(np.float32), base, seed=seed,
-                             gyro_noise_std=float(batch["gyro_noise_std"][0]),
-                             accel_noise_std=float(batch["accel_noise_std"][0]),
-                             model_params=model_params,
-                             config=RolloutConfig(duration_s=duration_s, record_qpos=with_qpos))
-    res = {k: np.asarray(out[k]) for k in OUTCOME_KEYS}
-    return res | ({"qpos": np.asarray(series.qpos)} if with_qpos else {})
+    n = len(batch["impulse_ns"])
+    grid = np.stack([batch[k] for k in varied], 1) if varied else np.zeros((n, 0))
+    points, which = np.unique(grid, axis=0, return_inverse=True)
+    res = {}
+    for j, point in enumerate(points):
+        sel = np.flatnonzero(which.ravel() == j)
+        # Python floats: one compiled controller tick for every grid point (values are traced).
+        params = controller_params_from(base, {k: float(v) for k, v in zip(varied, point)})
+        pushes = Push(*(jnp.asarray(v[sel], jnp.float32) for v in (
+            batch["impulse_ns"], np.radians(batch["azimuth_deg"]), batch["height_m"],
+            batch["duration_s"], batch["onset_s"])))
+        series, out = simulate_mujoco(
+            pushes, batch["control"][sel].astype(np.float32), params, seed=seed,
+            gyro_noise_std=float(batch["gyro_noise_std"][0]),
+            accel_noise_std=float(batch["accel_noise_std"][0]), model_params=model_params,
+            config=RolloutConfig(duration_s=duration_s, record_qpos=with_qpos))
+        fields = {k: np.asarray(out[k]) for k in OUTCOME_KEYS}
+        if with_qpos:
+            fields["qpos"] = np.asarray(series.qpos)
+        for k, v in fields.items():
+            res.setdefault(k, np.empty((n,) + v.shape[1:], v.dtype))[sel] = v
+    return res
 
 
 def _spec_hash(spec: SweepSpec, params: ControllerParams) -> str:
-    blob = json.dumps([spec.raw, dataclasses.asdict(params)], sort_keys=True, default=str)
+    # Fields added later enter the hash only when set, so older sweeps still resume.
+    p = {k: v for k, v in dataclasses.asdict(params).items()
+         if not (k in _LATER_FIELDS and v == _LATER_FIELDS[k])}
+    parts = [spec.raw, p]
+    if spec.phase_default:   # random onsets changed meaning when the phase axis came in
+        parts.append("push.random.onset_phase: uniform [0, 1) by default")
+    blob = json.dumps(parts, sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
@@ -335,7 +355,7 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
                     progress.note("compiling the rollout (first chunk; minutes on a CPU) ...")
                 if backend == "mujoco":
                     res = mujoco_chunk({k: recs[k][lo:hi] for k in input_keys}, spec.seed + i,
-                                        base, spec.duration_s, model_params)
+                                       base, spec.duration_s, model_params, varied=varied)
                 else:
                     batch = {k: np.resize(recs[k][lo:hi], padded).astype(np.float32)
                              for k in input_keys}
