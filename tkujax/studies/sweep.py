@@ -35,6 +35,8 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from tkujax.sim import physics
 from tkujax.control.params import ControllerParams
+from tkujax.control.controller import StepOverride
+from tkujax.sim.metrics import CAPTURE_KEYS, capture_outcomes
 from tkujax.sim.metrics import outcomes as rollout_outcomes
 from tkujax.model import ModelParams
 from tkujax.sim.push import Push
@@ -72,6 +74,19 @@ def load_params_json(path: str | Path) -> ControllerParams:
                                ).validate()
 
 
+def step_override(rec: dict) -> StepOverride:
+    """The StepOverride of record(s) with step_* columns (onset_s is filled by the rollout)."""
+    return StepOverride(active=rec["step_active"], x_m=rec["step_x_m"], y_m=rec["step_y_m"],
+                        start_delay_s=rec["step_start_delay_s"],
+                        from_detection=rec["step_from_detection"], period_s=rec["step_period_s"],
+                        onset_s=rec["onset_s"])
+
+
+def outcome_keys(steps: bool) -> tuple[str, ...]:
+    """Columns a chunk writes: the outcomes, plus the capture-region ones for [step] sweeps."""
+    return OUTCOME_KEYS + (CAPTURE_KEYS if steps else ())
+
+
 def randomize_model(model, mass_scale, torso_com_dx, friction, kp_scale, chest_body: int):
     """The MJX model with per-push randomisation applied (all traced jax-array fields)."""
     gain = model.actuator_gainprm.at[:, 0].multiply(kp_scale)
@@ -87,8 +102,10 @@ def randomize_model(model, mass_scale, torso_com_dx, friction, kp_scale, chest_b
 
 @functools.lru_cache(maxsize=8)
 def make_chunk_fn(base_params: ControllerParams, varied: tuple[str, ...],
-                  duration_s: float, model_params: ModelParams | None = None):
-    """jit(vmap) of one push record -> outcomes. `varied`: controller fields given per record.
+                  duration_s: float, model_params: ModelParams | None = None,
+                  steps: bool = False):
+    """jit(vmap) of one push record -> outcomes. `varied`: controller fields given per record;
+    steps: records carry a commanded step (step_* columns, a [step] sweep).
 
     Cached, so sweeps run in one process share the compiled function."""
     host = physics.host_model(model_params)
@@ -104,9 +121,11 @@ def make_chunk_fn(base_params: ControllerParams, varied: tuple[str, ...],
         m = randomize_model(model, rec["link_mass_scale"], rec["torso_com_offset_x_m"],
                             rec["floor_friction"], rec["servo_kp_scale"], chest)
         series = rollout(m, state, push, params, rec["control"], key, rec["gyro_noise_std"],
-                         rec["accel_noise_std"], config, index)
+                         rec["accel_noise_std"], config, index,
+                         step_override(rec) if steps else None)
         out = rollout_outcomes(series, push.onset_s)
-        return {k: out[k] for k in OUTCOME_KEYS}
+        res = {k: out[k] for k in OUTCOME_KEYS}
+        return res | (capture_outcomes(series, push.onset_s, params.gravity) if steps else {})
 
     return jax.jit(jax.vmap(one))
 
@@ -131,19 +150,32 @@ def choose_backend(requested: str, spec: SweepSpec) -> str:
     return "mjx" if jax.default_backend() != "cpu" or needs_mjx else "mujoco"
 
 
+@jax.jit
+def _capture_outcomes_batch(series, onset_s, gravity):
+    return jax.vmap(capture_outcomes, in_axes=(0, 0, None))(series, onset_s, gravity)
+
+
 def _mujoco_chunk(batch: dict, seed: int, base: ControllerParams, duration_s: float,
-                  model_params: ModelParams | None) -> dict:
+                  model_params: ModelParams | None, steps: bool = False) -> dict:
     """One chunk on MuJoCo C (tkujax.backend_mujoco), outcomes as numpy."""
     from tkujax.sim.rollout_mujoco import simulate_mujoco
 
     pushes = Push(*(jnp.asarray(v, jnp.float32) for v in (
         batch["impulse_ns"], np.radians(batch["azimuth_deg"]), batch["height_m"],
         batch["duration_s"], batch["onset_s"])))
-    _, out = simulate_mujoco(pushes, batch["control"].astype(np.float32), base, seed=seed,
-                             gyro_noise_std=float(batch["gyro_noise_std"][0]),
-                             accel_noise_std=float(batch["accel_noise_std"][0]),
-                             model_params=model_params, config=RolloutConfig(duration_s=duration_s))
-    return {k: np.asarray(out[k]) for k in OUTCOME_KEYS}
+    overrides = step_override({k: jnp.asarray(v, jnp.float32) for k, v in batch.items()}
+                              ) if steps else None
+    series, out = simulate_mujoco(pushes, batch["control"].astype(np.float32), base, seed=seed,
+                                  gyro_noise_std=float(batch["gyro_noise_std"][0]),
+                                  accel_noise_std=float(batch["accel_noise_std"][0]),
+                                  model_params=model_params,
+                                  config=RolloutConfig(duration_s=duration_s), overrides=overrides)
+    res = {k: np.asarray(out[k]) for k in OUTCOME_KEYS}
+    if steps:
+        cap = _capture_outcomes_batch(jax.tree_util.tree_map(jnp.asarray, series),
+                                      pushes.onset_s, float(base.gravity))
+        res |= {k: np.asarray(v) for k, v in cap.items()}
+    return res
 
 
 def _spec_hash(spec: SweepSpec, params: ControllerParams) -> str:
@@ -270,8 +302,10 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
     padded = math.ceil(spec.chunk_size / len(devices)) * len(devices)
     varied = tuple(sorted(spec.controller_grid))
     base = controller_params_from(params, spec.controller)
-    fn = make_chunk_fn(base, varied, spec.duration_s, model_params) if backend == "mjx" else None
-    input_keys = [k for k in recs if k not in ("push_id", "from_grid")]
+    steps = bool(spec.step_grid)
+    fn = (make_chunk_fn(base, varied, spec.duration_s, model_params, steps) if backend == "mjx"
+          else None)
+    input_keys = [k for k in recs if k not in ("push_id", "from_grid", "case_id")]
 
     progress = Progress(len(mine) * spec.chunk_size, (len(mine) - len(todo)) * spec.chunk_size,
                         open(os.devnull, "w") if quiet else sys.stderr)
@@ -285,7 +319,7 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
             progress.note("compiling the rollout (first chunk; minutes on a CPU) ...")
         if backend == "mujoco":
             res = _mujoco_chunk({k: recs[k][lo:hi] for k in input_keys}, spec.seed + i, base,
-                                spec.duration_s, model_params)
+                                spec.duration_s, model_params, steps)
         else:
             batch = {k: np.resize(recs[k][lo:hi], padded).astype(np.float32) for k in input_keys}
             batch = {k: jax.device_put(v, sharding) for k, v in batch.items()}
