@@ -14,6 +14,7 @@ MUJOCO_GL and XLA options first):
   tkujax.run_sweep, tkujax.load              sweeps and their records
   tkujax.make_maps                           stability maps
   tkujax.run_tune                            gradient tuning
+  tkujax.run_capture, tkujax.StepOverride    capture regions, commanded recovery steps
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ _API = {
     "run_sweep": "tkujax.studies.sweep", "load": "tkujax.studies.sweep",
     "make_maps": "tkujax.studies.maps",
     "run_tune": "tkujax.studies.tune",
+    "run_capture": "tkujax.studies.capture", "StepOverride": "tkujax.control",
 }
 __all__ = [*_API, "__version__"]
 
