@@ -123,6 +123,23 @@ def _cmd_replay(args) -> int:
             frames = render.render_frames(host, result["qpos"], args.width, args.height)
             print(render.save_gif(frames, args.out, fps=1.0 / result["control_period_s"]))
     return 0 if result["same_outcome"] else 1
+def _cmd_capture(args) -> int:
+    from tkujax.studies.capture import run_capture
+    from tkujax.studies.sweep import load_params_json
+
+    params = load_params_json(args.params) if args.params else None
+    res = run_capture(args.spec, args.out, params=params, optimise=args.optimise,
+                      iterations=args.iterations, max_chunks=args.max_chunks,
+                      process_id=args.process_id, num_processes=args.num_processes,
+                      coordinator=args.coordinator, backend=args.backend)
+    m = res["manifest"]
+    if not res["complete"]:
+        print(f"{m['n_pushes']} rollouts in {args.out}: incomplete (rerun the same command to "
+              f"resume); wall {m['wall_s']} s")
+        return 0
+    print("\n".join(res["files"]))
+    print(Path(res["summary"]).read_text())
+    return 0
 
 
 def _cmd_map(args) -> int:
@@ -215,6 +232,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--width", type=int, default=480)
     p.add_argument("--height", type=int, default=400)
     p.set_defaults(func=_cmd_replay)
+    p = sub.add_parser("capture", help="one-step capture regions: a [step] sweep, its regions, "
+                                       "theory overlays, J_1, gradient-optimal steps")
+    p.add_argument("spec", help="spec with a [step.grid], e.g. sweeps/capture_region_cpu.toml")
+    p.add_argument("--out", required=True, help="output folder (sweep chunks + capture/)")
+    p.add_argument("--params", default=None, help="controller parameters JSON (tkujax tune output)")
+    p.add_argument("--optimise", type=int, default=4,
+                   help="pushes given a gradient-optimal step through MJX (0 skips)")
+    p.add_argument("--iterations", type=int, default=15, help="Adam iterations per optimisation")
+    p.add_argument("--max-chunks", type=int, default=None, help="stop after this many new chunks")
+    p.add_argument("--backend", choices=["auto", "mjx", "mujoco"], default="auto",
+                   help="auto: MJX on a GPU, MuJoCo C on a CPU when the spec allows it")
+    p.add_argument("--process-id", type=int, default=None, help="multi-process: this process")
+    p.add_argument("--num-processes", type=int, default=None, help="multi-process: how many")
+    p.add_argument("--coordinator", default=None, help="multi-process: HOST:PORT of process 0")
+    p.set_defaults(func=_cmd_capture)
 
     p = sub.add_parser("map", help="stability maps and capturability checks of a sweep folder")
     p.add_argument("dir")

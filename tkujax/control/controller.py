@@ -14,6 +14,14 @@ Sideways pushes (params.lateral_steps = 1, a tkujax extension): the roll is watc
 the lateral lean psi = -roll (positive toward +y) leaves (-eps_lateral, eps_lateral) a step is
 triggered as well, with y_Sup = capture_point(psi) and the swing foot on the falling side
 (`cpg_feet_lateral`). The same single step carries x_Sup (from the pitch) and y_Sup.
+
+Step override (a tkujax extension, for capture-region studies): `controller_step(...,
+override=StepOverride(...))` sends the one recovery step to a commanded target instead of the
+capture point, with the same CPG shape (`cpg_feet_lateral`), IK and servos. Every field is a
+traced leaf (vmap/grad over targets); `active` = 0 selects the paper path with `where`, so one
+compiled function serves both. `override=None` is the paper path itself (a Python branch on
+None, never on a traced value). Detection, x_Sup and y_Sup are still computed and latched
+(they record what the controller *would* have done), but they no longer move the feet.
 """
 
 from __future__ import annotations
@@ -59,12 +67,36 @@ class ControllerState:
     phi_at_detect: jax.Array
 
 
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class StepOverride:
+    """A commanded recovery step (all fields scalars; batch by stacking).
+
+    active: 1 = use it, 0 = the controller's own step. x_m, y_m: swing-ankle displacement
+    relative to its stand pose (the feet end (x, y) apart relative to the stand; the swing foot
+    is the left one when y_m >= 0, else the right one, as `cpg_feet_lateral`). The step starts
+    at start_delay_s after the push onset (from_detection = 0) or after the controller's
+    detection (from_detection = 1; no detection, no step). period_s: the step period T (<= 0:
+    params.step_period). onset_s: the push onset on the controller clock (the rollouts fill it
+    in from the Push).
+    """
+
+    active: jax.Array = 1.0
+    x_m: jax.Array = 0.0
+    y_m: jax.Array = 0.0
+    start_delay_s: jax.Array = 0.0
+    from_detection: jax.Array = 0.0
+    period_s: jax.Array = 0.0
+    onset_s: jax.Array = 0.0
+
+
 class ControllerOutput(NamedTuple):
     leg_targets: jax.Array   # (12,) rad, tkujax.model.LEG_ACTUATORS order
     phi: jax.Array           # filtered pitch, rad
     roll: jax.Array          # filtered roll, rad
     gate: jax.Array          # detection gate this period, [0, 1]
     reachable: jax.Array     # IK reached the CPG's targets
+    touchdown_s: jax.Array = None  # when the executed step lands (controller clock, s); ~1e4: none
 
 
 def controller_init(params: ControllerParams, dtype=jnp.float32) -> ControllerState:
@@ -83,8 +115,10 @@ def stand_leg_targets(params: ControllerParams) -> jax.Array:
 
 
 def controller_step(state: ControllerState, sensors: Sensors, params: ControllerParams,
-                    enabled: jax.Array = 1.0) -> tuple[ControllerState, ControllerOutput]:
-    """One control period. `enabled` (scalar, 0 or 1) switches the balance strategy on."""
+                    enabled: jax.Array = 1.0, override: StepOverride | None = None
+                    ) -> tuple[ControllerState, ControllerOutput]:
+    """One control period. `enabled` (scalar, 0 or 1) switches the balance strategy on (it
+    gates detection). `override`: a commanded step (see `StepOverride`); None = the paper's."""
     # accel_variance is kalman_r exactly when accel_gate = 0 (the paper's mode).
     kalman = kalman_step(state.kalman, gyro_to_rates(sensors.gyro), accel_to_angle(sensors.accel),
                          params, accel_variance(sensors.accel, params))
@@ -116,8 +150,33 @@ def controller_step(state: ControllerState, sensors: Sensors, params: Controller
     use_lateral = params.lateral_steps > 0
     p_right = jnp.where(use_lateral, p_lateral[0], p_paper[0])
     p_left = jnp.where(use_lateral, p_lateral[1], p_paper[1])
+    touchdown = step_start + _land_time(params.step_period, params)
+    if override is not None:
+        p_right, p_left, touchdown = _override_feet(override, state.time_s, step_start, p_right,
+                                                    p_left, touchdown, params)
     targets, reachable = solve_legs(p_right, p_left, params)
     new_state = ControllerState(kalman=kalman, time_s=state.time_s + params.control_period,
                                 step_weight=step_weight, step_start_s=step_start, x_sup_m=x_sup,
                                 y_sup_m=y_sup, phi_at_detect=phi_at_detect)
-    return new_state, ControllerOutput(targets, phi, kalman.phi[..., 1], gate, reachable)
+    return new_state, ControllerOutput(targets, phi, kalman.phi[..., 1], gate, reachable,
+                                       touchdown)
+
+
+def _land_time(period, params: ControllerParams):
+    """Step start -> touchdown: T - gamma T / 2 (end of the swing, `cpg._unit_oscillators`)."""
+    return period * (1.0 - 0.5 * params.double_support_ratio)
+
+
+def _override_feet(ov: StepOverride, time_s, detect_s, p_right, p_left, touchdown,
+                   params: ControllerParams):
+    """Feet of the commanded step, selected by `where` on ov.active (see StepOverride)."""
+    dtype = p_right.dtype
+    ov = jax.tree_util.tree_map(lambda v: jnp.asarray(v, dtype), ov)
+    # Not detected: detect_s is _NOT_STARTED_S, so t < 0 and the CPG holds the stand pose.
+    start = jnp.where(ov.from_detection > 0.5, detect_s, ov.onset_s) + ov.start_delay_s
+    period = jnp.where(ov.period_s > 0.0, ov.period_s, params.step_period)
+    p_ov = dataclasses.replace(params, step_period=period)
+    feet = cpg_feet_lateral(time_s - start, ov.x_m, ov.y_m, p_ov)
+    on = ov.active > 0.5
+    return (jnp.where(on, feet[0], p_right), jnp.where(on, feet[1], p_left),
+            jnp.where(on, start + _land_time(period, params), touchdown))

@@ -95,3 +95,56 @@ def outcomes(series: Series, onset_s, band_deg: float = RECOVERY_BAND_DEG,
         standing_pitch_deg=standing,
         diverged=diverged_indicator(series),
     )
+
+
+CAPTURE_KEYS = ("touchdown_s", "icp_td_x_m", "icp_td_y_m", "com_td_z_m", "l_ankle0_x_m",
+                "l_ankle0_y_m", "r_ankle0_x_m", "r_ankle0_y_m", "l_ankle_td_x_m", "l_ankle_td_y_m",
+                "r_ankle_td_x_m", "r_ankle_td_y_m", "final_speed_m_s", "margin_deg")
+
+
+def capture_outcomes(series: Series, onset_s, gravity: float = 9.81) -> dict:
+    """What a capture-region study needs from one rollout (pure JAX, vmap/grad-able).
+
+    touchdown_s: when the executed step landed (the controller's own or the override's; NaN
+    if it had not landed by the end). icp_td_*: the LIP instantaneous capture point
+    xi = c + cdot / omega at touchdown, world (x, y) m, from the simulated CoM: c linearly
+    interpolated between the two control periods around touchdown, cdot their secant, omega =
+    sqrt(g / c_z). *_ankle0: the ankles before the push (first period); *_ankle_td: at
+    touchdown. final_speed_m_s: horizontal CoM speed over the last period.
+    margin_deg: the capture margin the gradient study maximises, minus the RMS inclination
+    deviation after onset (deg; about 0 for a robot that barely moved, tens of degrees once
+    it falls). Smooth in the step target wherever no contact changes.
+    """
+    t = series["t"]
+    dt = t[1] - t[0]
+    com = series["com"]
+    td = series["touchdown_s"][-1]
+    landed = td <= t[-1]
+    # t[k] is the end of period k; find k with t[k] <= td < t[k + 1].
+    k = jnp.clip(jnp.floor((td - t[0]) / dt).astype(jnp.int32), 0, t.shape[0] - 2)
+    w = jnp.clip((td - t[k]) / dt, 0.0, 1.0)
+    c = (1.0 - w) * com[k] + w * com[k + 1]
+    cdot = (com[k + 1] - com[k]) / dt
+    omega = jnp.sqrt(gravity / jnp.maximum(c[2], 1e-3))
+    icp = c[:2] + cdot[:2] / omega
+    nan = jnp.nan
+    at_td = lambda x: jnp.where(landed, (1.0 - w) * x[k] + w * x[k + 1], nan)  # noqa: E731
+
+    pitch, roll = series["pitch"], series["roll"]
+    before = (t <= onset_s) & (t > onset_s - 0.3)
+    after = t > onset_s
+    n_before = jnp.maximum(jnp.sum(before), 1)
+    dp = jnp.degrees(pitch - jnp.sum(jnp.where(before, pitch, 0.0)) / n_before)
+    dr = jnp.degrees(roll - jnp.sum(jnp.where(before, roll, 0.0)) / n_before)
+    msq = jnp.sum(jnp.where(after, dp**2 + dr**2, 0.0)) / jnp.maximum(jnp.sum(after), 1)
+    l_td, r_td = at_td(series["l_ankle"]), at_td(series["r_ankle"])
+    return dict(
+        touchdown_s=jnp.where(landed, td, nan),
+        icp_td_x_m=jnp.where(landed, icp[0], nan), icp_td_y_m=jnp.where(landed, icp[1], nan),
+        com_td_z_m=jnp.where(landed, c[2], nan),
+        l_ankle0_x_m=series["l_ankle"][0, 0], l_ankle0_y_m=series["l_ankle"][0, 1],
+        r_ankle0_x_m=series["r_ankle"][0, 0], r_ankle0_y_m=series["r_ankle"][0, 1],
+        l_ankle_td_x_m=l_td[0], l_ankle_td_y_m=l_td[1],
+        r_ankle_td_x_m=r_td[0], r_ankle_td_y_m=r_td[1],
+        final_speed_m_s=jnp.linalg.norm(com[-1, :2] - com[-2, :2]) / dt,
+        margin_deg=-jnp.sqrt(msq + 1e-12))

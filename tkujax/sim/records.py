@@ -53,6 +53,8 @@ class Series(_Columns):
     lowest_body_z: lowest point of any non-foot collision geom (m). gate: detection gate.
     x_sup, y_sup: the latched step (m). step_weight: 0 before the step, 1 once triggered.
     reachable: the IK reached its target. qpos: the full state, only with record_qpos.
+    touchdown_s: when the executed step lands (controller clock = sim time, s; ~1e4 before a
+    step is triggered), for the capture-point-at-touchdown analysis.
     """
 
     t: jax.Array
@@ -73,6 +75,7 @@ class Series(_Columns):
     step_weight: jax.Array
     reachable: jax.Array
     qpos: jax.Array | None = None
+    touchdown_s: jax.Array | None = None
 
 
 SERIES_FIELDS = tuple(f.name for f in dataclasses.fields(Series))

@@ -21,7 +21,7 @@ import numpy as np
 from tkujax.sim.mjx_import import mjx
 
 from tkujax.sim import physics
-from tkujax.control.controller import controller_init
+from tkujax.control.controller import StepOverride, controller_init
 from tkujax.control.params import ControllerParams
 from tkujax.model import FSR_SENSORS, LEG_ACTUATORS, ModelParams
 from tkujax.sim.push import CONTROL_PERIOD_S, Push, force_at
@@ -132,7 +132,7 @@ def _zmp(idx: ModelIndex, d: mjx.Data) -> tuple[jax.Array, jax.Array]:
 def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerParams,
             enabled: jax.Array, key: jax.Array, gyro_noise_std: jax.Array = 0.0,
             accel_noise_std: jax.Array = 0.0, config: RolloutConfig = RolloutConfig(),
-            index: ModelIndex | None = None) -> Series:
+            index: ModelIndex | None = None, override: StepOverride | None = None) -> Series:
     """Simulate one robot under one push with the controller in the loop.
 
     Args:
@@ -140,6 +140,8 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
       push: the Push (scalars). params: ControllerParams. enabled: 1 = balance control on.
       key: PRNG key for sensor noise. gyro_noise_std (rad/s), accel_noise_std (m/s^2).
       config: static settings. index: static model indices (default model when None).
+      override: a commanded recovery step (tkujax.control.StepOverride; its onset_s is taken
+        from the push); None = the controller's own step.
     Returns:
       the Series (tkujax.sim.records), fields (n_ticks, ...), sampled at the end of each
       control period.
@@ -149,6 +151,8 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
     n_ticks = int(round(config.duration_s / config.control_period_s))
     params = dataclasses.replace(params, control_period=config.control_period_s)
     dtype = state.qpos.dtype
+    if override is not None:
+        override = dataclasses.replace(override, onset_s=push.onset_s)
     stand_ctrl = jnp.asarray(idx.stand_ctrl, dtype)
     r_ankle, l_ankle = idx.ankle_sites
     # The leg actuators are contiguous (tkujax.model.JOINT_NAMES ends with them): a static slice
@@ -169,7 +173,7 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
         gyro = gyro + gyro_noise_std * jax.random.normal(kg, (3,), dtype)
         accel = accel + accel_noise_std * jax.random.normal(ka, (3,), dtype)
         ctrl_state, legs, out = control_tick(ctrl_state, gyro, accel, params, enabled,
-                                             config.quantise_targets)
+                                             config.quantise_targets, override)
         d = d.replace(ctrl=stand_ctrl.at[legs_slice].set(legs.astype(dtype)))
         d, _ = jax.lax.scan(physics_step, d, None, length=substeps)
         pitch, roll = physics.pitch_roll_from_quat(d.qpos[3:7])
@@ -180,7 +184,8 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
             l_ankle=d.site_xpos[l_ankle], pelvis_z=d.qpos[2],
             lowest_body_z=_lowest_body_point(idx, d), gate=out.gate, x_sup=ctrl_state.x_sup_m,
             y_sup=ctrl_state.y_sup_m, step_weight=ctrl_state.step_weight,
-            reachable=out.reachable, qpos=d.qpos if config.record_qpos else None)
+            reachable=out.reachable, qpos=d.qpos if config.record_qpos else None,
+            touchdown_s=out.touchdown_s)
         return (d, ctrl_state), series
 
     carry = (state, controller_init(params, dtype))

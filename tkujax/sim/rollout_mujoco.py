@@ -61,7 +61,7 @@ import mujoco.rollout
 import numpy as np
 
 from tkujax.sim import physics
-from tkujax.control.controller import controller_init
+from tkujax.control.controller import StepOverride, controller_init
 from tkujax.control.params import ControllerParams
 from tkujax.sim.metrics import outcomes as _outcomes
 from tkujax.model import ModelParams
@@ -115,10 +115,11 @@ def _rollout_pool(nthread: int) -> mujoco.rollout.Rollout:
 
 
 @functools.partial(jax.jit, static_argnames=("quantise",))
-def _control_tick(states, gyro, accel, params, enabled, quantise: bool):
-    """controller_step over the batch (states, gyro, accel, enabled batched; params shared)."""
-    step = jax.vmap(control_tick, in_axes=(0, 0, 0, None, 0, None))
-    return step(states, gyro, accel, params, enabled, quantise)
+def _control_tick(states, gyro, accel, params, enabled, quantise: bool, overrides=None):
+    """controller_step over the batch (states, gyro, accel, enabled, overrides batched; params
+    shared)."""
+    step = jax.vmap(control_tick, in_axes=(0, 0, 0, None, 0, None, 0))
+    return step(states, gyro, accel, params, enabled, quantise, overrides)
 
 
 @jax.jit
@@ -196,12 +197,14 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
                     gyro_noise_std: float = 0.0, accel_noise_std: float = 0.0,
                     model_params: ModelParams | None = None,
                     config: RolloutConfig = RolloutConfig(), n_threads: int | None = None,
-                    push_wrench: str = "exact") -> tuple[Series, Outcomes]:
+                    push_wrench: str = "exact", overrides: StepOverride | None = None
+                    ) -> tuple[Series, Outcomes]:
     """Run a batch of pushes with MuJoCo C physics; returns numpy (series, outcomes).
 
     Same arguments, keys and shapes as `tkujax.sim.rollout_mjx.simulate`, plus n_threads (physics
     threads; default: the CPUs this process may use) and push_wrench ("exact" or
-    "period_start", see the module doc).
+    "period_start", see the module doc) and overrides (stacked StepOverride, leading axis n;
+    their onset_s is taken from the pushes).
     """
     if push_wrench not in PUSH_WRENCH_MODES:
         raise ValueError(f"push_wrench must be one of {PUSH_WRENCH_MODES}, got {push_wrench!r}")
@@ -224,6 +227,10 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
     p = {k: np.asarray(getattr(pushes, k), np.float64)
          for k in ("impulse_ns", "azimuth_rad", "height_m", "duration_s", "onset_s")}
     rng = np.random.default_rng(seed)
+    if overrides is not None:
+        overrides = jax.tree_util.tree_map(
+            lambda v: jnp.broadcast_to(jnp.asarray(v, jnp.float32), (n,)),
+            dataclasses.replace(overrides, onset_s=pushes.onset_s))
     qv = setup.qvel_slice
 
     ctrl_state = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (n,) + x.shape),
@@ -239,7 +246,7 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
 
     rec = {k: [] for k in ("t", "pitch", "roll", "pitch_est", "roll_est", "zmp", "fsr_total",
                            "com", "r_ankle", "l_ankle", "pelvis_z", "lowest_body_z", "gate",
-                           "x_sup", "y_sup", "step_weight", "reachable")}
+                           "x_sup", "y_sup", "step_weight", "reachable", "touchdown_s")}
     if config.record_qpos:
         rec["qpos"] = []
 
@@ -256,7 +263,7 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
         accel = accel + accel_noise_std * rng.standard_normal((n, 3))
         ctrl_state, legs, out = _control_tick(ctrl_state, jnp.asarray(gyro, jnp.float32),
                                               jnp.asarray(accel, jnp.float32), params,
-                                              enabled_j, config.quantise_targets)
+                                              enabled_j, config.quantise_targets, overrides)
         ctrl = np.tile(stand_ctrl, (n, 1))
         ctrl[:, idx.leg_actuators] = np.asarray(legs, np.float64)
 
@@ -312,6 +319,7 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
         rec["y_sup"].append(ctrl_state.y_sup_m)
         rec["step_weight"].append(ctrl_state.step_weight)
         rec["reachable"].append(out.reachable)
+        rec["touchdown_s"].append(out.touchdown_s)
         if config.record_qpos:
             rec["qpos"].append(qpos)
 

@@ -17,7 +17,7 @@ import math
 import jax
 import jax.numpy as jnp
 
-from tkujax.control.controller import ControllerState, Sensors, controller_step
+from tkujax.control.controller import ControllerState, Sensors, StepOverride, controller_step
 from tkujax.control.params import ControllerParams
 
 SERVO_RESOLUTION_RAD = math.radians(360.0 / 4096.0)   # 0.088 deg, Dynamixel MX [paper Table 1]
@@ -29,12 +29,14 @@ def quantise_targets(q: jax.Array) -> jax.Array:
 
 
 def control_tick(ctrl_state: ControllerState, gyro: jax.Array, accel: jax.Array,
-                 params: ControllerParams, enabled, quantise: bool):
+                 params: ControllerParams, enabled, quantise: bool,
+                 override: StepOverride | None = None):
     """One controller update for one robot from its (noisy) IMU reading.
 
     Returns (new controller state, leg targets (12,) rad as the servos receive them, the
     controller's output)."""
-    ctrl_state, out = controller_step(ctrl_state, Sensors(gyro, accel), params, enabled)
+    ctrl_state, out = controller_step(ctrl_state, Sensors(gyro, accel), params, enabled,
+                                      override)
     legs = quantise_targets(out.leg_targets) if quantise else out.leg_targets
     return ctrl_state, legs, out
 

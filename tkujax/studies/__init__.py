@@ -8,4 +8,5 @@ stability maps, capturability theory, the standing check and gradient tuning.
   capturability.py   LIP capturability bounds the maps are checked against
   stand.py           `tkujax stand`: the robot standing, MJX or MuJoCo C
   tune/              `tkujax tune`: spec, reparam, loss, problem, methods, evaluate, report, run
+  capture/           `tkujax capture`: one-step capture regions vs theory and the controller
 """

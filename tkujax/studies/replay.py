@@ -87,14 +87,15 @@ def replay(run_dir: str | Path, index: int) -> dict:
     backend = manifest.get("backend", "mjx")
     if backend == "mujoco":
         res = mujoco_chunk(inputs, spec.seed + chunk, base, spec.duration_s, model_params,
-                           with_qpos=True, varied=tuple(sorted(spec.controller_grid)))
+                           with_qpos=True, varied=tuple(sorted(spec.controller_grid)),
+                           steps=bool(spec.step_grid))
         res = {k: v[pos] for k, v in res.items()}
     else:
         import jax
 
         padded = int(manifest.get("padded_chunk", size))
         fn = make_chunk_fn(tuple(sorted(spec.controller_grid)), spec.duration_s,
-                           model_params, with_qpos=True)
+                           model_params, with_qpos=True, steps=bool(spec.step_grid))
         one = {k: np.asarray(v[pos:pos + 1], np.float32) for k, v in inputs.items()}
         key = chunk_keys(spec.seed, chunk, padded)[pos:pos + 1]
         res = jax.tree_util.tree_map(lambda x: np.asarray(x)[0], fn(one, key, traced_params(base)))

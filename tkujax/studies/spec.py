@@ -34,6 +34,13 @@ record carries an onset_phase column (derived from onset_s when not given).
     step_period = 0.3
     [controller.grid]          # ControllerParams varied as a grid (crossed with the pushes)
     [randomize]                # per-push model/sensor randomisation ({uniform = [lo, hi]} or a value)
+
+    [step]                     # capture regions: commanded recovery steps (tkujax.control.StepOverride)
+    reference = true           # also run each push with the controller's own step
+    [step.grid]                # crossed with every push record; x_m, y_m: swing ankle vs its stand
+    x_m = {start = -0.1, stop = 0.2, num = 21}
+    y_m = [0.0]
+    start_delay_s = [0.03]     # after the push onset (from_detection = 0) or the detection (1)
 """
 
 from __future__ import annotations
@@ -93,6 +100,14 @@ RANDOMIZE_FIELDS = {
 }
 RANDOMIZE_DEFAULTS = {"link_mass_scale": 1.0, "torso_com_offset_x_m": 0.0, "floor_friction": None,
                       "servo_kp_scale": 1.0, "gyro_noise_std": 0.0, "accel_noise_std": 0.0}
+# [step.grid]: commanded steps (StepOverride fields); recorded as step_<name> columns.
+STEP_FIELDS = {
+    "x_m": (-0.3, 0.3, 0.0, "m"),
+    "y_m": (-0.3, 0.3, 0.0, "m"),
+    "start_delay_s": (0.0, 2.0, 0.0, "s"),
+    "from_detection": (0.0, 1.0, 0.0, "(0 = after onset, 1 = after detection)"),
+    "period_s": (0.0, 2.0, 0.0, "s (0 = the controller's step_period)"),
+}
 SWEEP_FIELDS = {"name": str, "seed": int, "chunk_size": int, "duration_s": (int, float),
                 "control": list, "description": str}
 
@@ -114,6 +129,8 @@ class SweepSpec:
     randomize: dict[str, Any]
     raw: dict
     phase_default: bool = False   # [push.random] draws onset_phase uniformly by default
+    step_grid: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
+    step_reference: bool = True
 
     def records(self) -> dict[str, np.ndarray]:
         """Expand into one record per push (columns of equal length, deterministic order)."""
@@ -195,7 +212,7 @@ def parse_randomize(data: dict) -> dict[str, Any]:
 
 def parse_spec(data: dict) -> SweepSpec:
     """Validate a parsed TOML document."""
-    _table("top level", data, {"sweep", "push", "controller", "randomize"})
+    _table("top level", data, {"sweep", "push", "controller", "randomize", "step"})
     sweep = _table("sweep", data.get("sweep", {}), SWEEP_FIELDS)
     for k, types in SWEEP_FIELDS.items():
         if k in sweep and (isinstance(sweep[k], bool) or not isinstance(sweep[k], types)):
@@ -247,11 +264,32 @@ def parse_spec(data: dict) -> SweepSpec:
         raise SpecError(f"controller: {both} set both as fixed values and in [controller.grid]")
 
     randomize = parse_randomize(data)
+    step_grid, step_reference = _parse_step(data)
     return SweepSpec(name=sweep.get("name", "sweep"), seed=sweep.get("seed", 0),
                      chunk_size=chunk, duration_s=duration, control=control,
                      push_grid=push_grid, push_random=push_random, n_random=n_random,
                      controller=controller, controller_grid=controller_grid,
-                     randomize=randomize, raw=data, phase_default=phase_default)
+                     randomize=randomize, raw=data, phase_default=phase_default,
+                     step_grid=step_grid,
+                     step_reference=step_reference)
+
+
+def _parse_step(data: dict) -> tuple[dict[str, np.ndarray], bool]:
+    step = _table("step", data.get("step", {}), {"grid", "reference"})
+    grid = _table("step.grid", step.get("grid", {}), STEP_FIELDS)
+    reference = step.get("reference", True)
+    if not isinstance(reference, bool):
+        raise SpecError(f"step.reference: expected true or false, got {reference!r}")
+    out = {k: _values(f"step.grid.{k}", v, *STEP_FIELDS[k][:2], STEP_FIELDS[k][3])
+           for k, v in grid.items()}
+    if "from_detection" in out and not np.isin(out["from_detection"], (0.0, 1.0)).all():
+        raise SpecError(f"step.grid.from_detection: expected 0 or 1, got {out['from_detection']}")
+    if "period_s" in out and ((out["period_s"] > 0) & (out["period_s"] < 0.05)).any():
+        raise SpecError(f"step.grid.period_s: expected 0 or a value in [0.05, 2.0] s, got "
+                        f"{out['period_s']}")
+    if step and not out:
+        raise SpecError("[step]: give a [step.grid] (e.g. x_m, y_m) or leave [step] out")
+    return out, reference
 
 
 def read_toml(path: str | Path) -> dict:
@@ -326,5 +364,27 @@ def expand(spec: SweepSpec) -> dict[str, np.ndarray]:
     n = len(out["control"])
     for k, v in spec.randomize.items():
         out[k] = rng.uniform(*v, n) if isinstance(v, tuple) else np.full(n, v)
-    out["push_id"] = np.arange(n)
+    out = _cross_steps(spec, out)
+    out["push_id"] = np.arange(len(out["control"]))
+    return out
+
+
+def _cross_steps(spec: SweepSpec, recs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Cross every record with [step.grid] (step_active = 1), plus, with step.reference, one
+    copy with the controller's own step (step_active = 0). No [step]: unchanged. `case_id`
+    numbers the records before crossing (the push a step belongs to). Order: reference copy
+    first, then the step grid (outer) x records (inner)."""
+    if not spec.step_grid:
+        return recs
+    n = len(recs["control"])
+    cols = {k: spec.step_grid.get(k, np.array([STEP_FIELDS[k][2]])) for k in STEP_FIELDS}
+    mesh = [m.ravel() for m in np.meshgrid(*cols.values(), indexing="ij")]
+    n_steps = len(mesh[0])
+    blocks = ([("ref", None)] if spec.step_reference else []) + [(i, i) for i in range(n_steps)]
+    out = {k: np.concatenate([v] * len(blocks)) for k, v in recs.items()}
+    out["case_id"] = np.tile(np.arange(n), len(blocks))
+    out["step_active"] = np.concatenate([np.full(n, float(j is not None)) for _, j in blocks])
+    for k, m in zip(STEP_FIELDS, mesh):
+        out[f"step_{k}"] = np.concatenate([np.full(n, STEP_FIELDS[k][2] if j is None else m[j])
+                                           for _, j in blocks])
     return out

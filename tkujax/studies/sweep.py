@@ -36,6 +36,8 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from tkujax.sim import physics
 from tkujax.control.params import ControllerParams
+from tkujax.control.controller import StepOverride
+from tkujax.sim.metrics import CAPTURE_KEYS, capture_outcomes
 from tkujax.sim.metrics import outcomes as rollout_outcomes
 from tkujax.model import ModelParams
 from tkujax.sim.push import Push
@@ -99,6 +101,19 @@ def _allowed(params: ControllerParams, field: str) -> str:
     return "(a finite number)"
 
 
+def step_override(rec: dict) -> StepOverride:
+    """The StepOverride of record(s) with step_* columns (onset_s is filled by the rollout)."""
+    return StepOverride(active=rec["step_active"], x_m=rec["step_x_m"], y_m=rec["step_y_m"],
+                        start_delay_s=rec["step_start_delay_s"],
+                        from_detection=rec["step_from_detection"], period_s=rec["step_period_s"],
+                        onset_s=rec["onset_s"])
+
+
+def outcome_keys(steps: bool) -> tuple[str, ...]:
+    """Columns a chunk writes: the outcomes, plus the capture-region ones for [step] sweeps."""
+    return OUTCOME_KEYS + (CAPTURE_KEYS if steps else ())
+
+
 def randomize_model(model, mass_scale, torso_com_dx, friction, kp_scale, chest_body: int):
     """The MJX model with per-push randomisation applied (all traced jax-array fields)."""
     gain = model.actuator_gainprm.at[:, 0].multiply(kp_scale)
@@ -120,7 +135,8 @@ def traced_params(params: ControllerParams) -> ControllerParams:
 
 @functools.lru_cache(maxsize=8)
 def make_chunk_fn(varied: tuple[str, ...], duration_s: float,
-                  model_params: ModelParams | None = None, with_qpos: bool = False):
+                  model_params: ModelParams | None = None, with_qpos: bool = False,
+                  steps: bool = False):
     """jit(vmap) of push records -> outcomes: f(batch, keys, params) with `params` a
     ControllerParams shared by the batch (pass it through `traced_params`), and `varied` the
     controller fields given per record instead (a [controller.grid]).
@@ -128,7 +144,8 @@ def make_chunk_fn(varied: tuple[str, ...], duration_s: float,
     The controller parameters are traced inputs, so one compile serves every parameter set of a
     batch shape (tuned sets, the paper's, a grid); cached per (varied, duration, model), so
     sweeps, `tkujax paper`-style evaluations and the bench in one process share it.
-    with_qpos: also return the state at every control period ("qpos", for replay)."""
+    with_qpos: also return the state at every control period ("qpos", for replay).
+    steps: records carry a commanded step (step_* columns, a [step] sweep)."""
     host = physics.host_model(model_params)
     model, index = physics.device_model(model_params), model_index(model_params)
     state = physics.stand_state(host, 1.0)
@@ -142,9 +159,11 @@ def make_chunk_fn(varied: tuple[str, ...], duration_s: float,
         m = randomize_model(model, rec["link_mass_scale"], rec["torso_com_offset_x_m"],
                             rec["floor_friction"], rec["servo_kp_scale"], chest)
         series = rollout(m, state, push, params, rec["control"], key, rec["gyro_noise_std"],
-                         rec["accel_noise_std"], config, index)
+                         rec["accel_noise_std"], config, index,
+                         step_override(rec) if steps else None)
         out = rollout_outcomes(series, push.onset_s)
-        return {k: out[k] for k in OUTCOME_KEYS} | ({"qpos": series.qpos} if with_qpos else {})
+        res = {k: out[k] for k in OUTCOME_KEYS} | ({"qpos": series.qpos} if with_qpos else {})
+        return res | (capture_outcomes(series, push.onset_s, params.gravity) if steps else {})
 
     return jax.jit(jax.vmap(one, in_axes=(0, 0, None)))
 
@@ -167,12 +186,18 @@ def choose_backend(requested: str, spec: SweepSpec) -> str:
     return "mjx" if jax.default_backend() != "cpu" or needs_mjx else "mujoco"
 
 
+@jax.jit
+def _capture_outcomes_batch(series, onset_s, gravity):
+    return jax.vmap(capture_outcomes, in_axes=(0, 0, None))(series, onset_s, gravity)
+
+
 def mujoco_chunk(batch: dict, seed: int, base: ControllerParams, duration_s: float,
                  model_params: ModelParams | None, with_qpos: bool = False,
-                 varied: tuple[str, ...] = ()) -> dict:
+                 varied: tuple[str, ...] = (), steps: bool = False) -> dict:
     """One chunk on MuJoCo C (tkujax.sim.rollout_mujoco), outcomes (and qpos) as numpy: one
     batch per controller-grid point present in the chunk (`varied` names the grid's fields; the
-    controller's parameters are shared by a batch there)."""
+    controller's parameters are shared by a batch there). steps: records carry a commanded step
+    (step_* columns, a [step] sweep) and get the capture-region columns too."""
     from tkujax.sim.rollout_mujoco import simulate_mujoco
 
     n = len(batch["impulse_ns"])
@@ -186,14 +211,21 @@ def mujoco_chunk(batch: dict, seed: int, base: ControllerParams, duration_s: flo
         pushes = Push(*(jnp.asarray(v[sel], jnp.float32) for v in (
             batch["impulse_ns"], np.radians(batch["azimuth_deg"]), batch["height_m"],
             batch["duration_s"], batch["onset_s"])))
+        overrides = step_override({k: jnp.asarray(v[sel], jnp.float32) for k, v in batch.items()}
+                                  ) if steps else None
         series, out = simulate_mujoco(
             pushes, batch["control"][sel].astype(np.float32), params, seed=seed,
             gyro_noise_std=float(batch["gyro_noise_std"][0]),
             accel_noise_std=float(batch["accel_noise_std"][0]), model_params=model_params,
-            config=RolloutConfig(duration_s=duration_s, record_qpos=with_qpos))
+            config=RolloutConfig(duration_s=duration_s, record_qpos=with_qpos),
+            overrides=overrides)
         fields = {k: np.asarray(out[k]) for k in OUTCOME_KEYS}
         if with_qpos:
             fields["qpos"] = np.asarray(series.qpos)
+        if steps:
+            cap = _capture_outcomes_batch(jax.tree_util.tree_map(jnp.asarray, series),
+                                          pushes.onset_s, float(params.gravity))
+            fields |= {k: np.asarray(v) for k, v in cap.items()}
         for k, v in fields.items():
             res.setdefault(k, np.empty((n,) + v.shape[1:], v.dtype))[sel] = v
     return res
@@ -326,9 +358,11 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
     sharding = NamedSharding(mesh, PartitionSpec("push"))
     varied = tuple(sorted(spec.controller_grid))
     base = controller_params_from(params, spec.controller)
-    fn = make_chunk_fn(varied, spec.duration_s, model_params) if backend == "mjx" else None
+    steps = bool(spec.step_grid)
+    fn = (make_chunk_fn(varied, spec.duration_s, model_params, steps=steps) if backend == "mjx"
+          else None)
     base_traced = traced_params(base)
-    input_keys = [k for k in recs if k not in ("push_id", "from_grid")]
+    input_keys = [k for k in recs if k not in ("push_id", "from_grid", "case_id")]
 
     progress = Progress(len(mine) * spec.chunk_size, (len(mine) - len(pending)) * spec.chunk_size,
                         open(os.devnull, "w") if quiet else sys.stderr)
@@ -355,7 +389,8 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
                     progress.note("compiling the rollout (first chunk; minutes on a CPU) ...")
                 if backend == "mujoco":
                     res = mujoco_chunk({k: recs[k][lo:hi] for k in input_keys}, spec.seed + i,
-                                       base, spec.duration_s, model_params, varied=varied)
+                                       base, spec.duration_s, model_params, varied=varied,
+                                       steps=steps)
                 else:
                     batch = {k: np.resize(recs[k][lo:hi], padded).astype(np.float32)
                              for k in input_keys}
