@@ -73,7 +73,7 @@ def table_loss(results: dict, rows=ROWS) -> tuple[float, dict]:
         if not on["fell"] and not off["fell"] and math.isfinite(off["rec"]):
             r_on = on["rec"] if math.isfinite(on["rec"]) else 9.0
             if r_on >= off["rec"]:
-                total += W_ORDER * (1.0 + (r_on - off["rec"]) / off["rec"])
+                total += W_ORDER * (1.0 + (r_on - off["rec"]) / max(off["rec"], 0.03))
     return total, per
 
 
