@@ -22,7 +22,10 @@ def _simulate(pushes, enabled, cparams, mparams):
         from tkujax.sim.backend_mujoco import simulate_mujoco   # after the refactor
     except ImportError:
         from tkujax.backend_mujoco import simulate_mujoco
-    return simulate_mujoco(pushes, enabled, cparams, model_params=mparams)
+    import os
+    threads = os.environ.get("TKUJAX_CAL_THREADS")   # 1 per worker in a parallel search
+    return simulate_mujoco(pushes, enabled, cparams, model_params=mparams,
+                           n_threads=int(threads) if threads else None)
 
 
 def pushes_for(x) -> object:

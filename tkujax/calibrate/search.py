@@ -62,11 +62,12 @@ class Runner:
                        seed=self.seed + 97 * self.restarts, population_size=self.popsize)
         self.stall, self.gen_best = 0, math.inf
 
-    def generation(self, archive) -> None:
+    def generation(self, archive, pool=None) -> None:
         sols = []
-        for _ in range(self.opt.population_size):
-            u = self.opt.ask()
-            rec = score_candidate(P.from_unit(u))
+        us = [self.opt.ask() for _ in range(self.opt.population_size)]
+        xs = [P.from_unit(u) for u in us]
+        recs = pool.map(score_candidate, xs) if pool is not None else map(score_candidate, xs)
+        for u, rec in zip(us, recs):
             rec.update(objective=self.name, restart=self.restarts, t=time.time())
             archive.write(json.dumps(rec) + "\n")
             archive.flush()
@@ -93,6 +94,9 @@ def main(argv=None):
     ap.add_argument("--popsize", type=int, default=8)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--objectives", default="T4,ALL")
+    ap.add_argument("--workers", type=int, default=0,
+                    help="processes evaluating a generation in parallel (0: in this process); "
+                         "each uses MuJoCo threads = its CPU share")
     a = ap.parse_args(argv)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -101,11 +105,17 @@ def main(argv=None):
     x0[P.NAMES.index("foot_forward_offset_m")] = -0.028
     runners = [Runner(o, x0, a.seed + i, a.popsize) for i, o in enumerate(a.objectives.split(","))]
     t0 = time.time()
+    pool = None
+    if a.workers > 1:
+        import multiprocessing as mp
+        import os
+        os.environ.setdefault("TKUJAX_CAL_THREADS", "1")
+        pool = mp.get_context("spawn").Pool(a.workers)
     with open(out / "archive.jsonl", "a") as archive:
         gen = 0
         while time.time() - t0 < a.budget_s:
             for r in runners:
-                r.generation(archive)
+                r.generation(archive, pool)
                 print(f"[{time.time() - t0:6.0f}s] gen {gen} {r.name} restart {r.restarts} "
                       f"best {r.best[0]:.3f} gen-best {r.gen_best:.3f}", flush=True)
             gen += 1
