@@ -10,7 +10,10 @@ import math
 
 import numpy as np
 
-from tkujax import push as push_lib
+try:                                   # after the refactor: tkujax/sim/push.py
+    from tkujax.sim import push as push_lib
+except ImportError:
+    from tkujax import push as push_lib
 from tkujax.calibrate import params as P
 from tkujax.calibrate.targets import PAPER_TABLE, ROWS
 

@@ -11,7 +11,10 @@ import sys
 
 import numpy as np
 
-from tkujax import push as push_lib
+try:                                   # after the refactor: tkujax/sim/push.py
+    from tkujax.sim import push as push_lib
+except ImportError:
+    from tkujax import push as push_lib
 from tkujax.calibrate import evaluate as E
 from tkujax.calibrate import params as P
 

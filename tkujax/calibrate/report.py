@@ -21,7 +21,10 @@ from tkujax.calibrate import targets as T
 
 
 def load(path) -> list[dict]:
-    return [json.loads(line) for line in open(path) if line.strip()]
+    import gzip
+    opener = gzip.open if str(path).endswith(".gz") else open
+    with opener(path, "rt") as fh:
+        return [json.loads(line) for line in fh if line.strip()]
 
 
 def _k(key: str):
