@@ -108,6 +108,14 @@ def controller_init(params: ControllerParams, dtype=jnp.float32) -> ControllerSt
         x_sup_m=zero, y_sup_m=zero, phi_at_detect=zero)
 
 
+def cp_angle(phi: jax.Array, params: ControllerParams) -> jax.Array:
+    """The angle entering Eq. 7-10: phi - cp_angle_offset (cp_excess = 0, default), or the excess
+    over the threshold on phi's side (cp_excess = 1): phi - eps_forward / phi + eps_backward."""
+    mid = 0.5 * (params.eps_forward - params.eps_backward)
+    excess = phi - jnp.where(phi >= mid, params.eps_forward, -params.eps_backward)
+    return jnp.where(params.cp_excess > 0.5, excess, phi - params.cp_angle_offset)
+
+
 def stand_leg_targets(params: ControllerParams) -> jax.Array:
     """(12,) leg targets of the stand pose (feet at (0, -+d_y, -d_z))."""
     p_right, p_left = cpg_feet(jnp.asarray(-1.0), jnp.asarray(0.0), params)
@@ -136,10 +144,18 @@ def controller_step(state: ControllerState, sensors: Sensors, params: Controller
     trigger = step_weight - state.step_weight          # only the first detection counts
     cp = lambda angle: params.cp_gain * capture_point(  # noqa: E731
         angle, params.leg_length, params.com_height, params.gravity)
-    x_sup = state.x_sup_m + trigger * cp(phi - params.cp_angle_offset)
+    x_new = cp(cp_angle(phi, params))
+    x_sup = state.x_sup_m + trigger * x_new
     y_sup = state.y_sup_m + trigger * params.lateral_steps * cp(psi)
     starts_now = (state.step_weight < 0.5) & (step_weight >= 0.5)
     step_start = jnp.where(starts_now, state.time_s, state.step_start_s)
+    # cp_update_window > 0: after the first detection x_Sup follows the current angle while the
+    # step is young enough and the push is still detected (default 0: latched, Algorithm 1).
+    age = state.time_s - step_start
+    updating = ((step_weight >= 0.5) & ~starts_now & (params.cp_update_window > 0)
+                & (age < params.cp_update_window + 0.5 * params.control_period)
+                & (push_gate(phi, params) > 0.5))
+    x_sup = jnp.where(updating, x_new, x_sup)
     phi_at_detect = jnp.where(starts_now, phi, state.phi_at_detect)
 
     # With lateral steps off y_sup is 0 and cpg_feet_lateral equals the paper's cpg_feet; the

@@ -37,6 +37,14 @@ class ControllerParams:
                                    0.55 m/rad * angle for small angles: the absolute angle gives
                                    >= 11.3 cm forward at the 12 deg threshold and >= 1.9 cm
                                    backward at -2 deg; the deviation gives >= 4.8 cm / >= 8.6 cm.
+      cp_excess             -      0 (default): the angle of Eq. 7-10 is phi - cp_angle_offset;
+                                   1: it is the excess over the threshold that was crossed,
+                                   phi - eps_forward forward, phi + eps_backward backward (one of
+                                   the readings of Algorithm 1 compared by tkujax.studies.calibrate).
+      cp_update_window      s      0 (default): x_Sup is latched at the first detection; > 0: it
+                                   is recomputed from the current angle each period while the
+                                   step is at most this old and the push is still detected
+                                   (gamma T / 2 = "updated until the swing starts").
       cp_gain               -      multiplies x_Sup (1.0 = paper).
       gate_temperature      rad    0: hard threshold gate (Algorithm 1); > 0: sigmoid gate width.
       gravity               m/s^2  g of Eq. 6 and 10.
@@ -68,6 +76,8 @@ class ControllerParams:
     eps_backward: float = math.radians(2.0)
     standing_lean: float = math.radians(7.0)
     cp_angle_offset: float = math.radians(7.0)
+    cp_excess: float = 0.0
+    cp_update_window: float = 0.0
     cp_gain: float = 1.0
     gate_temperature: float = 0.0
     lateral_steps: float = 0.0
@@ -130,6 +140,8 @@ class ControllerParams:
         check("eps_backward", lambda v: 0.0 <= v < half_pi, "[0, pi/2) rad")
         check("standing_lean", lambda v: -half_pi < v < half_pi, "(-pi/2, pi/2) rad")
         check("cp_angle_offset", lambda v: -half_pi < v < half_pi, "(-pi/2, pi/2) rad")
+        check("cp_excess", lambda v: v in (0.0, 1.0), "{0, 1}")
+        check("cp_update_window", lambda v: 0.0 <= v <= 2.0, "[0, 2] s")
         check("cp_gain", lambda v: 0.0 <= v <= 10.0, "[0, 10]")
         check("gate_temperature", lambda v: 0.0 <= v <= 1.0, "[0, 1] rad")
         check("lateral_steps", lambda v: v in (0.0, 1.0), "{0, 1}")

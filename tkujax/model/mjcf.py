@@ -188,7 +188,7 @@ def build_mjcf(p: ModelParams) -> str:
       <geom type="box" size="{td:.6g} {tw:.6g} {ph / 2:.6g}" pos="0 0 {ph / 2:.6g}" class="visual"/>
       <body name="chest" pos="0 0 {ph:.6g}">
         {_joint("waist_yaw", "0 0 1", "arm")}
-        {_inertial((0, 0, ch / 2), p.chest_mass_kg, (2 * td, 2 * tw, ch))}
+        {_inertial((0, 0, p.chest_com_frac * ch), p.chest_mass_kg, (2 * td, 2 * tw, ch))}
         <geom name="chest" type="box" size="{td:.6g} {tw:.6g} {ch / 2:.6g}" pos="0 0 {ch / 2:.6g}"
               class="collision"/>
         <geom type="box" size="{td:.6g} {tw:.6g} {ch / 2:.6g}" pos="0 0 {ch / 2:.6g}" class="visual"

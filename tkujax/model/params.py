@@ -27,9 +27,14 @@ class ServoParams:
     no_load_speed_rad_s: float
     armature_kgm2: float
     friction_loss_nm: float
+    # Explicit joint damping (N·m·s/rad); None (default) = the back-EMF line above. Used by the
+    # calibration (tkujax.studies.calibrate) to fit e.g. BAM's identified 0.66 for the MX-64.
+    damping_override_nms_per_rad: float | None = None
 
     @property
     def damping_nms_per_rad(self) -> float:
+        if self.damping_override_nms_per_rad is not None:
+            return self.damping_override_nms_per_rad
         return self.stall_torque_nm / self.no_load_speed_rad_s
 
 
@@ -77,6 +82,9 @@ class ModelParams:
     # Fractions of one leg's mass, hip-yaw link .. foot (servo placement: hip yaw, hip roll+pitch
     # block, thigh, shin+knee, ankle block, foot). [est]
     leg_mass_fractions: tuple[float, ...] = (0.12, 0.13, 0.24, 0.24, 0.13, 0.14)
+    # Height of the chest CoM as a fraction of chest_height_m above the waist joint (0.5 = the
+    # box centre) [est]; the calibration (tkujax.studies.calibrate) fits it.
+    chest_com_frac: float = 0.5
     # --- stand posture
     stand_lean_deg: float = 7.0          # [paper] upper body leans forward ~7 deg
     stand_hip_to_ankle_m: float = 0.200  # [est] d_z in the stand pose (knees bent, IK margin)
@@ -117,6 +125,9 @@ class ModelParams:
         if not (-20.0 <= self.stand_lean_deg <= 20.0):
             raise ValueError(f"ModelParams.stand_lean_deg must be in [-20, 20] deg, "
                              f"got {self.stand_lean_deg!r}")
+        if not (0.1 <= self.chest_com_frac <= 0.9):
+            raise ValueError(f"ModelParams.chest_com_frac must be in [0.1, 0.9], "
+                             f"got {self.chest_com_frac!r}")
         if not (0.0005 <= self.timestep_s <= 0.01):
             raise ValueError(f"ModelParams.timestep_s must be in [0.0005, 0.01] s, "
                              f"got {self.timestep_s!r}")

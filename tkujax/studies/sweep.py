@@ -48,7 +48,8 @@ from tkujax.studies.spec import SpecError, SweepSpec, load_spec
 OUTCOME_KEYS = ("fell", "diverged", "recovery_time_s", "step_length_m", "step_width_m",
                 "peak_incl_deg", "capture_point_m", "capture_point_y_m", "zmp_excursion_m")
 MANIFEST = chunks.MANIFEST
-_LATER_FIELDS = {"accel_gate": 0.0}   # ControllerParams fields added after sweeps were published
+# ControllerParams fields added after sweeps were published (left out of the hash at default).
+_LATER_FIELDS = {"accel_gate": 0.0, "cp_excess": 0.0, "cp_update_window": 0.0}
 
 
 def controller_params_from(base: ControllerParams, overrides: dict) -> ControllerParams:
