@@ -64,10 +64,11 @@ def _cmd_paper(args) -> int:
     from tkujax.studies.paper import run_paper
     from tkujax.model import ModelParams
 
-    model_params = ModelParams.from_overrides(args.model) if args.model else None
+    model_params = (ModelParams.from_overrides(args.model, args.variant) if args.model
+                    else None)
     summary = run_paper(Path(args.out), figures=not args.no_figures,
                         impulse_scale=args.impulse_scale, model_params=model_params,
-                        phases=args.phases)
+                        phases=args.phases, variant=args.variant)
     print(summary)
     return 0
 
@@ -207,6 +208,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", action="append", default=[], metavar="KEY=VALUE",
                    help="override a ModelParams field, e.g. foot_forward_offset_m=-0.03 "
                         "(repeatable; the controller's geometry follows the model)")
+    p.add_argument("--variant", choices=["calibrated", "estimated"], default="calibrated",
+                   help="calibrated (default): the robot, ball contact and Kalman noises fitted "
+                        "to the paper (tkujax calibrate); estimated: the values before")
     p.add_argument("--phases", type=int, default=15,
                    help="also replay the cases at this many onsets across the 30 ms control "
                         "period (phase.csv, phase.md; 0 skips)")

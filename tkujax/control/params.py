@@ -50,11 +50,15 @@ class ControllerParams:
       gravity               m/s^2  g of Eq. 6 and 10.
     Kalman filter (Sec. 3.1, Eq. 1-2), scalar model A = 1, B = control_period, H = 1
       kalman_q              rad^2  process noise variance added per control period: gyro noise
-                                   and bias drift over one 30 ms step (1e-4 = (0.57 deg)^2).
+                                   and bias drift over one 30 ms step. [fit] 2.35e-4 =
+                                   (0.88 deg)^2, bound 1e-5..1e-3 (estimate 1e-4).
       kalman_r              rad^2  variance of the accelerometer inclination, including the error
-                                   from the robot's own accelerations (3e-3 = (3.1 deg)^2).
-                                   q/r = 1/30 gives a steady-state gain ~0.17: the accelerometer
-                                   corrects the gyro integral with a ~0.18 s time constant.
+                                   from the robot's own accelerations. [fit] 2.3e-3 =
+                                   (2.7 deg)^2, bound 3e-4..3e-2 (estimate 3e-3). q/r ~ 0.1
+                                   gives a steady-state gain ~0.27. Both fitted by
+                                   tkujax.studies.calibrate; they are weakly pinned (they move
+                                   the Kalman peak by ~1 deg over their whole range).
+                                   KALMAN_ESTIMATED holds the estimate.
       accel_gate            m/s^2  robust detection (tkujax extension; 0 = off, the paper): the
                                    accelerometer's R is inflated by (1 + ((|a| - g)/accel_gate)^2)
                                    so that samples taken during an impact barely move the angle
@@ -83,8 +87,8 @@ class ControllerParams:
     lateral_steps: float = 0.0
     eps_lateral: float = math.radians(4.0)
     gravity: float = 9.81
-    kalman_q: float = 1e-4
-    kalman_r: float = 3e-3
+    kalman_q: float = 2.35e-4
+    kalman_r: float = 2.3e-3
     accel_gate: float = 0.0
     hip_offset_y: float = 0.045
     hip_to_ankle_z: float = 0.20
@@ -94,8 +98,11 @@ class ControllerParams:
     com_height: float = 0.29
 
     @classmethod
-    def paper(cls, model_params=None) -> "ControllerParams":
-        """The paper's values, with the geometry of the TKU-X model (default: the default one)."""
+    def paper(cls, model_params=None, variant: str = "calibrated") -> "ControllerParams":
+        """The paper's values, with the geometry of the TKU-X model (default: the default one).
+        variant "estimated": the Kalman noises before calibration (KALMAN_ESTIMATED)."""
+        if variant not in ("calibrated", "estimated"):
+            raise ValueError(f"variant must be 'calibrated' or 'estimated', got {variant!r}")
         # Imported here: the model package is heavier and not needed by the pure math.
         from tkujax.model import leg_geometry, pendulum_lengths
 
@@ -105,7 +112,8 @@ class ControllerParams:
             cls(),
             hip_offset_y=float(geo.d_y), hip_to_ankle_z=float(geo.d_z),
             thigh_length=float(geo.thigh), calf_length=float(geo.calf),
-            leg_length=float(leg_length), com_height=float(com_height))
+            leg_length=float(leg_length), com_height=float(com_height),
+            **(KALMAN_ESTIMATED if variant == "estimated" else {}))
         return p.validate()
 
     def validate(self) -> "ControllerParams":
@@ -156,3 +164,7 @@ class ControllerParams:
         check("hip_to_ankle_z", lambda v: 0.0 < v <= reach,
               f"(0, thigh_length + calf_length] = (0, {reach:g}] m")
         return self
+
+
+# The Kalman noises before calibration (ControllerParams.paper(..., variant="estimated")).
+KALMAN_ESTIMATED = dict(kalman_q=1e-4, kalman_r=3e-3)

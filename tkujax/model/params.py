@@ -6,6 +6,11 @@ Sources (see README "Model parameters"):
   [BAM]    Rhoban's identified MX-64 actuator model (kp at P=32, armature, friction).
   [est]    Estimate: no public source gives TKU-X link lengths or masses; proportions follow
            Darwin-OP / Robotis OP3 scaled to the paper's height and mass.
+  [fit]    Identified by `tkujax.studies.calibrate` (CMA-ES on the MuJoCo C backend) from the
+           paper's Tables 4-5 and the 7 deg stand lean, inside the bounds of
+           tkujax/studies/calibrate/params.py (results/calibration/). `ModelParams()` is the
+           calibrated robot; `ModelParams.estimated()` is the earlier estimate (every [fit]
+           number back at its [est] value).
 """
 
 from __future__ import annotations
@@ -48,6 +53,16 @@ MX64 = ServoParams(kp_nm_per_rad=24.9, stall_torque_nm=6.0, no_load_speed_rad_s=
 # its stall torque (0.158*32*2.5); armature and friction [est] (smaller motor, 193:1).
 MX28 = ServoParams(kp_nm_per_rad=12.6, stall_torque_nm=2.5, no_load_speed_rad_s=55 * RPM,
                    armature_kgm2=0.005, friction_loss_nm=0.05)
+# The legs' MX-64 as calibrated [fit]: effective stiffness 16.8 N·m/rad (bound 8-32: P = 32 in
+# series with ~50 N·m/rad of gear/horn/bracket compliance; pinned by the 0.6 s wavering
+# recoveries without control) and damping 0.868 N·m·s/rad (bound 0.5-1.0, between BAM's 0.66
+# and the back-EMF 0.909; not pinned by the data).
+MX64_FIT = dataclasses.replace(MX64, kp_nm_per_rad=16.8, damping_override_nms_per_rad=0.868)
+
+MODEL_VARIANTS = ("calibrated", "estimated")
+# The earlier estimate of every [fit] field (ModelParams.estimated()).
+ESTIMATED = dict(foot_length_m=0.140, foot_forward_offset_m=0.010, pelvis_mass_kg=0.60,
+                 chest_mass_kg=0.85, leg_mass_kg=1.025, chest_com_frac=0.5, leg_servo=MX64)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -69,22 +84,26 @@ class ModelParams:
     shoulder_offset_y_m: float = 0.080   # [est]
     upper_arm_length_m: float = 0.100    # [est]
     forearm_length_m: float = 0.110      # [est]
-    foot_length_m: float = 0.140         # [est] (Sigmaban 158, OP3 127 mm)
+    foot_length_m: float = 0.151         # [fit] bound 100-160 mm (est 140; Sigmaban 158, OP3 127)
     foot_width_m: float = 0.085          # [est]
-    foot_forward_offset_m: float = 0.010  # [est] foot centre ahead of the ankle axis
+    # [fit] foot centre ahead of the ankle axis, bound +-35 mm (est +10 mm): the toe is 48 mm
+    # ahead of the ankle, the heel 103 mm behind. Pinned by the fall / no-fall rows.
+    foot_forward_offset_m: float = -0.0274
     # --- masses; the segments must add up to total_mass_kg.
     total_mass_kg: float = 4.5           # [paper]
-    pelvis_mass_kg: float = 0.60         # [est] pelvis plate + waist servo (MX-28)
-    chest_mass_kg: float = 0.85          # [est] FPGA board, circuit board, battery
+    pelvis_mass_kg: float = 0.7134       # [fit] pelvis plate + waist servo (est 0.60)
+    chest_mass_kg: float = 0.7426        # [fit] FPGA board, circuit board, battery (est 0.85);
+                                         # chest share of pelvis + chest 0.51, bound 0.45-0.80
     head_mass_kg: float = 0.25           # [est] 2 MX-28 + CMOS camera
     arm_mass_kg: float = 0.375           # [est] each: 4 MX-28 (0.3 kg) + brackets
-    leg_mass_kg: float = 1.025           # [est] each: 6 MX-64 (0.78 kg) + brackets + foot
+    leg_mass_kg: float = 1.022           # [fit] each: 6 MX-64 (0.78 kg) + brackets + foot;
+                                         # bound 0.92-1.10 (est 1.025)
     # Fractions of one leg's mass, hip-yaw link .. foot (servo placement: hip yaw, hip roll+pitch
     # block, thigh, shin+knee, ankle block, foot). [est]
     leg_mass_fractions: tuple[float, ...] = (0.12, 0.13, 0.24, 0.24, 0.13, 0.14)
     # Height of the chest CoM as a fraction of chest_height_m above the waist joint (0.5 = the
-    # box centre) [est]; the calibration (tkujax.studies.calibrate) fits it.
-    chest_com_frac: float = 0.5
+    # box centre) [fit], bound 0.3-0.8 (est 0.5; not pinned by the data).
+    chest_com_frac: float = 0.526
     # --- stand posture
     stand_lean_deg: float = 7.0          # [paper] upper body leans forward ~7 deg
     stand_hip_to_ankle_m: float = 0.200  # [est] d_z in the stand pose (knees bent, IK margin)
@@ -93,8 +112,13 @@ class ModelParams:
     timestep_s: float = 0.002            # 2 ms (Playground humanoids)
     solver_iterations: int = 1           # Newton, 1 iteration: reverse-mode differentiable
     ls_iterations: int = 4
-    leg_servo: ServoParams = MX64
+    leg_servo: ServoParams = MX64_FIT
     arm_servo: ServoParams = MX28
+
+    @classmethod
+    def estimated(cls, **overrides) -> "ModelParams":
+        """The model before calibration: every [fit] field at its earlier [est] value."""
+        return dataclasses.replace(cls(**overrides), **{**ESTIMATED, **overrides}).validate()
 
     def validate(self) -> "ModelParams":
         """Raise ValueError naming the first bad field; return self."""
@@ -143,10 +167,13 @@ class ModelParams:
         return self
 
     @classmethod
-    def from_overrides(cls, items: list[str] | dict) -> "ModelParams":
+    def from_overrides(cls, items: list[str] | dict, variant: str = "calibrated") -> "ModelParams":
         """ModelParams with `KEY=VALUE` overrides (CLI) or a {key: value} dict; validated.
+        variant: the base, "calibrated" (ModelParams()) or "estimated" (ModelParams.estimated()).
 
         Unknown keys and non-numbers raise ValueError naming the key."""
+        if variant not in MODEL_VARIANTS:
+            raise ValueError(f"model variant must be one of {MODEL_VARIANTS}, got {variant!r}")
         pairs = items.items() if isinstance(items, dict) else [_split(i) for i in items]
         numeric = {f.name: f.type for f in dataclasses.fields(cls)
                    if f.name not in ("leg_mass_fractions", "leg_servo", "arm_servo")}
@@ -158,7 +185,8 @@ class ModelParams:
                 values[key] = (int(value) if numeric[key] in ("int", int) else float(value))
             except (TypeError, ValueError):
                 raise ValueError(f"model parameter {key} must be a number, got {value!r}") from None
-        return dataclasses.replace(cls(), **values).validate()
+        base = cls.estimated() if variant == "estimated" else cls()
+        return dataclasses.replace(base, **values).validate()
 
     @property
     def height_m(self) -> float:

@@ -1,8 +1,10 @@
 """`tkujax paper`: the paper's 8 cases (Tables 4-5, Figs. 13-16) in simulation.
 
 Baseball and volleyball, from the back and from the front, balance control off and on, hit at
-0.75 s. Each ball is applied as the impulse it carries at impact (m v of the pendulum rig,
-`tkujax.push.ball_momentum_ns`), a 20 ms half-sine at mid-chest height.
+0.75 s. Each ball is applied as a 20 ms half-sine impulse: its momentum at impact (m v of the
+pendulum rig, `tkujax.sim.push.ball_momentum_ns`) times the contact's transfer factor, at the
+contact height (`tkujax.sim.push.BallContact`: calibrated by default, variant="estimated" for
+the earlier mid-chest, factor-1 estimate together with ModelParams.estimated()).
 
 0.75 s is a controller tick, so the 20 ms pulse falls between two IMU samples. The paper's robot
 was hit at an unknown phase of its 30 ms period, so `run_paper` also replays each case at
@@ -41,15 +43,34 @@ def paper_cases() -> list[tuple[str, str, str]]:
     return [(d, b, c) for d in DIRECTION_NAMES for b in BALL_NAMES for c in ("off", "on")]
 
 
+VARIANTS = ("calibrated", "estimated")
+
+
+def variant_setup(variant: str, model_params: ModelParams | None = None
+                  ) -> tuple[ModelParams | None, push_lib.BallContact, ControllerParams]:
+    """(model, ball contact, controller) of a variant: "calibrated" (the defaults) or
+    "estimated" (the robot, ball contact and Kalman noises before calibration). A given
+    model_params replaces the variant's model."""
+    if variant not in VARIANTS:
+        raise ValueError(f"variant must be one of {VARIANTS}, got {variant!r}")
+    if variant == "estimated":
+        model_params = model_params or ModelParams.estimated()
+        contact = push_lib.BallContact.estimated()
+    else:
+        contact = push_lib.BallContact()
+    return model_params, contact, ControllerParams.paper(model_params, variant=variant)
+
+
 def run_cases(params: ControllerParams | None = None, model_params: ModelParams | None = None,
               impulse_scale: float = 1.0, config: RolloutConfig = RolloutConfig(),
-              onset_s: float = push_lib.PAPER_ONSET_S):
+              onset_s: float = push_lib.PAPER_ONSET_S,
+              contact: push_lib.BallContact = push_lib.BallContact()):
     """Simulate the 8 cases. Returns (cases, series, outcomes, pushes as numpy dict)."""
     params = params or ControllerParams.paper(model_params)
     cases = paper_cases()
     pushes = push_lib.stack_pushes([
-        push_lib.make_push(impulse_scale * push_lib.ball_momentum_ns(b),
-                           push_lib.DIRECTIONS[d], onset_s=onset_s) for d, b, _ in cases])
+        push_lib.make_push(impulse_scale * contact.impulse_ns(b), push_lib.DIRECTIONS[d],
+                           height_m=contact.height_m, onset_s=onset_s) for d, b, _ in cases])
     enabled = np.array([1.0 if c == "on" else 0.0 for *_, c in cases], np.float32)
     series, outcomes = simulate(pushes, enabled, params, model_params=model_params, config=config)
     return cases, series, outcomes, pushes
@@ -172,22 +193,26 @@ def _figures(out: Path, cases, series) -> list[Path]:
 
 def run_paper(out: Path, figures: bool = True, params: ControllerParams | None = None,
               model_params: ModelParams | None = None, impulse_scale: float = 1.0,
-              phases: int = 15) -> str:
+              phases: int = 15, variant: str = "calibrated") -> str:
     """Write table.csv, table.md, series.npz, Figs. 13-16 and (phases > 0) phase.csv and
     phase.md to `out`; return a summary (table.md, then phase.md).
 
-    impulse_scale multiplies both balls' momenta (1 = the paper's rig); other values are
-    labelled as such in table.md. phases: onsets 0.75 s + k / phases * 30 ms, k < phases
+    impulse_scale multiplies both balls' impulses (1 = the paper's rig); other values are
+    labelled as such in table.md. variant: "calibrated" (default) or "estimated" (the model,
+    ball contact and Kalman noises before calibration; see `variant_setup`). phases: onsets 0.75 s + k / phases * 30 ms, k < phases
     (each a batch of the 8 cases with the table's compiled rollout); 0 skips them.
     """
     if not (0.0 < impulse_scale <= 10.0):
         raise ValueError(f"impulse_scale must be in (0, 10], got {impulse_scale!r}")
     if isinstance(phases, bool) or not isinstance(phases, int) or not 0 <= phases <= 100:
         raise ValueError(f"phases must be an integer in [0, 100], got {phases!r}")
+    model_params, contact, variant_params = variant_setup(variant, model_params)
+    params = params or variant_params
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    cases, series, outcomes, pushes = run_cases(params, model_params, impulse_scale)
+    cases, series, outcomes, pushes = run_cases(params, model_params, impulse_scale,
+                                                contact=contact)
     wall = time.perf_counter() - t0
     rows = _rows(cases, outcomes, pushes)
     with open(out / "table.csv", "w", newline="") as fh:
@@ -197,7 +222,7 @@ def run_paper(out: Path, figures: bool = True, params: ControllerParams | None =
         writer.writerows({k: r[k] for k in writer.fieldnames} for r in rows)
     import jax
 
-    title = "The paper's Tables 4-5 beside the simulation"
+    title = f"The paper's Tables 4-5 beside the simulation ({variant} model)"
     if impulse_scale != 1.0:
         title += f" (ball impulses scaled x{impulse_scale:g}: NOT the paper's rig)"
     md = _markdown(rows, title)
@@ -218,7 +243,7 @@ def run_paper(out: Path, figures: bool = True, params: ControllerParams | None =
     # Phase 0 is the run above; the others change only the onset (a traced value: no compile).
     by_phase = [(0.0, outcomes)] + [
         (k / phases, run_cases(params, model_params, impulse_scale, onset_s=float(
-            push_lib.onset_from_phase(push_lib.PAPER_ONSET_S, k / phases)))[2])
+            push_lib.onset_from_phase(push_lib.PAPER_ONSET_S, k / phases)), contact=contact)[2])
         for k in range(1, phases)]
     prow = phase_rows(cases, by_phase)
     with open(out / "phase.csv", "w", newline="") as fh:
@@ -237,8 +262,9 @@ def render_case(case: str, control_on: bool, out: str | Path, width: int = 480,
         raise ValueError(f"impulse_scale must be in (0, 10], got {impulse_scale!r}")
     try:
         ball, direction = case.split("-")
-        push = push_lib.make_push(impulse_scale * push_lib.ball_momentum_ns(ball),
-                                  push_lib.DIRECTIONS[direction])
+        contact = push_lib.BallContact()
+        push = push_lib.make_push(impulse_scale * contact.impulse_ns(ball),
+                                  push_lib.DIRECTIONS[direction], height_m=contact.height_m)
     except (ValueError, KeyError) as err:
         raise ValueError(f"case must be BALL-DIRECTION with BALL in {BALL_NAMES} and DIRECTION "
                          f"in {DIRECTION_NAMES}, got {case!r}") from err
