@@ -232,11 +232,12 @@ def mujoco_chunk(batch: dict, seed: int, base: ControllerParams, duration_s: flo
     return res
 
 
-def _spec_hash(spec: SweepSpec, params: ControllerParams) -> str:
-    # Fields added later enter the hash only when set, so older sweeps still resume.
+def _spec_hash(spec: SweepSpec, params: ControllerParams, model_params: ModelParams) -> str:
+    # Fields added later enter the hash only when set, so older sweeps still resume. The model
+    # enters in full: a changed default robot (e.g. the calibration) is a different sweep.
     p = {k: v for k, v in dataclasses.asdict(params).items()
          if not (k in _LATER_FIELDS and v == _LATER_FIELDS[k])}
-    parts = [spec.raw, p]
+    parts = [spec.raw, p, dataclasses.asdict(model_params)]
     if spec.phase_default:   # random onsets changed meaning when the phase axis came in
         parts.append("push.random.onset_phase: uniform [0, 1) by default")
     blob = json.dumps(parts, sort_keys=True, default=str)
@@ -327,7 +328,7 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
                                    process_id=process_id)
 
     backend = choose_backend(backend, spec)
-    digest = _spec_hash(spec, params)
+    digest = _spec_hash(spec, params, model_params or ModelParams())
     old = chunks.read_manifest(out)
     if old and old.get("spec_hash") != digest:
         raise SpecError(f"{out} holds a different sweep (spec hash {old.get('spec_hash')} != "
@@ -342,7 +343,7 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
     manifest = dict(name=spec.name, spec=spec.raw, spec_hash=digest, n_pushes=n,
                     chunk_size=spec.chunk_size, n_chunks=n_chunks, padded_chunk=padded,
                     controller_params=dataclasses.asdict(params),
-                    model_params=dataclasses.asdict(model_params) if model_params else None,
+                    model_params=dataclasses.asdict(model_params or ModelParams()),
                     versions=_versions(), git_commit=_git_commit(),
                     devices=[str(d) for d in jax.devices()], num_processes=num_processes,
                     backend=backend, format="npz chunks, one record per push")
