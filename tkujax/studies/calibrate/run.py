@@ -81,14 +81,14 @@ class Archive:
         self.path, self.digest = path, digest
         self.records: list[dict] = []
         if path.exists():
-            with open(path) as fh:
-                for n, line in enumerate(fh, 1):
-                    if not line.strip():
-                        continue
-                    try:
-                        rec = json.loads(line)
-                    except json.JSONDecodeError:
-                        break                     # a line cut by an interruption: drop it
+            text = path.read_text()
+            if text and not text.endswith("\n"):
+                # a line cut by an interruption: drop it, so the next append starts a new line
+                text = text[:text.rfind("\n") + 1]
+                path.write_text(text)
+            for n, line in enumerate(text.splitlines(), 1):
+                if line.strip():
+                    rec = json.loads(line)
                     if rec.get("spec") != digest:
                         raise SpecError(f"{path}:{n}: archived by a different fit (spec digest "
                                         f"{rec.get('spec')}, this spec {digest}): its losses "
@@ -173,8 +173,8 @@ def run_calibrate(spec: CalibrateSpec | str | Path, out: str | Path, *,
     spec = spec if isinstance(spec, CalibrateSpec) else load_calibrate_spec(spec)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    archive = Archive(out / "archive.jsonl", spec.fit_digest())   # refuses another fit's
     (out / "spec.json").write_text(json.dumps(dataclasses.asdict(spec), indent=1) + "\n")
-    archive = Archive(out / "archive.jsonl", spec.fit_digest())
     n_cached = len(archive.records)
     log = (lambda s: None) if quiet else (lambda s: print(s, file=sys.stderr, flush=True))
     pool = None
