@@ -169,7 +169,8 @@ def run_calibrate(spec: CalibrateSpec | str | Path, out: str | Path, *,
                   evaluator: Evaluator | None = None, quiet: bool = False) -> dict:
     """Run (or resume) a calibration into `out`; returns the best.json summary.
 
-    evaluator: replaces the MuJoCo evaluation (evaluate.evaluate_phases), for tests."""
+    evaluator: replaces the MuJoCo evaluation (evaluate.evaluate_phases), for tests; it runs in
+    this process (search.workers applies to the MuJoCo evaluation only)."""
     spec = spec if isinstance(spec, CalibrateSpec) else load_calibrate_spec(spec)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
