@@ -15,6 +15,7 @@ MUJOCO_GL and XLA options first):
   tkujax.make_maps                           stability maps
   tkujax.replay                              one sweep record re-simulated
   tkujax.run_tune                            gradient tuning
+  tkujax.run_calibrate                       fit the model to the paper's Tables 4-5
   tkujax.run_capture, tkujax.StepOverride    capture regions, commanded recovery steps
 """
 
@@ -35,6 +36,7 @@ _API = {
     "run_sweep": "tkujax.studies.sweep", "load": "tkujax.studies.sweep",
     "make_maps": "tkujax.studies.maps", "replay": "tkujax.studies.replay",
     "run_tune": "tkujax.studies.tune",
+    "run_calibrate": "tkujax.studies.calibrate",
     "run_capture": "tkujax.studies.capture", "StepOverride": "tkujax.control",
 }
 __all__ = [*_API, "__version__"]

@@ -60,14 +60,35 @@ def _cmd_render(args) -> int:
     return 0
 
 
+def _model_params(items: list[str], variant: str = "calibrated"):
+    """--model: a model_params.json file (tkujax calibrate output) and/or KEY=VALUE overrides,
+    applied in order to the variant's model; None when none is given (the variant's default)."""
+    import dataclasses
+
+    from tkujax.model import ModelParams
+    from tkujax.model.io import load_model_params_json
+
+    if not items:
+        return None
+    mp = ModelParams.estimated() if variant == "estimated" else ModelParams()
+    for item in items:
+        if item.endswith(".json"):
+            mp = load_model_params_json(item)
+        else:
+            over = ModelParams.from_overrides([item])      # validates the key and the number
+            key = item.split("=", 1)[0].strip()
+            mp = dataclasses.replace(mp, **{key: getattr(over, key)}).validate()
+    return mp
+
+
 def _cmd_paper(args) -> int:
     from tkujax.studies.paper import run_paper
-    from tkujax.model import ModelParams
+    from tkujax.studies.sweep import load_params_json
 
-    model_params = (ModelParams.from_overrides(args.model, args.variant) if args.model
-                    else None)
-    summary = run_paper(Path(args.out), figures=not args.no_figures,
-                        impulse_scale=args.impulse_scale, model_params=model_params,
+    params = load_params_json(args.params) if args.params else None
+    summary = run_paper(Path(args.out), figures=not args.no_figures, params=params,
+                        impulse_scale=args.impulse_scale,
+                        model_params=_model_params(args.model, args.variant),
                         phases=args.phases, variant=args.variant)
     print(summary)
     return 0
@@ -77,7 +98,9 @@ def _cmd_sweep(args) -> int:
     from tkujax.studies.sweep import load_params_json, run_sweep
 
     params = load_params_json(args.params) if args.params else None
-    manifest = run_sweep(args.spec, args.out, params=params, max_chunks=args.max_chunks,
+    manifest = run_sweep(args.spec, args.out, params=params,
+                         model_params=_model_params([args.model] if args.model else []),
+                         max_chunks=args.max_chunks,
                          process_id=args.process_id, num_processes=args.num_processes,
                          coordinator=args.coordinator, backend=args.backend)
     state = "complete" if manifest["complete"] else "incomplete (rerun the same command to resume)"
@@ -167,6 +190,28 @@ def _cmd_bench(args) -> int:
     return 0
 
 
+def _cmd_calibrate(args) -> int:
+    from tkujax.studies.calibrate import run_calibrate
+    from tkujax.studies.calibrate.spec import load_calibrate_spec
+
+    spec = load_calibrate_spec(args.spec)
+    over = {k: v for k, v in (("budget_s", args.budget_s), ("max_evals", args.max_evals),
+                              ("workers", args.workers)) if v is not None}
+    if over:
+        import dataclasses
+
+        from tkujax.studies.calibrate.spec import parse_calibrate_spec
+        from tkujax.studies.spec import read_toml
+
+        raw = read_toml(args.spec)
+        raw.setdefault("search", {}).update(over)      # re-validated like the spec's own keys
+        spec = parse_calibrate_spec(raw)
+    summary = run_calibrate(spec, args.out)
+    print("\n".join(summary["files"]))
+    print(Path(args.out, "calibration.md").read_text())
+    return 0
+
+
 def _cmd_tune(args) -> int:
     from tkujax.studies.tune import run_tune
 
@@ -205,9 +250,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-figures", action="store_true")
     p.add_argument("--impulse-scale", type=float, default=1.0,
                    help="multiply both balls' momenta (1 = the paper's rig)")
-    p.add_argument("--model", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a ModelParams field, e.g. foot_forward_offset_m=-0.03 "
-                        "(repeatable; the controller's geometry follows the model)")
+    p.add_argument("--model", action="append", default=[], metavar="KEY=VALUE|FILE.json",
+                   help="override a ModelParams field, e.g. foot_forward_offset_m=-0.03, or "
+                        "load a model_params.json (tkujax calibrate output); repeatable, applied "
+                        "in order (the controller's geometry follows the model)")
+    p.add_argument("--params", default=None,
+                   help="controller parameters JSON (tkujax tune or calibrate output)")
     p.add_argument("--variant", choices=["calibrated", "estimated"], default="calibrated",
                    help="calibrated (default): the robot, ball contact and Kalman noises fitted "
                         "to the paper (tkujax calibrate); estimated: the values before")
@@ -220,6 +268,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("spec", help="sweep spec, e.g. sweeps/stability_map_cpu.toml")
     p.add_argument("--out", required=True, help="output folder (npz chunks + manifest.json)")
     p.add_argument("--params", default=None, help="controller parameters JSON (tkujax tune output)")
+    p.add_argument("--model", default=None, metavar="FILE.json",
+                   help="model parameters JSON (tkujax calibrate's model_params.json)")
     p.add_argument("--max-chunks", type=int, default=None, help="stop after this many new chunks")
     p.add_argument("--backend", choices=["auto", "mjx", "mujoco"], default="auto",
                    help="auto: MJX on a GPU, MuJoCo C on a CPU when the spec allows it")
@@ -282,6 +332,17 @@ def build_parser() -> argparse.ArgumentParser:
                    help="skip the spec's [compare] study (methods x seeds at one budget)")
     p.add_argument("--no-eval", action="store_true", help="skip the held-out evaluation")
     p.set_defaults(func=_cmd_tune)
+
+    p = sub.add_parser("calibrate", help="fit the model's unknown parameters to the paper's "
+                                         "Tables 4-5 (CMA-ES with restarts; resumable)")
+    p.add_argument("spec", help="calibrate spec, e.g. sweeps/calibrate_cpu.toml")
+    p.add_argument("--out", required=True, help="output folder (archive.jsonl, best.json, "
+                                                 "calibration.md, search_trace.png, "
+                                                 "model_params.json, controller_params.json)")
+    p.add_argument("--budget-s", type=float, default=None, help="override search.budget_s")
+    p.add_argument("--max-evals", type=int, default=None, help="override search.max_evals")
+    p.add_argument("--workers", type=int, default=None, help="override search.workers")
+    p.set_defaults(func=_cmd_calibrate)
     return parser
 
 

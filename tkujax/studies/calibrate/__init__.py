@@ -4,6 +4,12 @@ targets.py   the paper's measured rows and the per-row loss
 params.py    the fitted parameter vector: names, physically plausible bounds, mapping to
              ModelParams / ControllerParams / the push
 evaluate.py  one candidate -> the 8 rows for every reading of Algorithm 1 (MuJoCo C backend)
-search.py    CMA-ES (the maintained `cmaes` package) with restarts; the CLI entry point
+search.py    the research CMA-ES loop (python -m; superseded by run.py for users)
 report.py    JSON / markdown / PNG of a fit, finite-difference sensitivities (identifiability)
+spec.py      the TOML spec of `tkujax calibrate`: validation, errors naming key and range
+run.py       run_calibrate(spec, out): the resumable search and its report (`tkujax calibrate`)
 """
+
+from tkujax.studies.calibrate.run import run_calibrate
+
+__all__ = ["run_calibrate"]

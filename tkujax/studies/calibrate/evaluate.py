@@ -1,7 +1,11 @@
-"""One candidate parameter vector -> the paper's 8 rows, for every reading of Algorithm 1.
+"""One candidate parameter vector -> the paper's 8 rows, for every reading of Algorithm 1, at
+one or several hit phases.
 
 MuJoCo C physics (tkujax.backend_mujoco), noise-free, the JAX controller. The 4 control-off
 rows do not depend on the reading and run once; the 4 control-on rows run once per reading.
+A hit phase (ms) moves the push onset that far after the controller tick at the paper's 0.75 s:
+the paper does not give it, and the Kalman trigger depends on it (results/calibration/FINDINGS.md),
+so a fit can average its loss over several phases. All phases go into one batch per reading.
 """
 
 from __future__ import annotations
@@ -25,17 +29,29 @@ def _simulate(pushes, enabled, cparams, mparams):
                            n_threads=int(threads) if threads else None)
 
 
-def pushes_for(x) -> object:
+def hit_onset_s(hit_phase_ms: float) -> float:
+    """Push onset (s): `hit_phase_ms` after the controller tick at the paper's 0.75 s."""
+    if not 0.0 <= hit_phase_ms < 1e3 * push_lib.CONTROL_PERIOD_S:
+        raise ValueError(f"hit_phase_ms must be in [0, {1e3 * push_lib.CONTROL_PERIOD_S:g}) ms, "
+                         f"got {hit_phase_ms!r}")
+    return float(push_lib.onset_from_phase(push_lib.PAPER_ONSET_S,
+                                           1e-3 * hit_phase_ms / push_lib.CONTROL_PERIOD_S))
+
+
+def pushes_for(x, hit_phases_ms=(0.0,)) -> object:
+    """The 4 ball cases (CASES order) at each hit phase: phase-major, 4 * len(phases) pushes."""
     v = P.as_dict(x) if not isinstance(x, dict) else x
     return push_lib.stack_pushes([
         push_lib.make_push(v["impulse_factor"] * push_lib.ball_momentum_ns(b),
-                           push_lib.DIRECTIONS[d], height_m=float(v["push_height_m"]))
-        for d, b in CASES])
+                           push_lib.DIRECTIONS[d], height_m=float(v["push_height_m"]),
+                           onset_s=hit_onset_s(ph))
+        for ph in hit_phases_ms for d, b in CASES])
 
 
-def _rows(series, out, control, cparams) -> dict:
+def _rows(series, out, control, cparams, offset: int = 0) -> dict:
     res = {}
-    for i, (d, b) in enumerate(CASES):
+    for j, (d, b) in enumerate(CASES):
+        i = offset + j
         fell = bool(out["fell"][i])
         step = float(out["step_length_m"][i])
         phi = np.degrees(np.asarray(series["pitch_est"][i], float))
@@ -54,19 +70,26 @@ def _rows(series, out, control, cparams) -> dict:
     return res
 
 
-def evaluate(x, readings=tuple(P.READINGS)) -> dict:
-    """{reading: {row key: sim dict}} for parameter vector (or dict) x."""
+def evaluate(x, readings=tuple(P.READINGS), hit_phase_ms: float = 0.0) -> dict:
+    """{reading: {row key: sim dict}} for parameter vector (or dict) x, at one hit phase."""
+    return evaluate_phases(x, readings, (hit_phase_ms,))[hit_phase_ms]
+
+
+def evaluate_phases(x, readings=tuple(P.READINGS), hit_phases_ms=(0.0,)) -> dict:
+    """{hit phase ms: {reading: {row key: sim dict}}} for parameter vector (or dict) x."""
     mp = P.model_params(x)
-    pushes = pushes_for(x)
-    n = len(CASES)
+    phases = tuple(float(ph) for ph in hit_phases_ms)
+    pushes = pushes_for(x, phases)
+    n = len(CASES) * len(phases)
     c0 = P.controller_params(x, next(iter(P.READINGS)), mp)
     s, o = _simulate(pushes, np.zeros(n, np.float32), c0, mp)
-    off = _rows(s, o, "off", c0)
-    out = {}
+    off = [_rows(s, o, "off", c0, len(CASES) * k) for k in range(len(phases))]
+    out = {ph: {} for ph in phases}
     for r in readings:
         cp = P.controller_params(x, r, mp)
         s, o = _simulate(pushes, np.ones(n, np.float32), cp, mp)
-        out[r] = {**off, **_rows(s, o, "on", cp)}
+        for k, ph in enumerate(phases):
+            out[ph][r] = {**off[k], **_rows(s, o, "on", cp, len(CASES) * k)}
     return out
 
 

@@ -108,3 +108,19 @@ def controller_params(x, reading: str, model: ModelParams | None = None) -> Cont
     r = 10 ** v["kalman_r"] if PARAMS[NAMES.index("kalman_r")].log else v["kalman_r"]
     return dataclasses.replace(p, kalman_q=float(q), kalman_r=float(r),
                                **READINGS[reading]).validate()
+
+
+def base_vector() -> np.ndarray:
+    """The vector of today's default model and controller (ModelParams(), ControllerParams()):
+    the values of the parameters a calibration holds fixed. Read from the dataclasses rather than
+    DEFAULT, so it follows the default model when that changes."""
+    from tkujax.sim.push import DEFAULT_HEIGHT_M
+
+    m, c = ModelParams(), ControllerParams()
+    v = dict(foot_forward_offset_m=m.foot_forward_offset_m, foot_length_m=m.foot_length_m,
+             leg_kp=m.leg_servo.kp_nm_per_rad, leg_damping=m.leg_servo.damping_nms_per_rad,
+             chest_com_frac=m.chest_com_frac, leg_mass_kg=m.leg_mass_kg,
+             chest_share=m.chest_mass_kg / (m.chest_mass_kg + m.pelvis_mass_kg),
+             push_height_m=DEFAULT_HEIGHT_M, impulse_factor=1.0,
+             kalman_q=math.log10(c.kalman_q), kalman_r=math.log10(c.kalman_r))
+    return np.array([float(v[n]) for n in NAMES])

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# Population-based calibration on a many-core machine (e.g. the 16-core device host; the search
-# uses the MuJoCo C backend, so it needs CPU cores, not the GPU). Self-contained: writes under
-# $OUT (default ./out). Run from the repository root with the project's venv active.
+# The full calibration on a many-core machine (e.g. the 16-core device host; the search uses
+# the MuJoCo C backend, so it needs CPU cores, not the GPU). Self-contained: writes under $OUT
+# (default ./out). Run from the repository root with the project's venv active. Rerunning it into
+# the same $OUT resumes from $OUT/calibration/archive.jsonl.
 #   OUT=/some/dir bash tkujax/studies/calibrate/run_manycore.sh [budget_s] [workers]
 set -euo pipefail
 OUT=${OUT:-./out}
@@ -9,7 +10,5 @@ BUDGET=${1:-540}
 WORKERS=${2:-$(( $(nproc) - 1 ))}
 mkdir -p "$OUT/calibration"
 export TKUJAX_CAL_THREADS=1
-python -m tkujax.studies.calibrate.search --budget-s "$BUDGET" --workers "$WORKERS" \
-    --popsize $(( 2 * WORKERS )) --seed 1 --out "$OUT/calibration"
-python -m tkujax.studies.calibrate.report --archive "$OUT/calibration/archive.jsonl" \
-    --out "$OUT/calibration" --sensitivity
+python -m tkujax.cli calibrate sweeps/calibrate.toml --out "$OUT/calibration" \
+    --budget-s "$BUDGET" --workers "$WORKERS"

@@ -1,0 +1,173 @@
+"""Calibration specs: the TOML schema of `tkujax calibrate` and its validation.
+
+[fit]
+params = [...]            subset of params.NAMES to fit (default: all); the others are held at
+                          the default model's values (params.base_vector())
+readings = [...]          subset of params.READINGS (default: all): one fit per reading
+rows = "all"              "all" (8 rows) or "table4" (pushes from behind only)
+heldout = true            with rows = "all": also fit on Table 4 alone and predict Table 5
+hit_phases_ms = [0]       hit phases after the 30 ms controller tick; the loss is their mean
+[fit.bounds]              name = [lo, hi]: narrower bounds (never wider than params.py's)
+[fit.start]               name = value: the search's starting point (default: the base model)
+[search]
+budget_s, max_evals       wall seconds of this invocation and/or total candidates (at least one)
+popsize, restarts         CMA-ES population and the number of IPOP restarts (doubling it)
+workers, seed, sigma0     parallel processes (0: this one), CMA seed, initial step (unit cube)
+[report]
+sensitivity = true        finite-difference sensitivities at the best fit (2 runs per parameter)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from pathlib import Path
+
+from tkujax.studies.calibrate import params as P
+from tkujax.studies.spec import SpecError, _number, _table, read_toml
+
+ROWS_CHOICES = ("all", "table4")
+MAX_PHASE_MS = 30.0                  # the controller's sampling period
+
+
+@dataclasses.dataclass(frozen=True)
+class CalibrateSpec:
+    name: str
+    params: tuple[str, ...]                         # fitted (searched) names, params.NAMES order
+    bounds: dict[str, tuple[float, float]]          # every name -> (lo, hi), params.py units
+    start: dict[str, float]                         # every name -> start / held value
+    readings: tuple[str, ...]
+    rows: str                                       # "all" | "table4"
+    heldout: bool
+    hit_phases_ms: tuple[float, ...]
+    budget_s: float | None
+    max_evals: int | None
+    popsize: int
+    restarts: int
+    workers: int
+    seed: int
+    sigma0: float
+    sensitivity: bool
+
+    @property
+    def objectives(self) -> tuple[str, ...]:
+        """Fitted objectives: "ALL" (8 rows) and/or "T4" (Table 4; Table 5 held out)."""
+        if self.rows == "table4":
+            return ("T4",)
+        return ("ALL", "T4") if self.heldout else ("ALL",)
+
+    def fit_digest(self) -> str:
+        """What an archived candidate's meaning depends on: a rerun into the same folder with a
+        different digest would mix incomparable losses, so run_calibrate refuses it."""
+        key = dict(params=self.params, bounds=self.bounds, start=self.start,
+                   readings=self.readings, hit_phases_ms=self.hit_phases_ms)
+        return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def _int(key: str, value, lo: int, hi: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+        raise SpecError(f"{key}: expected an integer in [{lo}, {hi}], got {value!r}")
+    return value
+
+
+def _bool(key: str, value) -> bool:
+    if not isinstance(value, bool):
+        raise SpecError(f"{key}: expected true or false, got {value!r}")
+    return value
+
+
+def _names(key: str, value, allowed) -> tuple[str, ...]:
+    allowed = list(allowed)
+    if (not isinstance(value, list) or not value or len(set(value)) != len(value)
+            or any(v not in allowed for v in value)):
+        bad = [v for v in value if v not in allowed] if isinstance(value, list) else value
+        raise SpecError(f"{key}: expected a non-empty list of distinct names from {allowed}, "
+                        f"got {value!r} (not allowed: {bad!r})")
+    return tuple(v for v in allowed if v in value)     # canonical order
+
+
+def parse_calibrate_spec(data: dict) -> CalibrateSpec:
+    """Validate a parsed calibrate TOML document (SpecError names the key and allowed range)."""
+    _table("top level", data, {"fit", "search", "report"})
+    fit = _table("fit", data.get("fit", {}), {"name", "description", "params", "readings",
+                                              "rows", "heldout", "hit_phases_ms", "bounds",
+                                              "start"})
+    for k in ("name", "description"):
+        if k in fit and not isinstance(fit[k], str):
+            raise SpecError(f"fit.{k}: expected a string, got {fit[k]!r}")
+    names = _names("fit.params", fit.get("params", list(P.NAMES)), P.NAMES)
+    readings = _names("fit.readings", fit.get("readings", list(P.READINGS)), P.READINGS)
+    rows = fit.get("rows", "all")
+    if rows not in ROWS_CHOICES:
+        raise SpecError(f"fit.rows: expected one of {list(ROWS_CHOICES)}, got {rows!r}")
+    heldout = _bool("fit.heldout", fit.get("heldout", True))
+    phases = fit.get("hit_phases_ms", [0.0])
+    if not isinstance(phases, list) or not phases or len(set(phases)) != len(phases):
+        raise SpecError(f"fit.hit_phases_ms: expected a non-empty list of distinct numbers in "
+                        f"[0, {MAX_PHASE_MS:g}) ms, got {phases!r}")
+    phases = tuple(_number(f"fit.hit_phases_ms[{i}]", v, 0.0, MAX_PHASE_MS, "ms")
+                   for i, v in enumerate(phases))
+    if MAX_PHASE_MS in phases:              # 30 ms is the next tick: phase 0 again
+        raise SpecError(f"fit.hit_phases_ms: expected numbers in [0, {MAX_PHASE_MS:g}) ms "
+                        f"(30 ms is the next tick, i.e. phase 0), got {list(phases)}")
+
+    bounds = {p.name: (p.lo, p.hi) for p in P.PARAMS}
+    for key, value in _table("fit.bounds", fit.get("bounds", {}), P.NAMES).items():
+        p = P.PARAMS[P.NAMES.index(key)]
+        unit = " (log10)" if p.log else ""
+        if key not in names:
+            raise SpecError(f"fit.bounds.{key}: {key} is not fitted (fit.params); its value is "
+                            "held, a bound would have no effect")
+        if not (isinstance(value, list) and len(value) == 2):
+            raise SpecError(f"fit.bounds.{key}: expected [lo, hi] within the physically "
+                            f"plausible [{p.lo:g}, {p.hi:g}]{unit}, got {value!r}")
+        lo, hi = value
+        for v, side in ((lo, "lo"), (hi, "hi")):
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise SpecError(f"fit.bounds.{key}: {side} must be a number, got {v!r}")
+        if lo < p.lo or hi > p.hi:
+            raise SpecError(f"fit.bounds.{key}: [{lo:g}, {hi:g}]{unit} widens the physically "
+                            f"plausible bound [{p.lo:g}, {p.hi:g}] of params.py ({p.why}); "
+                            "a spec may only narrow it")
+        if not lo < hi:
+            raise SpecError(f"fit.bounds.{key}: lower bound {lo:g} must be below upper "
+                            f"bound {hi:g}")
+        bounds[key] = (float(lo), float(hi))
+
+    base = P.as_dict(P.base_vector())
+    start = dict(base)
+    for key, value in _table("fit.start", fit.get("start", {}), P.NAMES).items():
+        lo, hi = bounds[key]
+        start[key] = _number(f"fit.start.{key}", value, lo, hi)
+    for key in names:
+        lo, hi = bounds[key]
+        if not lo <= start[key] <= hi:
+            raise SpecError(f"fit.start.{key}: the base model's value {start[key]:g} lies outside "
+                            f"fit.bounds.{key} [{lo:g}, {hi:g}]; give a start inside them")
+
+    search = _table("search", data.get("search", {}), {"budget_s", "max_evals", "popsize",
+                                                       "restarts", "workers", "seed", "sigma0"})
+    budget = search.get("budget_s")
+    budget = None if budget is None else _number("search.budget_s", budget, 1.0, 30 * 86400.0, "s")
+    max_evals = search.get("max_evals")
+    max_evals = None if max_evals is None else _int("search.max_evals", max_evals, 1, 10_000_000)
+    if budget is None and max_evals is None:
+        raise SpecError("search: give budget_s (wall seconds) and/or max_evals (candidates)")
+    popsize = _int("search.popsize", search.get("popsize", 8), 2, 4096)
+    restarts = _int("search.restarts", search.get("restarts", 4), 0, 64)
+    workers = _int("search.workers", search.get("workers", 0), 0, 1024)
+    seed = _int("search.seed", search.get("seed", 0), 0, 2**31 - 1)
+    sigma0 = _number("search.sigma0", search.get("sigma0", 0.25), 1e-3, 1.0, "(unit cube)")
+
+    report = _table("report", data.get("report", {}), {"sensitivity"})
+    sens = _bool("report.sensitivity", report.get("sensitivity", True))
+    return CalibrateSpec(name=fit.get("name", "calibrate"), params=names, bounds=bounds,
+                         start=start, readings=readings, rows=rows, heldout=heldout,
+                         hit_phases_ms=phases, budget_s=budget, max_evals=max_evals,
+                         popsize=popsize, restarts=restarts, workers=workers, seed=seed,
+                         sigma0=sigma0, sensitivity=sens)
+
+
+def load_calibrate_spec(path: str | Path) -> CalibrateSpec:
+    return parse_calibrate_spec(read_toml(path))
