@@ -5,6 +5,10 @@ quantise the leg targets to the servos' 0.088 deg resolution (straight-through g
 them for `substeps` physics steps while the push's force acts through `xfrc_applied`. A
 `lax.scan` over periods; `jax.vmap` over pushes, controller parameters and model parameters.
 
+With `RolloutConfig.fixed` set, the fixed-point controller (`tkujax.control.fixed`) runs
+instead, through `tick.control_tick_fx`; its fractional latency splits each tick's substep scan
+at a static substep (the previous command before it, the new one after).
+
 Time series come back at control rate; `tkujax.sim.metrics.outcomes` turns them into per-push
 outcomes.
 """

@@ -11,6 +11,10 @@ switch backends. Per control period:
      `substeps` physics steps with `mujoco.rollout` (a persistent `Rollout(nthread=...)` thread
      pool: the physics runs across all cores, the GIL released).
 
+With `RolloutConfig.fixed` the fixed-point controller runs (`tick.control_tick_fx`, one compiled
+tick per FixedPointConfig); for a fractional latency each robot's per-substep ctrl holds the
+previous command until the switch substep, exactly as in the MJX loop.
+
 The push (`push.force_at`, a half-sine force at a point of the chest axis, with its moment
 about the chest CoM, as `sim._push_wrench`) goes in through `xfrc_applied`, given to
 `mujoco.rollout` per step as part of the control (control_spec = mjSTATE_CTRL |
