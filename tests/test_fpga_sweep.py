@@ -4,6 +4,7 @@ against the float controller, latency, a gridded fpga key, and the study's analy
 import copy
 import json
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -145,16 +146,19 @@ def test_fractional_latency_changes_the_loop(float_run):
 def _sensor_sequence(n=14, kick_at=4):
     """IMU readings of a robot pitching forward from tick `kick_at` on (enough to trigger)."""
     gyro = np.zeros((n, 3), np.float32)
-    gyro[kick_at:, 1] = 1.5                                 # rad/s about +y (pitch)
-    accel = np.tile(np.float32([0.0, 0.0, 9.81]), (n, 1))
-    return jnp.asarray(gyro), jnp.asarray(accel)
+    gyro[kick_at:, 1] = 2.0                                 # rad/s about +y (pitch)
+    lean = np.full(n, PARAMS.standing_lean)
+    lean[kick_at:] += 0.5                                   # rad: the accelerometer agrees
+    accel = 9.81 * np.stack([-np.sin(lean), 0.0 * lean, np.cos(lean)], 1)
+    return jnp.asarray(gyro), jnp.asarray(accel, jnp.float32)
 
 
 def _commands(fixed):
     state = controller_init_fx(PARAMS, fixed)
+    tick = jax.jit(control_tick_fx, static_argnums=(5, 6))
     legs, prevs, gates = [], [], []
     for g, a in zip(*_sensor_sequence()):
-        state, leg, prev, out = control_tick_fx(state, g, a, PARAMS, 1.0, True, fixed)
+        state, leg, prev, out = tick(state, g, a, PARAMS, 1.0, True, fixed)
         legs.append(np.asarray(leg))
         prevs.append(np.asarray(prev))
         gates.append(float(out.gate))
@@ -164,7 +168,8 @@ def _commands(fixed):
 def test_latency_ticks_delays_the_servo_command_by_one_period():
     legs0, prev0, gate0 = _commands(fixed_point_config({}))
     legs1, prev1, gate1 = _commands(fixed_point_config({"latency_ticks": 1}))
-    assert gate0.max() == 1.0 and np.abs(np.diff(legs0, axis=0)).max() > 1e-3   # a step runs
+    assert gate0[:4].max() == 0.0 and gate0.max() == 1.0             # standing, then a push
+    assert np.abs(np.diff(legs0, axis=0)).max() > 1e-3                # and a step runs
     np.testing.assert_array_equal(legs1[1:], legs0[:-1])
     np.testing.assert_array_equal(legs1[0], legs0[0])        # stand command before the first
     np.testing.assert_array_equal(gate1, gate0)              # detection itself is not delayed
