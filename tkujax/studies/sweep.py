@@ -135,7 +135,6 @@ def traced_params(params: ControllerParams) -> ControllerParams:
     return jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), params)
 
 
-@functools.lru_cache(maxsize=8)
 def make_chunk_fn(varied: tuple[str, ...], duration_s: float,
                   model_params: ModelParams | None = None, with_qpos: bool = False,
                   steps: bool = False, fixed: FixedPointConfig | None = None):
@@ -150,6 +149,13 @@ def make_chunk_fn(varied: tuple[str, ...], duration_s: float,
     steps: records carry a commanded step (step_* columns, a [step] sweep).
     fixed: run the fixed-point controller with this (static) FixedPointConfig; one compiled
     program per distinct config (word lengths change the program; `fpga_groups`)."""
+    # Positional call into the cache: lru_cache keys f(a, b) and f(a, b, steps=False) apart,
+    # which would compile the same program twice.
+    return _make_chunk_fn(tuple(varied), duration_s, model_params, with_qpos, steps, fixed)
+
+
+@functools.lru_cache(maxsize=16)
+def _make_chunk_fn(varied, duration_s, model_params, with_qpos, steps, fixed):
     host = physics.host_model(model_params)
     model, index = physics.device_model(model_params), model_index(model_params)
     state = physics.stand_state(host, 1.0)
