@@ -175,6 +175,17 @@ def _cmd_map(args) -> int:
     return 0
 
 
+def _cmd_fpga(args) -> int:
+    from tkujax.studies.fpga import run_fpga
+    from tkujax.studies.sweep import load_params_json
+
+    params = load_params_json(args.params) if args.params else None
+    res = run_fpga(args.spec, args.out, params=params, backend=args.backend)
+    print("\n".join(res["files"]))
+    print(Path(res["summary"]).read_text())
+    return 0
+
+
 def _cmd_bench(args) -> int:
     from tkujax.bench import run_bench
 
@@ -305,6 +316,16 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("map", help="stability maps and capturability checks of a sweep folder")
     p.add_argument("dir")
     p.set_defaults(func=_cmd_map)
+
+    p = sub.add_parser("fpga", help="fixed-point FPGA controller: word lengths, CORDIC "
+                                    "iterations, latency vs the float controller's outcomes")
+    p.add_argument("spec", help="spec with controller.arithmetic = \"fixed\", e.g. "
+                                "sweeps/fpga_cpu.toml")
+    p.add_argument("--out", required=True, help="output folder (sweep/, float/, fpga/)")
+    p.add_argument("--params", default=None, help="controller parameters JSON (tkujax tune output)")
+    p.add_argument("--backend", choices=["auto", "mjx", "mujoco"], default="auto",
+                   help="auto: MJX on a GPU, MuJoCo C on a CPU")
+    p.set_defaults(func=_cmd_fpga)
 
     p = sub.add_parser("bench", help="throughput: raw MJX vs closed loop vs MuJoCo C, compile")
     p.add_argument("--out", default="results/bench/bench.json")

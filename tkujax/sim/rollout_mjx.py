@@ -5,6 +5,10 @@ quantise the leg targets to the servos' 0.088 deg resolution (straight-through g
 them for `substeps` physics steps while the push's force acts through `xfrc_applied`. A
 `lax.scan` over periods; `jax.vmap` over pushes, controller parameters and model parameters.
 
+With `RolloutConfig.fixed` set, the fixed-point controller (`tkujax.control.fixed`) runs
+instead, through `tick.control_tick_fx`; its fractional latency splits each tick's substep scan
+at a static substep (the previous command before it, the new one after).
+
 Time series come back at control rate; `tkujax.sim.metrics.outcomes` turns them into per-push
 outcomes.
 """
@@ -22,11 +26,13 @@ from tkujax.sim.mjx_import import mjx
 
 from tkujax.sim import physics
 from tkujax.control.controller import StepOverride, controller_init
+from tkujax.control.fixed import FixedPointConfig, controller_init_fx, servo_switch_substep
 from tkujax.control.params import ControllerParams
 from tkujax.model import FSR_SENSORS, LEG_ACTUATORS, ModelParams
 from tkujax.sim.push import CONTROL_PERIOD_S, Push, force_at
 from tkujax.sim.records import Outcomes, Series
-from tkujax.sim.tick import SERVO_RESOLUTION_RAD, control_tick, quantise_targets  # noqa: F401
+from tkujax.sim.tick import (SERVO_RESOLUTION_RAD, control_tick, control_tick_fx,  # noqa: F401
+                             quantise_targets)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -38,6 +44,9 @@ class RolloutConfig:
     quantise_targets: bool = True
     record_qpos: bool = False      # add the full qpos to the series (for rendering)
     remat: bool = False            # jax.checkpoint the control tick (less memory under grad)
+    # The FPGA twin of the controller (issue 15); None: the float controller (its program is
+    # unchanged by this field: the choice is a Python branch on None at trace time).
+    fixed: FixedPointConfig | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -160,6 +169,11 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
     first = int(idx.leg_actuators[0])
     assert np.array_equal(idx.leg_actuators, np.arange(first, first + len(idx.leg_actuators)))
     legs_slice = slice(first, first + len(idx.leg_actuators))
+    fixed = config.fixed
+    if fixed is not None and override is not None:
+        raise ValueError("commanded steps (override) have no fixed-point controller twin; "
+                         "use RolloutConfig(fixed=None)")
+    switch = 0 if fixed is None else servo_switch_substep(fixed, substeps)
 
     def physics_step(d, _):
         d = d.replace(xfrc_applied=_push_wrench(idx, d, push))
@@ -172,10 +186,18 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
         kg, ka = jax.random.split(tick_key)
         gyro = gyro + gyro_noise_std * jax.random.normal(kg, (3,), dtype)
         accel = accel + accel_noise_std * jax.random.normal(ka, (3,), dtype)
-        ctrl_state, legs, out = control_tick(ctrl_state, gyro, accel, params, enabled,
-                                             config.quantise_targets, override)
+        if fixed is None:
+            ctrl_state, legs, out = control_tick(ctrl_state, gyro, accel, params, enabled,
+                                                 config.quantise_targets, override)
+        else:
+            ctrl_state, legs, prev, out = control_tick_fx(ctrl_state, gyro, accel, params,
+                                                          enabled, config.quantise_targets, fixed)
+            # Fractional latency: the previous command holds until the static switch substep.
+            if switch > 0:
+                d = d.replace(ctrl=stand_ctrl.at[legs_slice].set(prev.astype(dtype)))
+                d, _ = jax.lax.scan(physics_step, d, None, length=switch)
         d = d.replace(ctrl=stand_ctrl.at[legs_slice].set(legs.astype(dtype)))
-        d, _ = jax.lax.scan(physics_step, d, None, length=substeps)
+        d, _ = jax.lax.scan(physics_step, d, None, length=substeps - switch)
         pitch, roll = physics.pitch_roll_from_quat(d.qpos[3:7])
         zmp, fsr_total = _zmp(idx, d)
         series = Series(
@@ -188,7 +210,8 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
             touchdown_s=out.touchdown_s)
         return (d, ctrl_state), series
 
-    carry = (state, controller_init(params, dtype))
+    carry = (state, controller_init(params, dtype) if fixed is None else
+             controller_init_fx(params, fixed, dtype))
     tick_fn = jax.checkpoint(tick) if config.remat else tick
     _, series = jax.lax.scan(tick_fn, carry, jax.random.split(key, n_ticks))
     return series

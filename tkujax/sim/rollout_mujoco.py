@@ -11,6 +11,10 @@ switch backends. Per control period:
      `substeps` physics steps with `mujoco.rollout` (a persistent `Rollout(nthread=...)` thread
      pool: the physics runs across all cores, the GIL released).
 
+With `RolloutConfig.fixed` the fixed-point controller runs (`tick.control_tick_fx`, one compiled
+tick per FixedPointConfig); for a fractional latency each robot's per-substep ctrl holds the
+previous command until the switch substep, exactly as in the MJX loop.
+
 The push (`push.force_at`, a half-sine force at a point of the chest axis, with its moment
 about the chest CoM, as `sim._push_wrench`) goes in through `xfrc_applied`, given to
 `mujoco.rollout` per step as part of the control (control_spec = mjSTATE_CTRL |
@@ -62,13 +66,14 @@ import numpy as np
 
 from tkujax.sim import physics
 from tkujax.control.controller import StepOverride, controller_init
+from tkujax.control.fixed import FixedPointConfig, controller_init_fx, servo_switch_substep
 from tkujax.control.params import ControllerParams
 from tkujax.sim.metrics import outcomes as _outcomes
 from tkujax.model import ModelParams
 from tkujax.sim.push import Push
 from tkujax.sim.records import Outcomes, Series
 from tkujax.sim.rollout_mjx import ModelIndex, RolloutConfig, model_index
-from tkujax.sim.tick import control_tick
+from tkujax.sim.tick import control_tick, control_tick_fx
 
 PUSH_WRENCH_MODES = ("exact", "period_start")
 
@@ -120,6 +125,14 @@ def _control_tick(states, gyro, accel, params, enabled, quantise: bool, override
     shared)."""
     step = jax.vmap(control_tick, in_axes=(0, 0, 0, None, 0, None, 0))
     return step(states, gyro, accel, params, enabled, quantise, overrides)
+
+
+@functools.partial(jax.jit, static_argnames=("quantise", "fixed"))
+def _control_tick_fx(states, gyro, accel, params, enabled, quantise: bool,
+                     fixed: FixedPointConfig):
+    """controller_step_fx over the batch: one compiled tick per FixedPointConfig."""
+    step = jax.vmap(control_tick_fx, in_axes=(0, 0, 0, None, 0, None, None))
+    return step(states, gyro, accel, params, enabled, quantise, fixed)
 
 
 @jax.jit
@@ -232,9 +245,15 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
             lambda v: jnp.broadcast_to(jnp.asarray(v, jnp.float32), (n,)),
             dataclasses.replace(overrides, onset_s=pushes.onset_s))
     qv = setup.qvel_slice
+    fixed = config.fixed
+    if fixed is not None and overrides is not None:
+        raise ValueError("commanded steps (overrides) have no fixed-point controller twin; "
+                         "use RolloutConfig(fixed=None)")
+    switch = 0 if fixed is None else servo_switch_substep(fixed, substeps)
 
-    ctrl_state = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (n,) + x.shape),
-                                        controller_init(params, jnp.float32))
+    init = (controller_init(params, jnp.float32) if fixed is None else
+            controller_init_fx(params, fixed, jnp.float32))
+    ctrl_state = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (n,) + x.shape), init)
     state = np.tile(setup.state0, (n, 1))                 # current state
     pose_state = state.copy()     # whose kinematics MJX's d.xpos holds (before the last step)
     warm = np.tile(setup.warmstart0, (n, 1))
@@ -261,30 +280,41 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
         accel = sensordata[:, idx.accel_adr:idx.accel_adr + 3]
         gyro = gyro + gyro_noise_std * rng.standard_normal((n, 3))
         accel = accel + accel_noise_std * rng.standard_normal((n, 3))
-        ctrl_state, legs, out = _control_tick(ctrl_state, jnp.asarray(gyro, jnp.float32),
-                                              jnp.asarray(accel, jnp.float32), params,
-                                              enabled_j, config.quantise_targets, overrides)
+        gyro_j, accel_j = jnp.asarray(gyro, jnp.float32), jnp.asarray(accel, jnp.float32)
+        if fixed is None:
+            ctrl_state, legs, out = _control_tick(ctrl_state, gyro_j, accel_j, params,
+                                                  enabled_j, config.quantise_targets, overrides)
+        else:
+            ctrl_state, legs, prev, out = _control_tick_fx(ctrl_state, gyro_j, accel_j, params,
+                                                           enabled_j, config.quantise_targets,
+                                                           fixed)
         ctrl = np.tile(stand_ctrl, (n, 1))
         ctrl[:, idx.leg_actuators] = np.asarray(legs, np.float64)
+        # Per physics substep (n, substeps, nu): the previous command until the switch substep
+        # (fractional latency of the fixed-point controller), then the new one.
+        ctrl_steps = np.repeat(ctrl[:, None, :], substeps, 1)
+        if switch > 0:
+            ctrl_steps[:, :switch, idx.leg_actuators] = np.asarray(prev, np.float64)[:, None, :]
 
         t_steps = state[:, :1] + dt * np.arange(substeps)[None, :]      # (n, substeps)
         force = _force(p, t_steps)
         pushed = bool(np.any(force != 0.0))
         if not pushed:
-            states, sens, warm = run(state, warm, ctrl[:, None, :], _CTRL, substeps)
+            states, sens, warm = run(state, warm, ctrl_steps if switch > 0 else ctrl[:, None, :],
+                                     _CTRL, substeps)
             pose_state = states[:, -2] if substeps > 1 else state
             state, sensordata = states[:, -1], sens[:, -1]
         elif push_wrench == "period_start":
             control = np.zeros((n, substeps, ctrl_spec_size))
-            control[:, :, :nu] = ctrl[:, None, :]
+            control[:, :, :nu] = ctrl_steps
             control[:, :, xfrc_cols] = _wrench(idx, kin.chest(pose_state), p["height_m"], force)
             states, sens, warm = run(state, warm, control, _CTRL_XFRC, substeps)
             pose_state = states[:, -2] if substeps > 1 else state
             state, sensordata = states[:, -1], sens[:, -1]
         else:   # exact: one step per call, the wrench from the pose MJX would use
             control = np.zeros((n, 1, ctrl_spec_size))
-            control[:, 0, :nu] = ctrl
             for j in range(substeps):
+                control[:, 0, :nu] = ctrl_steps[:, j]
                 f = force[:, j:j + 1]
                 control[:, :, xfrc_cols] = _wrench(idx, kin.chest(pose_state), p["height_m"], f)
                 states, sens, warm = run(state, warm, control, _CTRL_XFRC, 1)

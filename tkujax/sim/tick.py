@@ -8,6 +8,10 @@ Only the physics half differs, and it cannot be shared: MJX steps inside a trace
 (`rollout_mjx.rollout`), while MuJoCo C steps a whole batch per `mujoco.rollout` call from
 numpy, outside any trace (`rollout_mujoco.simulate_mujoco`). Everything the controller sees and
 commands goes through the functions here, so the two loops cannot drift apart in it.
+
+The fixed-point controller (issue 15, `RolloutConfig.fixed`) goes through `control_tick_fx`:
+it also returns the previous command, which both loops apply for the first
+`servo_switch_substep` physics substeps of the tick (the fractional latency).
 """
 
 from __future__ import annotations
@@ -17,7 +21,9 @@ import math
 import jax
 import jax.numpy as jnp
 
-from tkujax.control.controller import ControllerState, Sensors, StepOverride, controller_step
+from tkujax.control.controller import (_NOT_STARTED_S, ControllerOutput, ControllerState, Sensors,
+                                      StepOverride, _land_time, controller_step)
+from tkujax.control.fixed import FixedControllerState, FixedPointConfig, controller_step_fx
 from tkujax.control.params import ControllerParams
 
 SERVO_RESOLUTION_RAD = math.radians(360.0 / 4096.0)   # 0.088 deg, Dynamixel MX [paper Table 1]
@@ -40,3 +46,26 @@ def control_tick(ctrl_state: ControllerState, gyro: jax.Array, accel: jax.Array,
     legs = quantise_targets(out.leg_targets) if quantise else out.leg_targets
     return ctrl_state, legs, out
 
+
+
+def control_tick_fx(ctrl_state: FixedControllerState, gyro: jax.Array, accel: jax.Array,
+                    params: ControllerParams, enabled, quantise: bool, fixed: FixedPointConfig):
+    """`control_tick` with the fixed-point controller (`tkujax.control.fixed`).
+
+    Returns (new state, leg targets (12,) rad after the latency, the previous command (12,)
+    that the servos hold for the first `servo_switch_substep(fixed, substeps)` physics substeps
+    of the tick, the controller's output as a `ControllerOutput`). Commanded steps
+    (StepOverride) have no fixed-point twin."""
+    ctrl_state, out = controller_step_fx(ctrl_state, Sensors(gyro, accel), params, enabled, fixed)
+    q = quantise_targets if quantise else (lambda x: x)
+    dtype = out.phi.dtype
+    dt = jnp.asarray(params.control_period, dtype)
+    # When the executed step lands: the float controller's definition, moved later by the
+    # whole-tick latency of the command (the fraction shifts it by less than a physics step
+    # resolution of the touchdown detection anyway: included for consistency).
+    start = jnp.where(ctrl_state.stepping, ctrl_state.step_start_tick.astype(dtype) * dt,
+                      jnp.asarray(_NOT_STARTED_S, dtype))
+    touchdown = start + _land_time(params.step_period, params) + fixed.latency_periods * dt
+    out_f = ControllerOutput(out.leg_targets, out.phi, out.roll, out.gate, out.reachable,
+                             touchdown)
+    return ctrl_state, q(out.leg_targets), q(out.leg_targets_prev), out_f

@@ -88,14 +88,17 @@ def replay(run_dir: str | Path, index: int) -> dict:
     if backend == "mujoco":
         res = mujoco_chunk(inputs, spec.seed + chunk, base, spec.duration_s, model_params,
                            with_qpos=True, varied=tuple(sorted(spec.controller_grid)),
-                           steps=bool(spec.step_grid))
+                           steps=bool(spec.step_grid),
+                           fpga=spec.fpga if spec.arithmetic == "fixed" else None,
+                           fpga_varied=tuple(sorted(spec.fpga_grid)))
         res = {k: v[pos] for k, v in res.items()}
     else:
         import jax
 
         padded = int(manifest.get("padded_chunk", size))
         fn = make_chunk_fn(tuple(sorted(spec.controller_grid)), spec.duration_s,
-                           model_params, with_qpos=True, steps=bool(spec.step_grid))
+                           model_params, with_qpos=True, steps=bool(spec.step_grid),
+                           fixed=spec.fixed_point_config({k: v[pos] for k, v in inputs.items()}))
         one = {k: np.asarray(v[pos:pos + 1], np.float32) for k, v in inputs.items()}
         key = chunk_keys(spec.seed, chunk, padded)[pos:pos + 1]
         res = jax.tree_util.tree_map(lambda x: np.asarray(x)[0], fn(one, key, traced_params(base)))

@@ -35,6 +35,18 @@ record carries an onset_phase column (derived from onset_s when not given).
     [controller.grid]          # ControllerParams varied as a grid (crossed with the pushes)
     [randomize]                # per-push model/sensor randomisation ({uniform = [lo, hi]} or a value)
 
+FPGA fixed-point controller (issue 15; `tkujax.control.fixed`):
+
+    [controller]
+    arithmetic = "fixed"       # default "float"; "fixed" runs controller_step_fx in the loop
+    [fpga]                     # FixedPointConfig fields (FPGA_FIELDS); unset keys keep its defaults
+    angle_frac_bits = 15       # <group>_int_bits / <group>_frac_bits for angle, rate, length,
+    cordic_iterations = 16     #   accel, unit, state, cov; angle_state_frac_bits sets both
+    latency_ticks = 0          #   angle and state fraction bits; coef_bits, cordic_guard_bits,
+    latency_frac = 0.0         #   rounding ("nearest" / "truncate")
+    [controller.grid]
+    fpga.cordic_iterations = [6, 8, 12]   # any [fpga] key gridded: one record column fpga_<key>
+
     [step]                     # capture regions: commanded recovery steps (tkujax.control.StepOverride)
     reference = true           # also run each push with the controller's own step
     [step.grid]                # crossed with every push record; x_m, y_m: swing ankle vs its stand
@@ -48,12 +60,15 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
+import re
 import tomllib
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from tkujax.control.fixed.config import GROUP_INT_BITS, MAX_GROUP_WORD_BITS, FixedPointConfig
+from tkujax.control.fixed.qformat import ROUNDING_MODES, QFormat
 from tkujax.sim.push import onset_from_phase, onset_phase
 
 
@@ -108,6 +123,20 @@ STEP_FIELDS = {
     "from_detection": (0.0, 1.0, 0.0, "(0 = after onset, 1 = after detection)"),
     "period_s": (0.0, 2.0, 0.0, "s (0 = the controller's step_period)"),
 }
+ARITHMETIC = ("float", "fixed")
+# [fpga] keys -> FixedPointConfig fields: name: (lo, hi, unit). All integers except latency_frac
+# (and rounding, a name: FPGA_ROUNDING). The frac-bit bound here is the loosest one; the word
+# limit (1 + int + frac <= 26) is checked on the assembled FixedPointConfig.
+FPGA_GROUPS = tuple(GROUP_INT_BITS)
+FPGA_FIELDS = (
+    {f"{g}_int_bits": (lo, hi, "bits") for g, (lo, hi) in GROUP_INT_BITS.items()}
+    | {f"{g}_frac_bits": (1, MAX_GROUP_WORD_BITS - 1, "bits") for g in FPGA_GROUPS}
+    | {"angle_state_frac_bits": (1, MAX_GROUP_WORD_BITS - 3, "bits (angle and state together)"),
+       "coef_bits": (12, 31, "bits"), "cordic_iterations": (1, 30, "iterations"),
+       "cordic_guard_bits": (0, 3, "bits"), "latency_ticks": (0, 100, "control periods"),
+       "latency_frac": (0.0, 1.0, "(fraction of a control period; 1 excluded)"),
+       "rounding": (0, len(ROUNDING_MODES) - 1, f"(one of {ROUNDING_MODES})")})
+FPGA_COLUMN = "fpga_"   # record column prefix of a gridded [fpga] key
 SWEEP_FIELDS = {"name": str, "seed": int, "chunk_size": int, "duration_s": (int, float),
                 "control": list, "description": str}
 
@@ -131,6 +160,16 @@ class SweepSpec:
     phase_default: bool = False   # [push.random] draws onset_phase uniformly by default
     step_grid: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
     step_reference: bool = True
+    arithmetic: str = "float"
+    fpga: dict[str, Any] = dataclasses.field(default_factory=dict)
+    fpga_grid: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
+
+    def fixed_point_config(self, rec: dict | None = None) -> FixedPointConfig | None:
+        """The FixedPointConfig of a record (its fpga_* columns over [fpga]); None for float."""
+        if self.arithmetic != "fixed":
+            return None
+        grid = {k: rec[FPGA_COLUMN + k] for k in self.fpga_grid} if rec is not None else {}
+        return fixed_point_config(self.fpga | grid)
 
     def records(self) -> dict[str, np.ndarray]:
         """Expand into one record per push (columns of equal length, deterministic order)."""
@@ -212,7 +251,7 @@ def parse_randomize(data: dict) -> dict[str, Any]:
 
 def parse_spec(data: dict) -> SweepSpec:
     """Validate a parsed TOML document."""
-    _table("top level", data, {"sweep", "push", "controller", "randomize", "step"})
+    _table("top level", data, {"sweep", "push", "controller", "randomize", "step", "fpga"})
     sweep = _table("sweep", data.get("sweep", {}), SWEEP_FIELDS)
     for k, types in SWEEP_FIELDS.items():
         if k in sweep and (isinstance(sweep[k], bool) or not isinstance(sweep[k], types)):
@@ -253,10 +292,12 @@ def parse_spec(data: dict) -> SweepSpec:
     if not push_grid and n_random == 0:
         raise SpecError("[push]: give a [push.grid] or [push.random] with n > 0: nothing to run")
 
-    ctrl = _table("controller", data.get("controller", {}), set(CONTROLLER_FIELDS) | {"grid"})
+    ctrl = _table("controller", data.get("controller", {}),
+                  set(CONTROLLER_FIELDS) | {"grid", "arithmetic"})
     controller = {k: _number(f"controller.{k}", v, *CONTROLLER_FIELDS[k])
-                  for k, v in ctrl.items() if k != "grid"}
-    cgrid = _table("controller.grid", ctrl.get("grid", {}), CONTROLLER_FIELDS)
+                  for k, v in ctrl.items() if k not in ("grid", "arithmetic")}
+    cgrid = dict(_table("controller.grid", ctrl.get("grid", {}), set(CONTROLLER_FIELDS) | {"fpga"}))
+    arithmetic, fpga, fpga_grid = _parse_fpga(data, ctrl, cgrid.pop("fpga", {}))
     controller_grid = {k: _values(f"controller.grid.{k}", v, *CONTROLLER_FIELDS[k])
                        for k, v in cgrid.items()}
     both = sorted(set(controller) & set(controller_grid))
@@ -265,13 +306,89 @@ def parse_spec(data: dict) -> SweepSpec:
 
     randomize = parse_randomize(data)
     step_grid, step_reference = _parse_step(data)
+    if arithmetic == "fixed" and step_grid:
+        raise SpecError("[step]: commanded steps have no fixed-point controller twin; "
+                        "use controller.arithmetic = \"float\"")
     return SweepSpec(name=sweep.get("name", "sweep"), seed=sweep.get("seed", 0),
                      chunk_size=chunk, duration_s=duration, control=control,
                      push_grid=push_grid, push_random=push_random, n_random=n_random,
                      controller=controller, controller_grid=controller_grid,
                      randomize=randomize, raw=data, phase_default=phase_default,
                      step_grid=step_grid,
-                     step_reference=step_reference)
+                     step_reference=step_reference, arithmetic=arithmetic, fpga=fpga,
+                     fpga_grid=fpga_grid)
+
+
+def _fpga_value(key: str, name: str, value):
+    """One [fpga] value: an int in range, latency_frac in [0, 1), rounding as its index."""
+    lo, hi, unit = FPGA_FIELDS[name]
+    if name == "rounding":
+        if value not in ROUNDING_MODES:
+            raise SpecError(f"{key}: expected one of {list(ROUNDING_MODES)}, got {value!r}")
+        return ROUNDING_MODES.index(value)
+    v = _number(key, value, lo, hi, unit)
+    if name == "latency_frac":
+        if v >= 1.0:
+            raise SpecError(f"{key}: {value!r} is out of range [0, 1) {unit}")
+        return v
+    if isinstance(value, float) and not value.is_integer():
+        raise SpecError(f"{key}: expected an integer in [{lo}, {hi}] {unit}, got {value!r}")
+    return int(v)
+
+
+def fixed_point_config(values: dict) -> FixedPointConfig:
+    """FixedPointConfig from [fpga] values (rounding by name or index); defaults elsewhere.
+
+    straight_through is off: sweeps take no gradient, so the float shadow would only cost time.
+    Raises SpecError naming the [fpga] key (e.g. a word over 26 bits)."""
+    base = FixedPointConfig()
+    fmt = {g: [getattr(base, g).int_bits, getattr(base, g).frac_bits] for g in FPGA_GROUPS}
+    kw: dict[str, Any] = {"straight_through": False}
+    for k, v in values.items():
+        if k == "angle_state_frac_bits":
+            fmt["angle"][1] = fmt["state"][1] = int(v)
+        elif k.rsplit("_", 2)[0] in fmt and k.endswith(("_int_bits", "_frac_bits")):
+            fmt[k.rsplit("_", 2)[0]][k.endswith("_frac_bits")] = int(v)
+        elif k == "rounding":
+            kw[k] = v if isinstance(v, str) else ROUNDING_MODES[int(v)]
+        else:
+            kw[k] = float(v) if k == "latency_frac" else int(v)
+    try:
+        return FixedPointConfig(**{g: QFormat(*f) for g, f in fmt.items()}, **kw)
+    except ValueError as err:   # name the spec's key, not the dataclass field
+        msg = re.sub(r"FixedPointConfig\.(\w+)\.(int_bits|frac_bits)", r"fpga.\1_\2", str(err))
+        raise SpecError(msg.replace("FixedPointConfig.", "fpga.")) from None
+
+
+def _parse_fpga(data: dict, ctrl: dict, grid: dict):
+    """(arithmetic, [fpga] values, [controller.grid] fpga.* arrays), every combination checked."""
+    arithmetic = ctrl.get("arithmetic", "float")
+    if arithmetic not in ARITHMETIC:
+        raise SpecError(f"controller.arithmetic: expected one of {list(ARITHMETIC)}, "
+                        f"got {arithmetic!r}")
+    table = _table("fpga", data.get("fpga", {}), FPGA_FIELDS)
+    fpga = {k: _fpga_value(f"fpga.{k}", k, v) for k, v in table.items()}
+    grid = _table("controller.grid.fpga", grid, FPGA_FIELDS)
+    fpga_grid = {}
+    for k, v in grid.items():
+        items = v if isinstance(v, list) else [v]
+        if not items:
+            raise SpecError(f"controller.grid.fpga.{k}: empty list")
+        fpga_grid[k] = np.array([_fpga_value(f"controller.grid.fpga.{k}[{i}]", k, x)
+                                 for i, x in enumerate(items)], float)
+    both = sorted(set(fpga) & set(fpga_grid))
+    if both:
+        raise SpecError(f"fpga: {both} set both in [fpga] and in [controller.grid]")
+    given = set(fpga) | set(fpga_grid)
+    if "angle_state_frac_bits" in given and given & {"angle_frac_bits", "state_frac_bits"}:
+        raise SpecError("fpga.angle_state_frac_bits sets angle_frac_bits and state_frac_bits: "
+                        "give either it or them")
+    if given and arithmetic != "fixed":
+        raise SpecError("[fpga] settings need controller.arithmetic = \"fixed\"")
+    if arithmetic == "fixed":   # every configuration the sweep will build, checked up front
+        for combo in itertools.product(*fpga_grid.values()):
+            fixed_point_config(fpga | dict(zip(fpga_grid, combo)))
+    return arithmetic, fpga, fpga_grid
 
 
 def _parse_step(data: dict) -> tuple[dict[str, np.ndarray], bool]:
@@ -344,7 +461,8 @@ def expand(spec: SweepSpec) -> dict[str, np.ndarray]:
     pushes[PHASE_KEY] = np.where(given, pushes[PHASE_KEY], onset_phase(pushes["onset_s"]))
     n_push = n_grid + spec.n_random
 
-    cgrid = spec.controller_grid
+    # [fpga] grid points are crossed like controller-grid points (one column fpga_<key> each).
+    cgrid = spec.controller_grid | {FPGA_COLUMN + k: v for k, v in spec.fpga_grid.items()}
     combos = list(itertools.product(*cgrid.values())) if cgrid else [()]
     is_grid = np.arange(n_push) < n_grid
     records: dict[str, list] = {k: [] for k in fields}

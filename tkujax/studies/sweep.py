@@ -43,7 +43,8 @@ from tkujax.model import ModelParams
 from tkujax.sim.push import Push
 from tkujax.sim.rollout_mjx import RolloutConfig, model_index, rollout
 from tkujax.studies import chunks
-from tkujax.studies.spec import SpecError, SweepSpec, load_spec
+from tkujax.control.fixed import FixedPointConfig
+from tkujax.studies.spec import FPGA_COLUMN, SpecError, SweepSpec, fixed_point_config, load_spec
 
 OUTCOME_KEYS = ("fell", "diverged", "recovery_time_s", "step_length_m", "step_width_m",
                 "peak_incl_deg", "capture_point_m", "capture_point_y_m", "zmp_excursion_m")
@@ -134,10 +135,9 @@ def traced_params(params: ControllerParams) -> ControllerParams:
     return jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), params)
 
 
-@functools.lru_cache(maxsize=8)
 def make_chunk_fn(varied: tuple[str, ...], duration_s: float,
                   model_params: ModelParams | None = None, with_qpos: bool = False,
-                  steps: bool = False):
+                  steps: bool = False, fixed: FixedPointConfig | None = None):
     """jit(vmap) of push records -> outcomes: f(batch, keys, params) with `params` a
     ControllerParams shared by the batch (pass it through `traced_params`), and `varied` the
     controller fields given per record instead (a [controller.grid]).
@@ -146,11 +146,20 @@ def make_chunk_fn(varied: tuple[str, ...], duration_s: float,
     batch shape (tuned sets, the paper's, a grid); cached per (varied, duration, model), so
     sweeps, `tkujax paper`-style evaluations and the bench in one process share it.
     with_qpos: also return the state at every control period ("qpos", for replay).
-    steps: records carry a commanded step (step_* columns, a [step] sweep)."""
+    steps: records carry a commanded step (step_* columns, a [step] sweep).
+    fixed: run the fixed-point controller with this (static) FixedPointConfig; one compiled
+    program per distinct config (word lengths change the program; `fpga_groups`)."""
+    # Positional call into the cache: lru_cache keys f(a, b) and f(a, b, steps=False) apart,
+    # which would compile the same program twice.
+    return _make_chunk_fn(tuple(varied), duration_s, model_params, with_qpos, steps, fixed)
+
+
+@functools.lru_cache(maxsize=16)
+def _make_chunk_fn(varied, duration_s, model_params, with_qpos, steps, fixed):
     host = physics.host_model(model_params)
     model, index = physics.device_model(model_params), model_index(model_params)
     state = physics.stand_state(host, 1.0)
-    config = RolloutConfig(duration_s=duration_s, record_qpos=with_qpos)
+    config = RolloutConfig(duration_s=duration_s, record_qpos=with_qpos, fixed=fixed)
     chest = index.chest_body
 
     def one(rec, key, base_params):
@@ -194,21 +203,27 @@ def _capture_outcomes_batch(series, onset_s, gravity):
 
 def mujoco_chunk(batch: dict, seed: int, base: ControllerParams, duration_s: float,
                  model_params: ModelParams | None, with_qpos: bool = False,
-                 varied: tuple[str, ...] = (), steps: bool = False) -> dict:
+                 varied: tuple[str, ...] = (), steps: bool = False,
+                 fpga: dict | None = None, fpga_varied: tuple[str, ...] = ()) -> dict:
     """One chunk on MuJoCo C (tkujax.sim.rollout_mujoco), outcomes (and qpos) as numpy: one
     batch per controller-grid point present in the chunk (`varied` names the grid's fields; the
     controller's parameters are shared by a batch there). steps: records carry a commanded step
-    (step_* columns, a [step] sweep) and get the capture-region columns too."""
+    (step_* columns, a [step] sweep) and get the capture-region columns too. fpga: the [fpga]
+    values of a fixed-point sweep (None: float controller), fpga_varied: its gridded keys
+    (columns fpga_<key>): one batch per (controller-grid point, FixedPointConfig)."""
     from tkujax.sim.rollout_mujoco import simulate_mujoco
 
     n = len(batch["impulse_ns"])
-    grid = np.stack([batch[k] for k in varied], 1) if varied else np.zeros((n, 0))
+    cols = list(varied) + [FPGA_COLUMN + k for k in fpga_varied]
+    grid = np.stack([batch[k] for k in cols], 1) if cols else np.zeros((n, 0))
     points, which = np.unique(grid, axis=0, return_inverse=True)
     res = {}
     for j, point in enumerate(points):
         sel = np.flatnonzero(which.ravel() == j)
         # Python floats: one compiled controller tick for every grid point (values are traced).
         params = controller_params_from(base, {k: float(v) for k, v in zip(varied, point)})
+        fixed = None if fpga is None else fixed_point_config(
+            fpga | dict(zip(fpga_varied, point[len(varied):])))
         pushes = Push(*(jnp.asarray(v[sel], jnp.float32) for v in (
             batch["impulse_ns"], np.radians(batch["azimuth_deg"]), batch["height_m"],
             batch["duration_s"], batch["onset_s"])))
@@ -218,7 +233,7 @@ def mujoco_chunk(batch: dict, seed: int, base: ControllerParams, duration_s: flo
             pushes, batch["control"][sel].astype(np.float32), params, seed=seed,
             gyro_noise_std=float(batch["gyro_noise_std"][0]),
             accel_noise_std=float(batch["accel_noise_std"][0]), model_params=model_params,
-            config=RolloutConfig(duration_s=duration_s, record_qpos=with_qpos),
+            config=RolloutConfig(duration_s=duration_s, record_qpos=with_qpos, fixed=fixed),
             overrides=overrides)
         fields = {k: np.asarray(out[k]) for k in OUTCOME_KEYS}
         if with_qpos:
@@ -238,6 +253,8 @@ def _spec_hash(spec: SweepSpec, params: ControllerParams, model_params: ModelPar
     p = {k: v for k, v in dataclasses.asdict(params).items()
          if not (k in _LATER_FIELDS and v == _LATER_FIELDS[k])}
     parts = [spec.raw, p, dataclasses.asdict(model_params)]
+    if spec.arithmetic == "fixed":   # the FixedPointConfig defaults fill every unset [fpga] key
+        parts.append({"fixed_point_defaults": dataclasses.asdict(FixedPointConfig())})
     if spec.phase_default:   # random onsets changed meaning when the phase axis came in
         parts.append("push.random.onset_phase: uniform [0, 1) by default")
     blob = json.dumps(parts, sort_keys=True, default=str)
@@ -347,6 +364,8 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
                     versions=_versions(), git_commit=_git_commit(),
                     devices=[str(d) for d in jax.devices()], num_processes=num_processes,
                     backend=backend, format="npz chunks, one record per push")
+    if spec.arithmetic == "fixed":
+        manifest["fixed_point_defaults"] = dataclasses.asdict(FixedPointConfig())
     chunks.clean_temporaries(out)
     # Every writer (re)states the description; the chunk entries are kept (see chunks.py).
     chunks.update_manifest(out, lambda m: {**manifest, "complete": False,
@@ -361,8 +380,8 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
     varied = tuple(sorted(spec.controller_grid))
     base = controller_params_from(params, spec.controller)
     steps = bool(spec.step_grid)
-    fn = (make_chunk_fn(varied, spec.duration_s, model_params, steps=steps) if backend == "mjx"
-          else None)
+    fpga = spec.fpga if spec.arithmetic == "fixed" else None
+    fpga_varied = tuple(sorted(spec.fpga_grid))
     base_traced = traced_params(base)
     input_keys = [k for k in recs if k not in ("push_id", "from_grid", "case_id")]
 
@@ -392,14 +411,24 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
                 if backend == "mujoco":
                     res = mujoco_chunk({k: recs[k][lo:hi] for k in input_keys}, spec.seed + i,
                                        base, spec.duration_s, model_params, varied=varied,
-                                       steps=steps)
+                                       steps=steps, fpga=fpga, fpga_varied=fpga_varied)
                 else:
-                    batch = {k: np.resize(recs[k][lo:hi], padded).astype(np.float32)
-                             for k in input_keys}
-                    batch = {k: jax.device_put(v, sharding) for k, v in batch.items()}
-                    keys = jax.device_put(chunk_keys(spec.seed, i, padded), sharding)
-                    res = jax.tree_util.tree_map(lambda x: np.asarray(x)[:hi - lo],
-                                                 fn(batch, keys, base_traced))
+                    keys = chunk_keys(spec.seed, i, padded)
+                    res = {}
+                    for fixed, sel in fpga_groups(spec, {k: recs[k][lo:hi] for k in recs}):
+                        # Each FixedPointConfig is its own program, compiled once for the
+                        # padded chunk shape; a chunk straddling configs runs once per config
+                        # present (specs whose chunk_size divides the pushes per config avoid
+                        # that). Each record keeps its own noise key.
+                        rows = np.resize(sel, padded)
+                        batch = {k: jax.device_put(recs[k][lo:hi][rows].astype(np.float32),
+                                                   sharding) for k in input_keys}
+                        fn = make_chunk_fn(varied, spec.duration_s, model_params, steps=steps,
+                                           fixed=fixed)
+                        part = fn(batch, jax.device_put(keys[rows], sharding), base_traced)
+                        for k, v in part.items():
+                            v = np.asarray(v)[:len(sel)]
+                            res.setdefault(k, np.empty((hi - lo,) + v.shape[1:], v.dtype))[sel] = v
                 chunks.write_chunk(out, i, {k: recs[k][lo:hi] for k in recs} | res)
             finally:
                 chunks.release(out, i)
@@ -436,6 +465,18 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
                 "n_diverged": sum(entries[c].get("n_diverged", 0) for c in recorded)}
 
     return chunks.update_manifest(out, finish)
+
+
+def fpga_groups(spec: SweepSpec, rec: dict) -> list[tuple[FixedPointConfig | None, np.ndarray]]:
+    """The records' (FixedPointConfig, row indices) groups: one static config per compiled
+    program. A float sweep, or one without an fpga grid, is a single group of every row."""
+    n = len(rec["impulse_ns"])
+    if not spec.fpga_grid:
+        return [(spec.fixed_point_config(), np.arange(n))]
+    cols = [FPGA_COLUMN + k for k in spec.fpga_grid]
+    points, which = np.unique(np.stack([rec[c] for c in cols], 1), axis=0, return_inverse=True)
+    return [(spec.fixed_point_config(dict(zip(cols, p))), np.flatnonzero(which.ravel() == j))
+            for j, p in enumerate(points)]
 
 
 def chunk_keys(seed: int, chunk: int, padded: int) -> jax.Array:

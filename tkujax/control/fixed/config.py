@@ -31,6 +31,7 @@ MAX_GROUP_WORD_BITS = 26
 # angle wrap of the CORDIC); the others are physical ranges wide enough for any push.
 _INT_BITS = {"angle": (2, 3), "rate": (0, 8), "length": (0, 4), "accel": (1, 6),
              "unit": (1, 3), "state": (2, 3), "cov": (-12, 4)}
+GROUP_INT_BITS = _INT_BITS   # public view (spec validation names these ranges)
 
 
 @dataclasses.dataclass(frozen=True)

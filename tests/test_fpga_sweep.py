@@ -1,0 +1,237 @@
+"""The fixed-point (FPGA) controller in sweeps (issue 15): spec keys, the closed loop on MuJoCo C
+against the float controller, latency, a gridded fpga key, and the study's analysis."""
+
+import copy
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from tkujax.control.controller import controller_init
+from tkujax.control.fixed import FixedPointConfig, controller_init_fx
+from tkujax.control.params import ControllerParams
+from tkujax.sim.push import Push
+from tkujax.sim.rollout_mjx import RolloutConfig
+from tkujax.sim.rollout_mujoco import simulate_mujoco
+from tkujax.sim.tick import control_tick, control_tick_fx
+from tkujax.studies.fpga import analyse, float_reference_spec
+from tkujax.studies.spec import SpecError, fixed_point_config, parse_spec
+from tkujax.studies.sweep import _spec_hash, load, run_sweep
+
+BASE = {"sweep": {"name": "f", "chunk_size": 4, "duration_s": 1.5, "control": ["on"]},
+        "push": {"grid": {"impulse_ns": [0.5, 2.2], "onset_s": [0.3]}},
+        "controller": {"arithmetic": "fixed"}}
+
+
+def _with(path: str, value, data=BASE):
+    data = copy.deepcopy(data)
+    *parents, leaf = path.split(".")
+    node = data
+    for p in parents:
+        node = node.setdefault(p, {})
+    node[leaf] = value
+    return data
+
+
+@pytest.mark.parametrize("path, value, match", [
+    ("controller.arithmetic", "double", r"controller.arithmetic: expected one of \['float', 'fixed'\]"),
+    ("fpga.bogus_bits", 8, r"\[fpga\]: unknown key\(s\) \['bogus_bits'\]"),
+    ("fpga.cordic_iterations", 0, r"fpga.cordic_iterations: 0 is out of range \[1, 30\]"),
+    ("fpga.cordic_iterations", 8.5, r"fpga.cordic_iterations: expected an integer in \[1, 30\]"),
+    ("fpga.cordic_guard_bits", 4, r"fpga.cordic_guard_bits: 4 is out of range \[0, 3\]"),
+    ("fpga.coef_bits", 40, r"fpga.coef_bits: 40 is out of range \[12, 31\]"),
+    ("fpga.latency_ticks", -1, r"fpga.latency_ticks: -1 is out of range \[0, 100\]"),
+    ("fpga.latency_frac", 1.0, r"fpga.latency_frac: 1.0 is out of range \[0, 1\)"),
+    ("fpga.rounding", "up", r"fpga.rounding: expected one of \['nearest', 'truncate'\]"),
+    ("fpga.angle_int_bits", 1, r"fpga.angle_int_bits: 1 is out of range \[2, 3\]"),
+    # the word limit is checked on the assembled config: 1 + 2 + 24 > 26
+    ("fpga.angle_frac_bits", 24, r"fpga.angle_frac_bits must be in \[1, 23\]"),
+    ("controller.grid.fpga.latency_ticks", [0, 101], r"controller.grid.fpga.latency_ticks\[1\]: 101"),
+    ("controller.grid.fpga.rounding", ["nearest", "floor"], r"controller.grid.fpga.rounding\[1\]"),
+    ("controller.grid.fpga.nope", [1], r"\[controller.grid.fpga\]: unknown key"),
+    ("controller.grid.fpga.state_frac_bits", [8, 24], r"fpga.state_frac_bits must be in \[1, 23\]"),
+])
+def test_bad_fpga_specs_name_the_key_and_range(path, value, match):
+    with pytest.raises(SpecError, match=match):
+        parse_spec(_with(path, value))
+
+
+def test_fpga_spec_conflicts():
+    with pytest.raises(SpecError, match=r'need controller.arithmetic = "fixed"'):
+        parse_spec(_with("controller.arithmetic", "float", _with("fpga.latency_ticks", 1)))
+    both = _with("fpga.latency_ticks", 1, _with("controller.grid.fpga.latency_ticks", [0, 1]))
+    with pytest.raises(SpecError, match=r"\['latency_ticks'\] set both"):
+        parse_spec(both)
+    with pytest.raises(SpecError, match="angle_state_frac_bits sets"):
+        parse_spec(_with("fpga.angle_frac_bits", 10,
+                         _with("controller.grid.fpga.angle_state_frac_bits", [8, 12])))
+    with pytest.raises(SpecError, match="no fixed-point controller twin"):
+        parse_spec(_with("step", {"grid": {"x_m": [0.05]}}))
+
+
+def test_fpga_spec_expands_and_hashes():
+    spec = parse_spec(_with("fpga.cordic_iterations", 10,
+                            _with("controller.grid.fpga.angle_state_frac_bits", [8, 12])))
+    rec = spec.records()
+    assert len(rec["push_id"]) == 2 * 2
+    np.testing.assert_array_equal(rec["fpga_angle_state_frac_bits"], [8, 8, 12, 12])
+    cfg = spec.fixed_point_config({k: v[2] for k, v in rec.items()})
+    assert (cfg.angle.frac_bits, cfg.state.frac_bits, cfg.cordic_iterations) == (12, 12, 10)
+    assert cfg.angle.int_bits == FixedPointConfig().angle.int_bits and not cfg.straight_through
+    # The float reference: same pushes, float controller; different hashes.
+    ref = float_reference_spec(spec)
+    assert ref.arithmetic == "float" and not ref.fpga_grid and ref.fixed_point_config() is None
+    assert len(ref.records()["push_id"]) == 2
+    p = ControllerParams.paper()
+    h = {_spec_hash(s, p) for s in (spec, ref, parse_spec(_with("fpga.cordic_iterations", 11,
+         _with("controller.grid.fpga.angle_state_frac_bits", [8, 12]))))}
+    assert len(h) == 3
+
+
+def test_old_sweeps_keep_their_hash():
+    """A float sweep written before issue 15 still resumes: its stored hash is reproduced."""
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[1] / "results"
+    manifests = sorted(root.glob("*/manifest.json"))
+    assert manifests, "no committed sweep manifest to check against"
+    for path in manifests:
+        m = json.loads(path.read_text())
+        spec = parse_spec(m["spec"])
+        if spec.arithmetic == "fixed":
+            continue
+        fields = set(ControllerParams.__dataclass_fields__)
+        params = ControllerParams(**{k: v for k, v in m["controller_params"].items() if k in fields})
+        assert _spec_hash(spec, params) == m["spec_hash"], path
+
+
+# --- Closed loop on MuJoCo C (the fixed tick compiles in seconds) ---
+
+PUSHES = Push(jnp.asarray([0.5, 1.2, 2.2, 1.0, 1.8]), jnp.radians(jnp.asarray([0., 180, 0, 90, 270])),
+              jnp.full(5, 0.36), jnp.full(5, 0.02), jnp.full(5, 0.3))
+PARAMS = ControllerParams.paper()
+
+
+def _sim(fixed, pushes=PUSHES):
+    n = int(pushes.impulse_ns.shape[0])
+    return simulate_mujoco(pushes, np.ones(n, np.float32), PARAMS,
+                           config=RolloutConfig(duration_s=1.5, fixed=fixed))
+
+
+@pytest.fixture(scope="module")
+def float_run():
+    return _sim(None)
+
+
+def test_wide_fixed_point_loop_matches_float(float_run):
+    s_f, o_f = float_run
+    s_x, o_x = _sim(FixedPointConfig.wide(straight_through=False))
+    np.testing.assert_array_equal(o_x["fell"], o_f["fell"])
+    assert o_f["fell"].any() and not o_f["fell"].all()     # both outcomes occur in the batch
+    np.testing.assert_allclose(o_x["step_length_m"], o_f["step_length_m"], atol=2e-3)
+    # The filtered pitch agrees through the push and the detection (ticks up to 0.42 s); after
+    # a fall the trajectories part (a one-LSB servo flip is enough), so no later comparison.
+    np.testing.assert_allclose(s_x.pitch_est[:, :14], s_f.pitch_est[:, :14], atol=1e-3)
+
+
+def test_fractional_latency_changes_the_loop(float_run):
+    """latency_frac = 0.5 holds the previous command for half a tick: the trajectory differs
+    from latency 0 (same words), while latency 0 reproduces the float outcomes here."""
+    base = fixed_point_config({})
+    _, o0 = _sim(base)
+    s_h, o_h = _sim(fixed_point_config({"latency_frac": 0.5}))
+    np.testing.assert_array_equal(o0["fell"], float_run[1]["fell"])
+    assert np.abs(o_h["step_length_m"] - o0["step_length_m"]).max() > 1e-4
+
+
+def _sensor_sequence(n=14, kick_at=4):
+    """IMU readings of a robot pitching forward from tick `kick_at` on (enough to trigger)."""
+    gyro = np.zeros((n, 3), np.float32)
+    gyro[kick_at:, 1] = 2.0                                 # rad/s about +y (pitch)
+    lean = np.full(n, PARAMS.standing_lean)
+    lean[kick_at:] += 0.5                                   # rad: the accelerometer agrees
+    accel = 9.81 * np.stack([-np.sin(lean), 0.0 * lean, np.cos(lean)], 1)
+    return jnp.asarray(gyro), jnp.asarray(accel, jnp.float32)
+
+
+def _commands(fixed):
+    state = controller_init_fx(PARAMS, fixed)
+    tick = jax.jit(control_tick_fx, static_argnums=(5, 6))
+    legs, prevs, gates = [], [], []
+    for g, a in zip(*_sensor_sequence()):
+        state, leg, prev, out = tick(state, g, a, PARAMS, 1.0, True, fixed)
+        legs.append(np.asarray(leg))
+        prevs.append(np.asarray(prev))
+        gates.append(float(out.gate))
+    return np.array(legs), np.array(prevs), np.array(gates)
+
+
+def test_latency_ticks_delays_the_servo_command_by_one_period():
+    legs0, prev0, gate0 = _commands(fixed_point_config({}))
+    legs1, prev1, gate1 = _commands(fixed_point_config({"latency_ticks": 1}))
+    assert gate0[:4].max() == 0.0 and gate0.max() == 1.0             # standing, then a push
+    assert np.abs(np.diff(legs0, axis=0)).max() > 1e-3                # and a step runs
+    np.testing.assert_array_equal(legs1[1:], legs0[:-1])
+    np.testing.assert_array_equal(legs1[0], legs0[0])        # stand command before the first
+    np.testing.assert_array_equal(gate1, gate0)              # detection itself is not delayed
+    # The command held during a fractional latency is the previous period's.
+    np.testing.assert_array_equal(prev0[1:], legs0[:-1])
+    np.testing.assert_array_equal(prev1[1:], legs1[:-1])
+    # And the float controller agrees with latency 0 on the stand command.
+    _, legs_f, _ = control_tick(controller_init(PARAMS), *(x[0] for x in _sensor_sequence()),
+                                PARAMS, 1.0, True)
+    np.testing.assert_allclose(legs0[0], legs_f, atol=2e-3)
+
+
+def test_fpga_grid_sweep_writes_one_record_per_push(tmp_path):
+    """Two configurations in one chunk: grouped into one batch per config, rows in place."""
+    data = _with("controller.grid.fpga.latency_ticks", [0, 1])
+    data["push"]["grid"]["impulse_ns"] = [0.5, 1.2]
+    data["push"]["grid"]["azimuth_deg"] = [0, 180]
+    data["sweep"]["chunk_size"] = 8
+    spec = parse_spec(data)
+    m = run_sweep(spec, tmp_path, backend="mujoco", quiet=True)
+    assert m["complete"] and m["n_pushes"] == 8 and "fixed_point_defaults" in m
+    rec = load(tmp_path)
+    np.testing.assert_array_equal(rec["push_id"], np.arange(8))
+    np.testing.assert_array_equal(rec["fpga_latency_ticks"], [0] * 4 + [1] * 4)
+    # The latency-0 rows are the direct closed loop with that configuration.
+    sel = rec["fpga_latency_ticks"] == 0
+    pushes = Push(*(jnp.asarray(v, jnp.float32) for v in (
+        rec["impulse_ns"][sel], np.radians(rec["azimuth_deg"][sel]), rec["height_m"][sel],
+        rec["duration_s"][sel], rec["onset_s"][sel])))
+    _, direct = _sim(fixed_point_config({"latency_ticks": 0}), pushes)
+    np.testing.assert_array_equal(rec["fell"][sel], direct["fell"])
+    np.testing.assert_allclose(rec["step_length_m"][sel], direct["step_length_m"], atol=1e-6)
+    again = run_sweep(spec, tmp_path, backend="mujoco", quiet=True)      # resume: nothing to do
+    assert again["chunks_computed_last_run"] == 0 and again["spec_hash"] == m["spec_hash"]
+
+
+def test_analysis_agreement_threshold_and_boundary():
+    """Synthetic records: 2 azimuths x 4 impulses; words 8 / 12; float boundary 1.0 N s."""
+    imp = np.array([0.5, 1.0, 1.5, 2.0])
+    az = np.array([0.0, 180.0])
+    A, J = [m.ravel() for m in np.meshgrid(az, imp, indexing="ij")]
+    n = len(A)
+    common = dict(impulse_ns=J, azimuth_deg=A, height_m=np.full(n, 0.36), onset_s=np.full(n, 0.3),
+                  duration_s=np.full(n, 0.02), control=np.ones(n, bool),
+                  diverged=np.zeros(n, bool), step_length_m=np.zeros(n), push_id=np.arange(n))
+    ref = dict(common, fell=J > 1.0)
+    fell8 = J > 0.5                           # boundary moves from 1.0 to 0.5: one step only
+    fell8[A == 180.0] = J[A == 180.0] > 1.5   # ... and up by one at 180
+    fixed = {k: np.concatenate([v, v]) for k, v in common.items()}
+    fixed["push_id"] = np.arange(2 * n)
+    fixed["fell"] = np.concatenate([fell8, J > 1.0])
+    fixed["fpga_angle_state_frac_bits"] = np.repeat([8.0, 12.0], n)
+    spec = parse_spec(_with("controller.grid.fpga.angle_state_frac_bits", [8, 12]))
+    res = analyse(fixed, ref, spec)
+    rows = {r["config"]["angle_state_frac_bits"]: r for r in res["configs"]}
+    assert rows[12.0]["agreement"] == 1.0 and rows[8.0]["agreement"] == 0.75
+    assert res["axes"]["angle_state_frac_bits"]["threshold"] == 12.0
+    assert res["float_boundary_ns"] == [1.0, 1.0]
+    assert rows[8.0]["boundary_ns"] == [0.5, 1.5] and not rows[8.0]["boundary_moved"]
+    fixed["fell"][:n] = J > 0.0                # now 0 at azimuth 0: two steps below the float
+    res = analyse(fixed, ref, spec)
+    rows = {r["config"]["angle_state_frac_bits"]: r for r in res["configs"]}
+    assert rows[8.0]["boundary_moved"] and rows[8.0]["moved_azimuths_deg"] == [0.0, 180.0]
