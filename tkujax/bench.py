@@ -172,8 +172,10 @@ def run_bench(out: str | Path, batches=(1024, 4096, 16384, 65536), duration_s: f
         _write(out, result)
     if cpu_batch:
         result["cpu_peer"] = cpu_peer(cpu_batch, duration_s, repeats)
+        _write(out, result)   # each stage is written as it finishes: a killed run keeps them
     if grad_batch:
         result["gradient_step"] = gradient_step(grad_batch, duration_s, repeats)
+        _write(out, result)
     if grad_compile_batch:
         result["gradient_compile"] = gradient_compile(grad_compile_batch, duration_s)
     _write(out, result)
