@@ -212,7 +212,11 @@ def summary_markdown(r: dict) -> str:
                   f"{best['physics_steps_per_s'] / c['physics_steps_per_s']:.1f}x"]
     g = r.get("gradient_step")
     if g:
-        lines += ["", f"Gradient step: {g}"]
+        lines += ["", f"Gradient step (reverse mode through the closed loop, batch {g['batch']} x "
+                  f"{g['duration_s']} s, {g['n_params']} parameters, remat {g['remat']}, float64 "
+                  f"{g['float64']}): {g['seconds']:.2f} s per step = {g['pushes_per_s']:.3g} "
+                  f"pushes/s, first call (compile) {g['first_call_s']:.0f} s, peak device memory "
+                  f"{g['peak_device_bytes'] / 2**30:.2f} GiB, gradient finite: {g['grad_finite']}."]
     md = r.get("multi_device")
     if md:
         base = md[0]["pushes_per_s"]
