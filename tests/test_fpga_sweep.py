@@ -12,6 +12,7 @@ import pytest
 from tkujax.control.controller import controller_init
 from tkujax.control.fixed import FixedPointConfig, controller_init_fx
 from tkujax.control.params import ControllerParams
+from tkujax.model import ModelParams
 from tkujax.sim.push import Push
 from tkujax.sim.rollout_mjx import RolloutConfig
 from tkujax.sim.rollout_mujoco import simulate_mujoco
@@ -85,16 +86,20 @@ def test_fpga_spec_expands_and_hashes():
     assert ref.arithmetic == "float" and not ref.fpga_grid and ref.fixed_point_config() is None
     assert len(ref.records()["push_id"]) == 2
     p = ControllerParams.paper()
-    h = {_spec_hash(s, p) for s in (spec, ref, parse_spec(_with("fpga.cordic_iterations", 11,
+    h = {_spec_hash(s, p, ModelParams()) for s in (spec, ref, parse_spec(_with("fpga.cordic_iterations", 11,
          _with("controller.grid.fpga.angle_state_frac_bits", [8, 12]))))}
     assert len(h) == 3
 
 
 def test_old_sweeps_keep_their_hash():
-    """A float sweep written before issue 15 still resumes: its stored hash is reproduced."""
+    """A float sweep written before issue 15 still resumes: its stored hash is reproduced from
+    its manifest (spec, controller and model parameters). The model entered the hash with the
+    calibration (a changed default robot is a different sweep), so every committed sweep
+    manifest records it."""
     from pathlib import Path
+    from tkujax.model.io import model_params_from_dict
     root = Path(__file__).resolve().parents[1] / "results"
-    manifests = sorted(root.glob("*/manifest.json"))
+    manifests = sorted(root.glob("*/manifest.json")) + sorted(root.glob("sweeps/*/manifest.json"))
     assert manifests, "no committed sweep manifest to check against"
     for path in manifests:
         m = json.loads(path.read_text())
@@ -103,7 +108,9 @@ def test_old_sweeps_keep_their_hash():
             continue
         fields = set(ControllerParams.__dataclass_fields__)
         params = ControllerParams(**{k: v for k, v in m["controller_params"].items() if k in fields})
-        assert _spec_hash(spec, params) == m["spec_hash"], path
+        assert "model_params" in m, path
+        model = model_params_from_dict(m["model_params"], str(path))
+        assert _spec_hash(spec, params, model) == m["spec_hash"], path
 
 
 # --- Closed loop on MuJoCo C (the fixed tick compiles in seconds) ---

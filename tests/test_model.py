@@ -54,14 +54,17 @@ def test_mass_height_dof(model):
 
 
 def test_actuators_model_the_servos(model):
+    mp = ModelParams()
     for name in JOINT_NAMES:
-        servo = MX64 if name in LEG_ACTUATORS else MX28
+        servo = mp.leg_servo if name in LEG_ACTUATORS else mp.arm_servo
         a, j = model.actuator(name), model.joint(name)
         np.testing.assert_allclose(a.forcerange, [-servo.stall_torque_nm, servo.stall_torque_nm],
                                    err_msg=name)
         assert a.gainprm[0] == pytest.approx(servo.kp_nm_per_rad), name
-        # Torque-speed line: the stall torque is used up by back-EMF damping at no-load speed.
-        assert a.forcerange[1] / j.damping[0] == pytest.approx(servo.no_load_speed_rad_s), name
+        assert j.damping[0] == pytest.approx(servo.damping_nms_per_rad), name
+        if servo.damping_override_nms_per_rad is None:
+            # Torque-speed line: the stall torque is used up by back-EMF damping at no-load speed.
+            assert a.forcerange[1] / j.damping[0] == pytest.approx(servo.no_load_speed_rad_s), name
         assert j.armature[0] == pytest.approx(servo.armature_kgm2), name
         assert j.frictionloss[0] == pytest.approx(servo.friction_loss_nm), name
         assert j.limited and j.range[0] < 0 <= j.range[1] or name.endswith("knee"), name
@@ -119,7 +122,8 @@ def test_bad_parameters_rejected(field, value, match):
 
 
 def test_valid_variant_compiles():
-    p = dataclasses.replace(ModelParams(), chest_mass_kg=0.95, total_mass_kg=4.6)
+    p = dataclasses.replace(ModelParams(), chest_mass_kg=ModelParams().chest_mass_kg + 0.1,
+                            total_mass_kg=4.6)
     assert load_model(p).body_subtreemass[1] == pytest.approx(4.6)
     assert "stand" in model_xml(p)
 

@@ -114,13 +114,13 @@ def base_vector() -> np.ndarray:
     """The vector of today's default model and controller (ModelParams(), ControllerParams()):
     the values of the parameters a calibration holds fixed. Read from the dataclasses rather than
     DEFAULT, so it follows the default model when that changes."""
-    from tkujax.sim.push import DEFAULT_HEIGHT_M
+    from tkujax.sim.push import BallContact
 
-    m, c = ModelParams(), ControllerParams()
+    m, c, ball = ModelParams(), ControllerParams(), BallContact()
     v = dict(foot_forward_offset_m=m.foot_forward_offset_m, foot_length_m=m.foot_length_m,
              leg_kp=m.leg_servo.kp_nm_per_rad, leg_damping=m.leg_servo.damping_nms_per_rad,
              chest_com_frac=m.chest_com_frac, leg_mass_kg=m.leg_mass_kg,
              chest_share=m.chest_mass_kg / (m.chest_mass_kg + m.pelvis_mass_kg),
-             push_height_m=DEFAULT_HEIGHT_M, impulse_factor=1.0,
+             push_height_m=ball.height_m, impulse_factor=ball.impulse_factor,
              kalman_q=math.log10(c.kalman_q), kalman_r=math.log10(c.kalman_r))
     return np.array([float(v[n]) for n in NAMES])
