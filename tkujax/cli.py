@@ -223,6 +223,19 @@ def _cmd_calibrate(args) -> int:
     return 0
 
 
+def _cmd_refine(args) -> int:
+    from tkujax.studies.calibrate.refine import Refiner, refine
+
+    model = _model_params(args.model or [])
+    res = refine(args.out, iterations=args.iterations, lr=args.lr,
+                 refiner=Refiner(model=model) if model is not None else None,
+                 log=lambda m: print(m, flush=True))
+    b = res["best"]
+    print(f"best: iteration {b['iteration']}, loss {b['loss']:.4f} (start "
+          f"{res['history'][0]['loss']:.4f}), {b['params']}; {Path(args.out, 'refine.json')}")
+    return 0
+
+
 def _cmd_tune(args) -> int:
     from tkujax.studies.tune import run_tune
 
@@ -364,6 +377,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-evals", type=int, default=None, help="override search.max_evals")
     p.add_argument("--workers", type=int, default=None, help="override search.workers")
     p.set_defaults(func=_cmd_calibrate)
+
+    p = sub.add_parser("refine", help="gradient refinement of the calibration through MJX: "
+                                      "leg stiffness and damping, ball impulse, chest CoM")
+    p.add_argument("--out", required=True, help="output folder (refine.json)")
+    p.add_argument("--iterations", type=int, default=10, help="Adam iterations (1-500)")
+    p.add_argument("--lr", type=float, default=0.01, help="Adam step per parameter (scales, cm)")
+    p.add_argument("--model", action="append", metavar="FILE.json|KEY=VALUE",
+                   help="start from this model (default: the calibrated ModelParams())")
+    p.set_defaults(func=_cmd_refine)
     return parser
 
 
