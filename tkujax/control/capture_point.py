@@ -35,10 +35,37 @@ def capture_point(phi: jax.Array, leg_length, com_height, g=9.81) -> jax.Array:
     #   sign(phi) sqrt(2 (g/l) (1 - cos phi)) = 2 sqrt(g/l) sin(phi/2)   exactly.
     # The right side is smooth at phi = 0 where the literal sqrt has an infinite derivative.
     # g/l and h/g are positive (validate()), so these square roots have finite gradients.
-    phidot = 2.0 * jnp.sqrt(g / leg_length) * jnp.sin(0.5 * phi)
+    phidot = energy_rate(phi, leg_length, g)
+    return _lip_capture_point(phi, phidot, leg_length, com_height, g)
+
+
+def energy_rate(phi: jax.Array, leg_length, g=9.81) -> jax.Array:
+    """(...) the signed fall rate of Eq. 9-10, sign(phi) sqrt(2 (g/l)(1 - cos phi)), rad/s."""
+    return 2.0 * jnp.sqrt(g / leg_length) * jnp.sin(0.5 * phi)
+
+
+def _lip_capture_point(phi, phidot, leg_length, com_height, g):
+    """Eq. 7-8 and 6: l sin(phi) + l cos(phi) phidot sqrt(h/g)."""
     x_com = leg_length * jnp.sin(phi)
     xdot_com = leg_length * jnp.cos(phi) * phidot
     return x_com + xdot_com * jnp.sqrt(com_height / g)
+
+
+def capture_point_rate(phi: jax.Array, rate: jax.Array, params: ControllerParams) -> jax.Array:
+    """Rate-aware capture point (m) of the angle phi (rad) and the measured rate (rad/s).
+
+    x = l sin(phi) + l cos(phi) phidot sqrt(h/g) (Eq. 6-8, the instantaneous capture point of
+    Pratt et al. 2006 / the DCM of Englsberger et al. 2011), with phidot the blend
+    (1 - b) phidot_E + b rate of the energy-balance rate of Eq. 9-10 and the gyro's, b =
+    params.cp_rate_blend, then predicted params.cp_lookahead_s ahead by the LIP:
+    x exp(omega tau), omega = sqrt(g/h) (Koolen et al. 2012). With b = 0 and tau = 0 this is
+    `capture_point(phi, ...)` exactly (the blend adds 0 * (finite), the factor is exp(0) = 1).
+    """
+    l, h, g = params.leg_length, params.com_height, params.gravity
+    phidot_e = energy_rate(phi, l, g)
+    phidot = phidot_e + params.cp_rate_blend * (rate - phidot_e)
+    x = _lip_capture_point(phi, phidot, l, h, g)
+    return x * jnp.exp(params.cp_lookahead_s * jnp.sqrt(g / h))
 
 
 def push_detected(phi: jax.Array, params: ControllerParams) -> jax.Array:

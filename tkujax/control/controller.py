@@ -15,6 +15,13 @@ the lateral lean psi = -roll (positive toward +y) leaves (-eps_lateral, eps_late
 triggered as well, with y_Sup = capture_point(psi) and the swing foot on the falling side
 (`cpg_feet_lateral`). The same single step carries x_Sup (from the pitch) and y_Sup.
 
+Recovery extensions (tkujax; all off in `ControllerParams()` / `.paper()`, which run exactly
+Algorithm 1): a rate-aware capture point (`cp_rate_blend`, `cp_lookahead_s`), a capture-point
+trigger (`cp_trigger`), stance feedback on the ankles and hips (`stance_*`) and further steps
+(`max_steps`). Every option is a traced leaf selected by `where`, so one compiled program
+serves every setting. Later steps (2..max_steps) alternate the swing foot and move both feet
+from where the last step left them (`_later_step_feet`); the first step keeps the paper's CPG.
+
 Step override (a tkujax extension, for capture-region studies): `controller_step(...,
 override=StepOverride(...))` sends the one recovery step to a commanded target instead of the
 capture point, with the same CPG shape (`cpg_feet_lateral`), IK and servos. Every field is a
@@ -32,8 +39,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from tkujax.control.capture_point import band_gate, capture_point, push_gate
-from tkujax.control.cpg import cpg_feet, cpg_feet_lateral
+from tkujax.control.capture_point import band_gate, capture_point_rate, push_gate
+from tkujax.control.cpg import _unit_oscillators, cpg_feet, cpg_feet_lateral
 from tkujax.control.kalman import (KalmanState, accel_to_angle, accel_variance, gyro_to_rates,
                                    kalman_init, kalman_step)
 from tkujax.control.params import ControllerParams
@@ -56,7 +63,8 @@ class Sensors(NamedTuple):
 class ControllerState:
     """kalman: [pitch, roll] filter; time_s: controller clock; step_weight: 0 before the step,
     1 once triggered (in between only with a soft gate); step_start_s: when it started;
-    x_sup_m: the latched step length; phi_at_detect: filtered pitch at the trigger (rad)."""
+    x_sup_m: the latched step length; phi_at_detect: filtered pitch at the trigger (rad).
+    steps: `StepsState`, the bookkeeping of further steps (max_steps > 1)."""
 
     kalman: KalmanState
     time_s: jax.Array
@@ -65,6 +73,26 @@ class ControllerState:
     x_sup_m: jax.Array
     y_sup_m: jax.Array
     phi_at_detect: jax.Array
+    steps: "StepsState"
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class StepsState:
+    """count: steps started (0, 1, 2, ...); feet_from / feet_to: (4,) ankle displacements from
+    the stand pose [x_right, y_right, x_left, y_left] (m) at the start and the end of the
+    current step; swing_left: 1 when the left foot swings in the current step."""
+
+    count: jax.Array
+    feet_from: jax.Array
+    feet_to: jax.Array
+    swing_left: jax.Array
+
+    @staticmethod
+    def init(dtype=jnp.float32) -> "StepsState":
+        zero = jnp.zeros((), dtype)
+        return StepsState(count=zero, feet_from=jnp.zeros((4,), dtype),
+                          feet_to=jnp.zeros((4,), dtype), swing_left=jnp.ones((), dtype))
 
 
 @jax.tree_util.register_dataclass
@@ -105,7 +133,7 @@ def controller_init(params: ControllerParams, dtype=jnp.float32) -> ControllerSt
     return ControllerState(
         kalman=kalman_init(jnp.stack([jnp.asarray(params.standing_lean, dtype), zero]), params),
         time_s=zero, step_weight=zero, step_start_s=jnp.asarray(_NOT_STARTED_S, dtype),
-        x_sup_m=zero, y_sup_m=zero, phi_at_detect=zero)
+        x_sup_m=zero, y_sup_m=zero, phi_at_detect=zero, steps=StepsState.init(dtype))
 
 
 def cp_angle(phi: jax.Array, params: ControllerParams) -> jax.Array:
@@ -126,37 +154,39 @@ def controller_step(state: ControllerState, sensors: Sensors, params: Controller
                     enabled: jax.Array = 1.0, override: StepOverride | None = None
                     ) -> tuple[ControllerState, ControllerOutput]:
     """One control period. `enabled` (scalar, 0 or 1) switches the balance strategy on (it
-    gates detection). `override`: a commanded step (see `StepOverride`); None = the paper's."""
+    gates detection and stance feedback). `override`: a commanded step (see `StepOverride`);
+    None = the controller's own."""
     # accel_variance is kalman_r exactly when accel_gate = 0 (the paper's mode).
     kalman = kalman_step(state.kalman, gyro_to_rates(sensors.gyro), accel_to_angle(sensors.accel),
                          params, accel_variance(sensors.accel, params))
     phi = kalman.phi[..., 0]
     psi = -kalman.phi[..., 1]                            # lateral lean, positive toward +y
+    rates = gyro_to_rates(sensors.gyro)
+    pitch_rate, psi_rate = rates[..., 0], -rates[..., 1]
     enabled = jnp.asarray(enabled, phi.dtype)
-    lateral_gate = params.lateral_steps * band_gate(psi, -params.eps_lateral, params.eps_lateral,
-                                                    params.gate_temperature)
-    # Either detector triggers the (single) step: 1 - (1 - a)(1 - b) is "a or b" for 0/1 gates.
-    gate = enabled * (1.0 - (1.0 - push_gate(phi, params)) * (1.0 - lateral_gate))
+    det = _detect(phi, psi, pitch_rate, psi_rate, params)
+    # Either detector triggers the (first) step: 1 - (1 - a)(1 - b) is "a or b" for 0/1 gates.
+    gate = enabled * (1.0 - (1.0 - det.pitch_gate) * (1.0 - det.lateral_gate))
     # The step weight is the running max of the gate: a hard gate latches 0 -> 1 once; a soft
     # gate only grows as far as the inclination actually approached a threshold (summing soft
     # gates instead would let a robot standing still creep past 1/2 and step by itself).
     step_weight = jnp.maximum(state.step_weight, gate)
     trigger = step_weight - state.step_weight          # only the first detection counts
-    cp = lambda angle: params.cp_gain * capture_point(  # noqa: E731
-        angle, params.leg_length, params.com_height, params.gravity)
-    x_new = cp(cp_angle(phi, params))
-    x_sup = state.x_sup_m + trigger * x_new
-    y_sup = state.y_sup_m + trigger * params.lateral_steps * cp(psi)
+    x_sup = state.x_sup_m + trigger * det.x_new
+    y_sup = state.y_sup_m + trigger * params.lateral_steps * det.y_new
     starts_now = (state.step_weight < 0.5) & (step_weight >= 0.5)
     step_start = jnp.where(starts_now, state.time_s, state.step_start_s)
-    # cp_update_window > 0: after the first detection x_Sup follows the current angle while the
-    # step is young enough and the push is still detected (default 0: latched, Algorithm 1).
+    # cp_update_window > 0: after the first detection x_Sup follows the current capture point
+    # while the step is young enough and the push is still detected (default 0: latched).
     age = state.time_s - step_start
     updating = ((step_weight >= 0.5) & ~starts_now & (params.cp_update_window > 0)
                 & (age < params.cp_update_window + 0.5 * params.control_period)
-                & (push_gate(phi, params) > 0.5))
-    x_sup = jnp.where(updating, x_new, x_sup)
+                & (det.pitch_gate > 0.5) & (state.steps.count < 1.5))
+    x_sup = jnp.where(updating, det.x_new, x_sup)
     phi_at_detect = jnp.where(starts_now, phi, state.phi_at_detect)
+    steps = _first_step_bookkeeping(state.steps, step_weight >= 0.5, x_sup, y_sup, params)
+    steps, step_start = _later_steps(steps, state.time_s, step_start, step_weight, det, enabled,
+                                     params)
 
     # With lateral steps off y_sup is 0 and cpg_feet_lateral equals the paper's cpg_feet; the
     # paper's function is kept on that path so the paper mode is its literal transcription.
@@ -166,16 +196,145 @@ def controller_step(state: ControllerState, sensors: Sensors, params: Controller
     use_lateral = params.lateral_steps > 0
     p_right = jnp.where(use_lateral, p_lateral[0], p_paper[0])
     p_left = jnp.where(use_lateral, p_lateral[1], p_paper[1])
+    later = _later_step_feet(t_step, steps, params)
+    p_right = jnp.where(steps.count > 1.5, later[0], p_right)
+    p_left = jnp.where(steps.count > 1.5, later[1], p_left)
     touchdown = step_start + _land_time(params.step_period, params)
     if override is not None:
         p_right, p_left, touchdown = _override_feet(override, state.time_s, step_start, p_right,
                                                     p_left, touchdown, params)
     targets, reachable = solve_legs(p_right, p_left, params)
+    targets = targets + enabled * stance_offsets(phi - params.standing_lean, pitch_rate,
+                                                 kalman.phi[..., 1], rates[..., 1], params)
     new_state = ControllerState(kalman=kalman, time_s=state.time_s + params.control_period,
                                 step_weight=step_weight, step_start_s=step_start, x_sup_m=x_sup,
-                                y_sup_m=y_sup, phi_at_detect=phi_at_detect)
+                                y_sup_m=y_sup, phi_at_detect=phi_at_detect, steps=steps)
     return new_state, ControllerOutput(targets, phi, kalman.phi[..., 1], gate, reachable,
                                        touchdown)
+
+
+class Detection(NamedTuple):
+    """pitch_gate / lateral_gate: [0, 1] detectors of this period; x_new / y_new: the step the
+    controller would take now (m, cp_gain applied); x_cp / y_cp: the rate-aware capture point
+    relative to the ankles' midpoint, sagittal / lateral (m, no gain, no lookahead)."""
+
+    pitch_gate: jax.Array
+    lateral_gate: jax.Array
+    x_new: jax.Array
+    y_new: jax.Array
+    x_cp: jax.Array
+    y_cp: jax.Array
+
+
+def _detect(phi, psi, pitch_rate, psi_rate, params: ControllerParams) -> Detection:
+    """Detectors and step targets: the paper's angle thresholds (cp_trigger = 0) or the
+    capture point leaving the support (cp_trigger = 1), selected by `where`."""
+    theta = cp_angle(phi, params)
+    x_new = params.cp_gain * capture_point_rate(theta, pitch_rate, params)
+    y_new = params.cp_gain * capture_point_rate(psi, psi_rate, params)
+    # Where the capture point is now (no lookahead): the trigger asks whether standing would
+    # still survive, which is a question about the present state.
+    now = dataclasses.replace(params, cp_lookahead_s=0.0)
+    x_cp = capture_point_rate(phi - params.standing_lean, pitch_rate, now)
+    y_cp = capture_point_rate(psi, psi_rate, now)
+    tau_m = params.gate_temperature * params.leg_length     # rad -> m at the pendulum's length
+    on_cp = params.cp_trigger > 0.5
+    pitch_gate = jnp.where(
+        on_cp, band_gate(x_cp, -params.cp_trigger_backward_m, params.cp_trigger_forward_m, tau_m),
+        push_gate(phi, params))
+    lateral_gate = params.lateral_steps * jnp.where(
+        on_cp, band_gate(y_cp, -params.cp_trigger_lateral_m, params.cp_trigger_lateral_m, tau_m),
+        band_gate(psi, -params.eps_lateral, params.eps_lateral, params.gate_temperature))
+    return Detection(pitch_gate, lateral_gate, x_new, y_new, x_cp, y_cp)
+
+
+def stance_offsets(pitch_dev, pitch_rate, roll, roll_rate, params: ControllerParams):
+    """(..., 12) offsets added to the leg targets (LEG_ACTUATORS order): ankle and hip pitch
+    feedback on the pitch deviation from the standing lean and the gyro pitch rate, ankle-roll
+    feedback on the roll and its rate, each saturated smoothly at +-stance_limit (tanh).
+
+    Signs: a positive ankle-pitch offset turns the shin backward over a flat foot (the ankle's
+    right-hand-rule axis is +y), so a positive stance_ankle_kp pushes the toes down and the CoP
+    forward when the robot leans forward (the ankle strategy); likewise a positive
+    stance_roll_kp moves the CoP toward the side the robot leans to. All gains 0: exactly 0.
+    """
+    lim = params.stance_limit
+    sat = lambda u: lim * jnp.tanh(u / lim)                       # noqa: E731
+    ankle = sat(params.stance_ankle_kp * pitch_dev + params.stance_ankle_kd * pitch_rate)
+    hip = sat(params.stance_hip_kp * pitch_dev + params.stance_hip_kd * pitch_rate)
+    ankle_roll = sat(params.stance_roll_kp * roll + params.stance_roll_kd * roll_rate)
+    zero = jnp.zeros_like(ankle)
+    one_leg = jnp.stack([zero, zero, hip, zero, ankle, ankle_roll], -1)
+    return jnp.concatenate([one_leg, one_leg], -1)
+
+
+def _first_step_feet(x_sup, y_sup, params: ControllerParams):
+    """(4,) end displacements [x_r, y_r, x_l, y_l] of the first step, as `cpg_feet_lateral`
+    (y_sup = 0 without lateral steps), and whether the left foot swings."""
+    y = params.lateral_steps * y_sup
+    swing_left = y >= 0.0
+    s = jnp.where(swing_left, 1.0, -1.0)
+    half_x, half_y = 0.5 * x_sup, 0.5 * y
+    return jnp.stack([-s * half_x, -s * half_y, s * half_x, s * half_y], -1), swing_left
+
+
+def _first_step_bookkeeping(steps: StepsState, stepping, x_sup, y_sup, params) -> StepsState:
+    """Record the first step (count 1, where its feet end) while it is the current one."""
+    feet_to, swing_left = _first_step_feet(x_sup, y_sup, params)
+    first = stepping & (steps.count < 1.5)
+    return StepsState(count=jnp.where(first, 1.0, steps.count).astype(steps.count.dtype),
+                      feet_from=jnp.where(first, 0.0, steps.feet_from).astype(steps.feet_from.dtype),
+                      feet_to=jnp.where(first, feet_to, steps.feet_to).astype(steps.feet_to.dtype),
+                      swing_left=jnp.where(first, swing_left.astype(steps.swing_left.dtype),
+                                           steps.swing_left))
+
+
+def _later_steps(steps: StepsState, time_s, step_start, step_weight, det: Detection, enabled,
+                 params: ControllerParams):
+    """Start step k + 1 (the other foot) once step k has finished (t >= T) and the capture point
+    is still beyond the new support by the trigger distances, up to max_steps steps.
+
+    The capture point is taken relative to the waist, over the middle of the stand feet; after
+    a step the feet end at feet_to, so the support reaches max/min(x_r, x_l) + the trigger
+    distance. The new step ends with the feet x_new apart around the waist (as the first step),
+    the swing foot ahead; its sideways part only moves the swing foot outward (legs never cross).
+    """
+    x_r, y_r, x_l, y_l = (steps.feet_to[..., i] for i in range(4))
+    lat = params.lateral_steps
+    beyond = ((det.x_cp > jnp.maximum(x_r, x_l) + params.cp_trigger_forward_m)
+              | (det.x_cp < jnp.minimum(x_r, x_l) - params.cp_trigger_backward_m)
+              | ((lat > 0) & ((det.y_cp > y_l + params.cp_trigger_lateral_m)
+                              | (det.y_cp < y_r - params.cp_trigger_lateral_m))))
+    finished = (step_weight >= 0.5) & (time_s - step_start >= params.step_period)
+    go = finished & beyond & (steps.count + 0.5 < params.max_steps) & (enabled > 0.5)
+    swing_left = 1.0 - steps.swing_left
+    s = jnp.where(swing_left > 0.5, 1.0, -1.0)
+    half_x = 0.5 * det.x_new
+    half_y = s * jnp.maximum(s * 0.5 * lat * det.y_new, 0.0)     # outward only
+    swing = jnp.stack([half_x, half_y], -1)
+    support = -swing
+    feet_to = jnp.where(swing_left > 0.5, jnp.concatenate([support, swing], -1),
+                        jnp.concatenate([swing, support], -1))
+    dtype = steps.count.dtype
+    new = StepsState(count=jnp.where(go, steps.count + 1.0, steps.count).astype(dtype),
+                     feet_from=jnp.where(go, steps.feet_to, steps.feet_from).astype(dtype),
+                     feet_to=jnp.where(go, feet_to, steps.feet_to).astype(dtype),
+                     swing_left=jnp.where(go, swing_left, steps.swing_left).astype(dtype))
+    return new, jnp.where(go, time_s, step_start)
+
+
+def _later_step_feet(t_step, steps: StepsState, params: ControllerParams):
+    """Ankle targets (p_right, p_left) of step 2.. at time t_step into it: both feet move from
+    feet_from to feet_to with the CPG's quarter-sine profile (Eq. 13/16) and the swing foot
+    lifts by H_Sup (Eq. 15/18), as `cpg_feet_lateral` does from the stand pose."""
+    unit_x, _, unit_z = _unit_oscillators(jnp.asarray(t_step, steps.feet_to.dtype), params)
+    d = steps.feet_from + (steps.feet_to - steps.feet_from) * unit_x
+    lift = params.lift_height * unit_z
+    d_y, d_z = params.hip_offset_y, params.hip_to_ankle_z
+    left_swings = steps.swing_left > 0.5
+    p_right = jnp.stack([d[..., 0], -d_y + d[..., 1], -d_z + jnp.where(left_swings, 0.0, lift)], -1)
+    p_left = jnp.stack([d[..., 2], d_y + d[..., 3], -d_z + jnp.where(left_swings, lift, 0.0)], -1)
+    return p_right, p_left
 
 
 def _land_time(period, params: ControllerParams):

@@ -63,6 +63,33 @@ class ControllerParams:
                                    accelerometer's R is inflated by (1 + ((|a| - g)/accel_gate)^2)
                                    so that samples taken during an impact barely move the angle
                                    (`kalman.accel_variance`). A float leaf: traceable, gridable.
+    Recovery extensions (tkujax; every default is "off" and gives the paper's controller)
+      cp_rate_blend         -      weight of the MEASURED pitch/roll rate (gyro) in Eq. 8 against
+                                   the energy-balance rate of Eq. 9-10: phidot = (1 - b) phidot_E
+                                   + b phidot_gyro (Pratt 2006, Englsberger 2011). 0 = paper.
+      cp_lookahead_s        s      step to the capture point predicted this far ahead by the LIP,
+                                   xi(t) = xi0 exp(omega t), omega = sqrt(g/h) (Koolen 2012); 0 = off.
+      cp_trigger            -      0 (paper): step when phi leaves (-eps_2, eps_1); 1: step when
+                                   the rate-aware capture point leaves the support, i.e. exceeds
+                                   cp_trigger_forward_m ahead of / cp_trigger_backward_m behind
+                                   the ankle (and cp_trigger_lateral_m sideways, with lateral
+                                   steps): no step while standing still would survive.
+      cp_trigger_forward_m  m      forward trigger distance (the default toe is ~48 mm ahead).
+      cp_trigger_backward_m m      backward trigger distance (the default heel is ~103 mm behind).
+      cp_trigger_lateral_m  m      sideways trigger distance (outer sole edge ~ d_y + 42 mm).
+      stance_ankle_kp       rad/rad      ankle-pitch feedback on the pitch deviation
+                                   phi - standing_lean, added to both ankles, before and after
+                                   the step (the ankle strategy); 0 = paper.
+      stance_ankle_kd       rad/(rad/s)  ankle-pitch feedback on the gyro pitch rate.
+      stance_hip_kp         rad/rad      hip-pitch feedback on the pitch deviation (hip strategy).
+      stance_hip_kd         rad/(rad/s)  hip-pitch feedback on the gyro pitch rate.
+      stance_roll_kp        rad/rad      ankle-roll feedback on the roll (both ankles).
+      stance_roll_kd        rad/(rad/s)  the same on the gyro roll rate.
+      stance_limit          rad    bound of each stance offset (a smooth tanh saturation).
+      max_steps             -      1 (paper): one step; 2 or 3: once a step has finished and the
+                                   capture point is still beyond the new support's edge (the
+                                   trigger distances from the front / rear foot), the other foot
+                                   steps again, up to max_steps steps.
     Geometry (Fig. 3, Fig. 7, Fig. 11); defaults are the default model's numbers
       hip_offset_y          m      d_y, waist P_W to hip joint centre (lateral).
       hip_to_ankle_z        m      d_z, hip joint centre to ankle centre in the stand pose.
@@ -90,6 +117,20 @@ class ControllerParams:
     kalman_q: float = 2.35e-4
     kalman_r: float = 2.3e-3
     accel_gate: float = 0.0
+    cp_rate_blend: float = 0.0
+    cp_lookahead_s: float = 0.0
+    cp_trigger: float = 0.0
+    cp_trigger_forward_m: float = 0.05
+    cp_trigger_backward_m: float = 0.10
+    cp_trigger_lateral_m: float = 0.09
+    stance_ankle_kp: float = 0.0
+    stance_ankle_kd: float = 0.0
+    stance_hip_kp: float = 0.0
+    stance_hip_kd: float = 0.0
+    stance_roll_kp: float = 0.0
+    stance_roll_kd: float = 0.0
+    stance_limit: float = 0.3
+    max_steps: float = 1.0
     hip_offset_y: float = 0.045
     hip_to_ankle_z: float = 0.20
     thigh_length: float = 0.11
@@ -158,6 +199,17 @@ class ControllerParams:
         check("kalman_q", lambda v: 0.0 <= v < math.inf, "[0, inf) rad^2")
         check("kalman_r", lambda v: 0.0 < v < math.inf, "(0, inf) rad^2")
         check("accel_gate", lambda v: 0.0 <= v <= 100.0, "[0, 100] m/s^2 (0 = off)")
+        check("cp_rate_blend", lambda v: 0.0 <= v <= 1.0, "[0, 1]")
+        check("cp_lookahead_s", lambda v: 0.0 <= v <= 0.5, "[0, 0.5] s")
+        check("cp_trigger", lambda v: v in (0.0, 1.0), "{0, 1}")
+        for name in ("cp_trigger_forward_m", "cp_trigger_backward_m", "cp_trigger_lateral_m"):
+            check(name, lambda v: 0.0 <= v <= 0.5, "[0, 0.5] m")
+        for name in ("stance_ankle_kp", "stance_hip_kp", "stance_roll_kp"):
+            check(name, lambda v: -5.0 <= v <= 5.0, "[-5, 5] rad/rad")
+        for name in ("stance_ankle_kd", "stance_hip_kd", "stance_roll_kd"):
+            check(name, lambda v: -1.0 <= v <= 1.0, "[-1, 1] rad/(rad/s)")
+        check("stance_limit", lambda v: 0.0 < v <= 1.0, "(0, 1] rad")
+        check("max_steps", lambda v: v in (1.0, 2.0, 3.0), "{1, 2, 3}")
         for name in ("hip_offset_y", "thigh_length", "calf_length", "leg_length", "com_height"):
             check(name, lambda v: 0.0 < v <= 2.0, "(0, 2] m")
         reach = val("thigh_length") + val("calf_length")

@@ -103,6 +103,21 @@ CONTROLLER_FIELDS = {
     "kalman_q": (0.0, 1.0, "rad^2"),
     "kalman_r": (1e-9, 1.0, "rad^2"),
     "accel_gate": (0.0, 100.0, "m/s^2 (0 = off: the paper; robust detection, see README)"),
+    # Recovery extensions (ControllerParams docstring); 0 / 1 step = the paper.
+    "cp_rate_blend": (0.0, 1.0, "(0 = energy-balance rate, 1 = gyro rate)"),
+    "cp_lookahead_s": (0.0, 0.5, "s"),
+    "cp_trigger": (0.0, 1.0, "(0 = angle thresholds, 1 = capture point leaves the support)"),
+    "cp_trigger_forward_m": (0.0, 0.5, "m"),
+    "cp_trigger_backward_m": (0.0, 0.5, "m"),
+    "cp_trigger_lateral_m": (0.0, 0.5, "m"),
+    "stance_ankle_kp": (-5.0, 5.0, "rad/rad"),
+    "stance_ankle_kd": (-1.0, 1.0, "rad/(rad/s)"),
+    "stance_hip_kp": (-5.0, 5.0, "rad/rad"),
+    "stance_hip_kd": (-1.0, 1.0, "rad/(rad/s)"),
+    "stance_roll_kp": (-5.0, 5.0, "rad/rad"),
+    "stance_roll_kd": (-1.0, 1.0, "rad/(rad/s)"),
+    "stance_limit": (0.01, 1.0, "rad"),
+    "max_steps": (1.0, 3.0, "(1 = paper; 2 or 3 steps)"),
 }
 # Randomisation: multiplicative scales and additive values applied per push.
 RANDOMIZE_FIELDS = {

@@ -25,7 +25,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from tkujax.control.controller import ControllerState, Sensors, controller_init, controller_step
+from tkujax.control.controller import (ControllerState, Sensors, StepsState, controller_init,
+                                      controller_step)
 from tkujax.control.fixed.capture_point_fx import band_gate_fx, step_length_fx
 from tkujax.control.fixed.coefficients import coefficients
 from tkujax.control.fixed.config import FixedPointConfig
@@ -119,7 +120,7 @@ def _float_view(s: FixedControllerState, params: ControllerParams, config: Fixed
         step_start_s=jnp.where(s.stepping, s.step_start_tick.astype(dtype) * dt,
                                jnp.asarray(_NOT_STARTED_S, dtype)),
         x_sup_m=f(s.x_sup, config.length), y_sup_m=f(s.y_sup, config.length),
-        phi_at_detect=f(s.phi_at_detect, config.state))
+        phi_at_detect=f(s.phi_at_detect, config.state), steps=StepsState.init(dtype))
 
 
 def controller_step_fx(state: FixedControllerState, sensors: Sensors, params: ControllerParams,

@@ -25,6 +25,19 @@ TUNABLE: dict[str, tuple[str, tuple[float, float], bool, str]] = {
     "cp_gain": ("cp_gain", (0.3, 2.5), False, ""),
     "kalman_q": ("kalman_q", (1e-6, 1e-2), True, "rad^2"),
     "kalman_r": ("kalman_r", (1e-4, 3e-2), True, "rad^2"),
+    "eps_lateral": ("eps_lateral_deg", (1.0, 15.0), False, "deg"),
+    # Recovery extensions (ControllerParams docstring)
+    "cp_rate_blend": ("cp_rate_blend", (0.0, 1.0), False, ""),
+    "cp_lookahead_s": ("cp_lookahead_s", (0.0, 0.3), False, "s"),
+    "cp_trigger_forward_m": ("cp_trigger_forward_m", (0.0, 0.12), False, "m"),
+    "cp_trigger_backward_m": ("cp_trigger_backward_m", (0.0, 0.15), False, "m"),
+    "cp_trigger_lateral_m": ("cp_trigger_lateral_m", (0.02, 0.15), False, "m"),
+    "stance_ankle_kp": ("stance_ankle_kp", (-1.0, 3.0), False, "rad/rad"),
+    "stance_ankle_kd": ("stance_ankle_kd", (-0.1, 0.3), False, "rad/(rad/s)"),
+    "stance_hip_kp": ("stance_hip_kp", (-2.0, 2.0), False, "rad/rad"),
+    "stance_hip_kd": ("stance_hip_kd", (-0.3, 0.3), False, "rad/(rad/s)"),
+    "stance_roll_kp": ("stance_roll_kp", (-1.0, 3.0), False, "rad/rad"),
+    "stance_roll_kd": ("stance_roll_kd", (-0.1, 0.3), False, "rad/(rad/s)"),
 }
 DEFAULT_RANGES = {f: v[1] for f, v in TUNABLE.items()}
 DEFAULT_TUNED = ("step_period", "double_support_ratio", "lift_height", "eps_forward",
