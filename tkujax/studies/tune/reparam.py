@@ -26,6 +26,7 @@ TUNABLE: dict[str, tuple[str, tuple[float, float], bool, str]] = {
     "kalman_q": ("kalman_q", (1e-6, 1e-2), True, "rad^2"),
     "kalman_r": ("kalman_r", (1e-4, 3e-2), True, "rad^2"),
     "eps_lateral": ("eps_lateral_deg", (1.0, 15.0), False, "deg"),
+    "accel_gate": ("accel_gate", (0.05, 5.0), True, "m/s^2"),
     # Recovery extensions (ControllerParams docstring)
     "cp_rate_blend": ("cp_rate_blend", (0.0, 1.0), False, ""),
     "cp_lookahead_s": ("cp_lookahead_s", (0.0, 0.3), False, "s"),
