@@ -208,27 +208,30 @@ class Ref:
     def solve_leg(self, p, hip_y):
         c, k, rnd = self.c, self.k, self.c.rounding
         fl, fu, fa = c.length, c.unit, c.angle
+        # The IK's internal lengths: ik_guard_bits more fraction bits, the word <= 26 bits.
+        fk = QFormat(fl.int_bits, fl.frac_bits + max(0, min(c.ik_guard_bits, 26 - fl.word_bits)))
         li = 2 * fl.int_bits + 1
-        fq = QFormat(li, min(fl.frac_bits + 4, 30 - li))
+        fq = QFormat(li, min(fk.frac_bits + 4, 30 - li))
         cl, sl = r_sincos(k["standing_lean"], fa, fu, *self.cs)
         x, y, z = p[0], r_sat(p[1] - hip_y, fl), p[2]
-        m = lambda a, b: r_mul(a, fl, b, fu, fl, rnd)  # noqa: E731
-        px, py, pz = r_sat(m(x, cl) - m(z, sl), fl), y, r_sat(m(x, sl) + m(z, cl), fl)
-        roll, lp = r_atan2(py, r_sat(-pz, fl), fl, fa, *self.cs, fmag=fl)
-        target, dist = r_atan2(r_sat(-px, fl), lp, fl, fa, *self.cs, fmag=fl)
-        th, ca = k["thigh"], k["calf"]
-        lo, hi = abs(r_sat(th - ca, fl)), r_sat(th + ca, fl)
+        m = lambda a, b: r_mul(a, fl, b, fu, fk, rnd)  # noqa: E731
+        px, py, pz = (r_sat(m(x, cl) - m(z, sl), fk), r_requant(y, fl, fk, rnd),
+                      r_sat(m(x, sl) + m(z, cl), fk))
+        roll, lp = r_atan2(py, r_sat(-pz, fk), fk, fa, *self.cs, fmag=fk)
+        target, dist = r_atan2(r_sat(-px, fk), lp, fk, fa, *self.cs, fmag=fk)
+        th, ca = (r_requant(k[n], fl, fk, rnd) for n in ("thigh", "calf"))
+        lo, hi = abs(r_sat(th - ca, fk)), r_sat(th + ca, fk)
         ok = lo <= dist <= hi
         d = max(lo, min(hi, dist))
-        sq = lambda v: r_mul(v, fl, v, fl, fq, rnd)  # noqa: E731
+        sq = lambda v: r_mul(v, fk, v, fk, fq, rnd)  # noqa: E731
         num = r_sat(r_sat(sq(d) - sq(th), fq) - sq(ca), fq)
         one = 1 << fu.frac_bits
         cos_k = max(-one, min(one, r_mul(num, fq, k["inv_2ltlc"], self.cf("inv_2ltlc"), fu, rnd)))
         sin_k = r_sqrt(r_mul(one - cos_k, fu, one + cos_k, fu, fu, rnd), fu, fu, *self.cs)
         knee, _ = r_atan2(sin_k, cos_k, fu, fa, *self.cs)
-        off_y = r_mul(ca, fl, sin_k, fu, fl, rnd)
-        off_x = r_sat(th + r_mul(ca, fl, cos_k, fu, fl, rnd), fl)
-        offset, _ = r_atan2(off_y, off_x, fl, fa, *self.cs)
+        off_y = r_mul(k["calf"], fl, sin_k, fu, fk, rnd)
+        off_x = r_sat(th + r_mul(k["calf"], fl, cos_k, fu, fk, rnd), fk)
+        offset, _ = r_atan2(off_y, off_x, fk, fa, *self.cs)
         pitch = r_sat(target - offset, fa)
         cr, sr = r_sincos(roll, fa, fu, *self.cs)
         m22, m12 = r_mul(cr, fu, cl, fu, fu, rnd), r_mul(sr, fu, cl, fu, fu, rnd)
