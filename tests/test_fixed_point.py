@@ -549,3 +549,48 @@ def test_words_identical_with_x64_enabled():
         on = jax.tree_util.tree_map(np.asarray, jax.jit(f)(a, b))
     assert all(np.array_equal(x, y) and y.dtype == np.int32
                for x, y in zip(jax.tree_util.tree_leaves(off), jax.tree_util.tree_leaves(on)))
+
+
+# ------------------------------------------------------------------ (d) refusal (issue 25)
+
+
+def test_supported_fields_are_fields_and_paper_params_pass():
+    """The implemented list names real fields; ControllerParams() and .paper() (geometry and
+    Kalman noises, both variants) are accepted."""
+    import dataclasses
+    from tkujax.control.fixed import IMPLEMENTED_FIELDS, check_supported, unsupported
+    names = {f.name for f in dataclasses.fields(ControllerParams)}
+    assert IMPLEMENTED_FIELDS <= names
+    for p in (ControllerParams(), ControllerParams.paper(),
+              ControllerParams.paper(variant="estimated")):
+        assert unsupported(p) == [] and check_supported(p) is p
+    # Every field outside the list is refused when moved off its default: the rule iterates
+    # over all fields (nothing hard-coded), so each one is named in turn.
+    for f in dataclasses.fields(ControllerParams):
+        if f.name in IMPLEMENTED_FIELDS:
+            continue
+        bumped = dataclasses.replace(ControllerParams(), **{f.name: f.default + 0.5})
+        assert [u[0] for u in unsupported(bumped)] == [f.name]
+
+
+def test_a_new_controller_option_is_refused_without_code_changes():
+    """A field added later (here on a subclass) is refused once set away from its default, and
+    accepted at its default: no list of unsupported options to maintain."""
+    import dataclasses
+    from tkujax.control.fixed import check_supported
+
+    @dataclasses.dataclass(frozen=True)
+    class Future(ControllerParams):
+        multi_step: float = 0.0
+
+    check_supported(Future())
+    with pytest.raises(ValueError, match=r'^ControllerParams\.multi_step = 2\.0 is not '
+                                         r'implemented by arithmetic = "fixed"'):
+        check_supported(Future(multi_step=2.0))
+
+
+def test_check_supported_refuses_traced_values():
+    import dataclasses
+    from tkujax.control.fixed import check_supported
+    with pytest.raises(TypeError, match="outside jit"):
+        jax.jit(lambda g: check_supported(dataclasses.replace(PARAMS, accel_gate=g)) and 0)(1.0)

@@ -72,6 +72,52 @@ def test_fpga_spec_conflicts():
         parse_spec(_with("step", {"grid": {"x_m": [0.05]}}))
 
 
+# --- Options the fixed-point twin does not implement are refused (issue 25) ---
+
+UNIMPLEMENTED = [("accel_gate", 3.0), ("cp_excess", 1.0), ("cp_update_window", 0.045),
+                 ("gate_temperature", 0.02)]
+
+
+@pytest.mark.parametrize("field, value", UNIMPLEMENTED)
+def test_fixed_refuses_each_unimplemented_option(field, value):
+    """check_supported, the rollout entries and the fpga study stop with one line naming it."""
+    import dataclasses
+    from tkujax.control.fixed import check_supported
+    from tkujax.studies.fpga import run_fpga
+    params = dataclasses.replace(ControllerParams.paper(), **{field: value})
+    msg = rf"ControllerParams\.{field} = {value!r} is not implemented by arithmetic = \"fixed\""
+    with pytest.raises(ValueError, match=msg) as err:
+        check_supported(params)
+    assert "\n" not in str(err.value)
+    one = Push(*(jnp.asarray([v], jnp.float32) for v in (0.5, 0.0, 0.36, 0.02, 0.3)))
+    with pytest.raises(ValueError, match=msg):       # before any physics or compile
+        simulate_mujoco(one, np.ones(1, np.float32), params,
+                        config=RolloutConfig(duration_s=0.3, fixed=FixedPointConfig()))
+    from tkujax.sim.rollout_mjx import simulate
+    with pytest.raises(ValueError, match=msg):
+        simulate(one, np.ones(1, np.float32), params,
+                 config=RolloutConfig(duration_s=0.3, fixed=FixedPointConfig()))
+    with pytest.raises(ValueError, match=msg):
+        run_fpga(parse_spec(BASE), "/nonexistent/never_written", params=params)
+    # The float controller takes every option.
+    assert check_supported(ControllerParams.paper()) is not None
+
+
+@pytest.mark.parametrize("key, value", [("accel_gate", 2.0), ("gate_temperature_deg", 1.0)])
+def test_fixed_spec_refuses_unimplemented_controller_keys(key, value):
+    with pytest.raises(SpecError, match=rf'controller.{key} = {value!r}: controller.arithmetic = '
+                                        rf'"fixed" does not implement {key.removesuffix("_deg")}'):
+        parse_spec(_with(f"controller.{key}", value))
+    with pytest.raises(SpecError, match=rf"controller.grid.{key}\[1\] = {value!r}: .* does not "
+                                        rf"implement"):
+        parse_spec(_with(f"controller.grid.{key}", [0.0, value]))
+    # At the default, or with the float controller, the key is fine.
+    parse_spec(_with(f"controller.grid.{key}", [0.0]))
+    parse_spec(_with("controller.arithmetic", "float", _with(f"controller.{key}", value)))
+    # Implemented fields (geometry, thresholds) are accepted with fixed arithmetic.
+    parse_spec(_with("controller.eps_forward_deg", 10.0, _with("controller.grid.cp_gain", [0.9, 1.1])))
+
+
 def test_fpga_spec_expands_and_hashes():
     spec = parse_spec(_with("fpga.cordic_iterations", 10,
                             _with("controller.grid.fpga.angle_state_frac_bits", [8, 12])))

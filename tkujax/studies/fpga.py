@@ -27,10 +27,11 @@ from pathlib import Path
 import numpy as np
 
 from tkujax.control.fixed.qformat import ROUNDING_MODES
+from tkujax.control.fixed.support import check_supported
 from tkujax.control.params import ControllerParams
 from tkujax.studies.maps import max_recoverable_impulse
 from tkujax.studies.spec import FPGA_COLUMN, SpecError, SweepSpec, load_spec, parse_spec
-from tkujax.studies.sweep import load, run_sweep
+from tkujax.studies.sweep import controller_params_from, load, run_sweep
 
 # Keys whose generous end is the smallest value (less latency is better); the rest: largest
 # (more bits, more iterations); rounding: "nearest" (index 0).
@@ -280,6 +281,7 @@ def run_fpga(spec: SweepSpec | str | Path, out: str | Path,
     spec = spec if isinstance(spec, SweepSpec) else load_spec(spec)
     if spec.arithmetic != "fixed":
         raise SpecError('tkujax fpga: the spec needs controller.arithmetic = "fixed"')
+    check_supported(controller_params_from(params or ControllerParams.paper(), spec.controller))
     out = Path(out)
     m_fixed = run_sweep(spec, out / "sweep", params=params, backend=backend, quiet=quiet)
     m_float = run_sweep(float_reference_spec(spec), out / "float", params=params,
