@@ -594,3 +594,86 @@ def test_check_supported_refuses_traced_values():
     from tkujax.control.fixed import check_supported
     with pytest.raises(TypeError, match="outside jit"):
         jax.jit(lambda g: check_supported(dataclasses.replace(PARAMS, accel_gate=g)) and 0)(1.0)
+
+
+# ------------------------------------------------------------------ (e) step lengths (issue 25)
+
+SERVO_STEP = 2 * math.pi / 4096          # rad, Dynamixel MX (tkujax.sim.tick)
+
+
+def _ankle_x(q6, params):
+    """Level-frame x of an ankle relative to its hip from one leg's 6 commands (forward
+    kinematics of tkujax.control.ik's convention, the pelvis leaning by standing_lean)."""
+    _, r, hp, k = (float(v) for v in q6[:4])
+    lt, lc, lean = params.thigh_length, params.calf_length, params.standing_lean
+    # R_y(hp) [(0, 0, -l_t) + R_y(k) (0, 0, -l_c)], then R_x(r) (leaves x), then R_y(lean).
+    x = -lt * math.sin(hp) - lc * math.sin(hp + k)
+    z0 = -lt * math.cos(hp) - lc * math.cos(hp + k)
+    z = math.cos(r) * z0
+    return math.cos(lean) * x + math.sin(lean) * z
+
+
+def _step_cmd(q12, params):
+    """Commanded step length: left ankle x minus right ankle x (the hips share x = 0)."""
+    return _ankle_x(q12[6:], params) - _ankle_x(q12[:6], params)
+
+
+def test_forward_kinematics_inverts_the_float_ik():
+    """_ankle_x is an independent check: FK(float IK(p)) = p for a stepped pose."""
+    from tkujax.control.cpg import cpg_feet
+    from tkujax.control.solve import solve_legs
+    pr, pl = cpg_feet(jnp.asarray(0.3), jnp.asarray(0.06), PARAMS)   # landed, x_Sup = 6 cm
+    q = np.asarray(solve_legs(pr, pl, PARAMS)[0], np.float64)
+    assert abs(_ankle_x(q[6:], PARAMS) - float(pl[0])) < 1e-6
+    assert abs(_step_cmd(q, PARAMS) - 0.06) < 1e-6
+
+
+def test_ik_guard_bits_remove_the_stand_pose_bias():
+    """The cause of issue 25's step-length gap: the knee moves 22 rad/m of the ankle distance D,
+    so D rounded to the 7.6 um `length` LSB biased the stand knee by 0.21 mrad (0.14 servo
+    step; commands near a servo rounding boundary then flip by one step). ik_guard_bits = 4
+    (default) carries the IK's lengths with 4 more fraction bits."""
+    import dataclasses
+    from tkujax.control.controller import stand_leg_targets
+    from tkujax.control.fixed import stand_leg_targets_fx
+    ref = np.asarray(stand_leg_targets(PARAMS), np.float64)
+    err = {}
+    for bits in (0, 4):
+        cfg = dataclasses.replace(DEFAULT, ik_guard_bits=bits)
+        q = np.asarray(stand_leg_targets_fx(PARAMS, cfg), np.float64) * cfg.angle.lsb
+        err[bits] = np.abs(q - ref).max()
+    # Closed form of the D term alone: dknee/dD * LSB/2 with dknee/dD = D / (l_t l_c sin knee).
+    lt, lc, d = PARAMS.thigh_length, PARAMS.calf_length, PARAMS.hip_to_ankle_z
+    cos_k = (d * d - lt * lt - lc * lc) / (2 * lt * lc)
+    slope = d / (lt * lc * math.sqrt(1 - cos_k ** 2))
+    assert 21.0 < slope < 23.0                                        # rad/m
+    d_term = slope * DEFAULT.length.lsb / 2          # D rounded to the length LSB: 0.083 mrad
+    assert err[0] > 0.15e-3                          # measured 0.207 mrad (D and p' rounded)
+    assert err[4] < 0.5 * d_term                     # measured 0.037 mrad
+
+
+def test_commanded_step_length_within_its_bound():
+    """Same sensors, both controllers, default words (18 bits): before the servos' rounding the
+    commands differ by eps << one servo step s; after it by at most one step per joint. Moving
+    joint j by dq moves the ankle by exactly 2 r_j sin(dq / 2) <= r_j dq, r_j its distance to
+    the ankle (<= l_t + l_c for the two hip axes, l_c for the knee, 0 for the ankle axes), so the
+    commanded step (left ankle x - right ankle x) differs by <= 2 dq (2 l_t + 3 l_c): 1.69 mm
+    with dq = s, 2 eps (2 l_t + 3 l_c) before rounding."""
+    from tkujax.sim.tick import quantise_targets
+    fx = jax.jit(functools.partial(scan_fx, cfg=DEFAULT))(PARAMS, *push_trace())
+    fl = float_run()
+    assert np.array_equal(np.asarray(fx[3]), np.asarray(fl[3])) and np.asarray(fl[3]).any()
+    qx, qf = np.asarray(fx[0], np.float64), np.asarray(fl[0], np.float64)
+    eps = np.abs(qx - qf).max()
+    assert eps < 0.25 * SERVO_STEP                                   # measured 0.1 mrad
+    sx, sf = (np.asarray(quantise_targets(jnp.asarray(q, jnp.float32)), np.float64)
+              for q in (qx, qf))
+    assert np.abs(sx - sf).max() <= SERVO_STEP * 1.001               # at most one step
+    lever = 2 * PARAMS.thigh_length + 3 * PARAMS.calf_length
+    step_fx = np.array([_step_cmd(q, PARAMS) for q in qx])
+    step_fl = np.array([_step_cmd(q, PARAMS) for q in qf])
+    assert np.abs(step_fl).max() > 0.03                              # the trace steps
+    assert np.abs(step_fx - step_fl).max() <= 2 * eps * lever
+    served = np.array([_step_cmd(a, PARAMS) - _step_cmd(b, PARAMS) for a, b in zip(sx, sf)])
+    assert np.abs(served).max() <= 2 * SERVO_STEP * lever            # 1.69 mm
+    assert np.abs(step_fx - step_fl).max() < 1e-4                    # 0.1 mm before rounding
