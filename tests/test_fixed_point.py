@@ -677,3 +677,59 @@ def test_commanded_step_length_within_its_bound():
     served = np.array([_step_cmd(a, PARAMS) - _step_cmd(b, PARAMS) for a, b in zip(sx, sf)])
     assert np.abs(served).max() <= 2 * SERVO_STEP * lever            # 1.69 mm
     assert np.abs(step_fx - step_fl).max() < 1e-4                    # 0.1 mm before rounding
+
+
+# ------------------------------------------------------------------ (f) EP3C120 resources
+
+
+def test_multiplier_block_rule():
+    from tkujax.control.fixed.resources import mul_blocks
+    assert [mul_blocks(a, b) for a, b in [(18, 18), (19, 18), (24, 24), (36, 36), (37, 18)]] \
+        == [1, 2, 4, 4, 3]
+
+
+def test_resource_count_of_one_kalman_update_by_hand():
+    """kalman_step_fx on [pitch, roll] (kalman_fx.py, read by hand): per axis 3 products
+    (rate dt, k innovation, (1 - k) p), 6 adders (phi + rate dt, p + q, p + r, innovation,
+    phi + k innovation, 1 - k) and one divide. Default words: rate 18, dt 18, unit 18,
+    state 24, cov 18 bits."""
+    from tkujax.control.fixed import kalman_fx, qformat
+    from tkujax.control.fixed.resources import count_ops, module_resources, op_cycles
+    coef = coefficients(PARAMS, DEFAULT)
+    z = jnp.zeros(2, jnp.int32)
+    ops = count_ops(DEFAULT, fn=lambda: kalman_step_fx(z, z, z, z, coef, DEFAULT))
+    assert sorted((o.kind, o.count, o.widths) for o in ops) == sorted([
+        ("mul", 2, (18, 18, 24)), ("mul", 2, (18, 24, 24)), ("mul", 2, (18, 18, 18)),
+        ("add", 2, (24,)), ("add", 2, (18,)), ("add", 2, (18,)), ("add", 2, (24,)),
+        ("add", 2, (24,)), ("add", 2, (18,)), ("div", 2, (18, 15))])
+    m = module_resources(ops, "fn")
+    assert (m["multiplies"], m["adds"], m["divides"]) == (6, 12, 2)
+    assert m["multipliers_18x18"] == 2                   # the 18 x 24 product: 1 x 2 blocks
+    assert m["multipliers_18x18_parallel"] == 2 * 1 + 2 * 2 + 2 * 1
+    # cycles: 2 x (3 + 4 + 3) products, 12 adds, 2 x (15 + 2) divides
+    assert m["latency_cycles"] == 20 + 12 + 34 == sum(o.count * op_cycles(o) for o in ops)
+    # registers: results 2 x (24 + 24 + 18) + 2 x (24 + 18 + 18 + 24 + 24 + 18) + 2 x 17,
+    # the divider 18 + 15 + 1
+    assert m["register_bits"] == 132 + 252 + 34 + 34
+    assert m["cordic_runs"] == 0 and m["rom_words"] == 0
+    # The primitives are restored after counting.
+    assert kalman_fx.mul is qformat.mul and kalman_fx.div_fraction is qformat.div_fraction
+
+
+def test_resource_count_of_cordic_runs_by_hand():
+    """Three rotations of 16 iterations: 3 runs x (16 + 2) cycles, 48 unrolled stages, one atan
+    ROM of 16 words of the z register (Q3.(15 + 2): 21 bits)."""
+    from tkujax.control.fixed.resources import count_ops, module_resources
+    spec = cordic.spec_of(DEFAULT)
+    ops = count_ops(DEFAULT, fn=lambda: cordic.sincos(jnp.zeros(3, jnp.int32), DEFAULT.angle,
+                                                      DEFAULT.unit, spec))
+    m = module_resources(ops, "fn")
+    assert (m["cordic_runs"], m["latency_cycles"], m["cordic_stages_unrolled"]) == (3, 54, 48)
+    assert (m["rom_words"], m["rom_bits"], m["m9k_blocks"]) == (16, 16 * 21, 1)
+    assert (m["cordic_xy_bits"], m["cordic_z_bits"]) == (1 + 1 + 17, 21)
+
+
+def test_state_registers_cover_every_state_word():
+    from tkujax.control.fixed.resources import state_register_bits
+    bits = state_register_bits(FixedPointConfig(latency_ticks=2))
+    assert bits["delay"] == 3 * 12 * 18 and bits["phi"] == 2 * 24 and bits["p"] == 2 * 18

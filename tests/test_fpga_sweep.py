@@ -317,3 +317,25 @@ def test_issue25_stepping_pushes_agree_to_a_millimetre():
     assert o_f["fell"].any()                      # both outcomes occur
     dstep = np.abs(o_x["step_length_m"] - o_f["step_length_m"])[both]
     assert dstep.max() <= 1e-3, dstep
+
+
+def test_cli_resources_writes_the_table(tmp_path, capsys):
+    """`tkujax fpga --resources --out DIR`: the EP3C120 table of the default words; narrower
+    words of a spec need no more 18x18 blocks and fewer cycles."""
+    from tkujax.cli import main
+    assert main(["fpga", "--resources", "--out", str(tmp_path)]) == 0
+    res = json.loads((tmp_path / "resources.json").read_text())
+    md = (tmp_path / "resources.md").read_text()
+    assert "| **total** |" in md and "EP3C120" in md and md in capsys.readouterr().out
+    t = res["total"]
+    assert t["multipliers_18x18"] <= 288 and 0 < res["latency_fraction_of_period"] < 0.01
+    assert {m["module"] for m in res["modules"] if m["cordic_runs"]} == {"kalman", "capture_point",
+                                                                        "cpg", "ik"}
+    spec = tmp_path / "narrow.toml"
+    spec.write_text('[sweep]\nname = "n"\n[push.grid]\nimpulse_ns = [0.5]\n'
+                    '[controller]\narithmetic = "fixed"\n[fpga]\ncordic_iterations = 8\n')
+    assert main(["fpga", "--resources", str(spec)]) == 0
+    out = capsys.readouterr().out
+    narrow = [line for line in out.splitlines() if line.startswith("| **total**")][0]
+    assert int(narrow.split("|")[-2].replace(",", "")) < t["latency_cycles"]
+    assert main(["fpga"]) == 2                                       # neither spec nor --resources
