@@ -487,6 +487,24 @@ def test_wide_words_match_float_controller():
     assert np.max(np.abs(fx[0] - fl[0])) < 1e-5                           # leg targets, rad
 
 
+@pytest.mark.parametrize("changes", [dict(cp_excess=1.0), dict(cp_update_window=0.03),
+                                     dict(cp_update_window=0.09, cp_excess=1.0)])
+def test_wide_words_match_float_controller_with_cp_options(changes):
+    """cp_excess and cp_update_window (implemented in the twin, issue 25): near-float words
+    follow the float controller's x_Sup tick by tick, and the option changes x_Sup."""
+    import dataclasses
+    params = dataclasses.replace(PARAMS, **changes)
+    cfg = FixedPointConfig.wide(straight_through=False)
+    trace = push_trace()
+    fx = jax.jit(functools.partial(scan_fx, cfg=cfg))(params, *trace)
+    fl = jax.jit(scan_float)(params, *trace)
+    assert np.array_equal(np.asarray(fx[3]), np.asarray(fl[3]))
+    assert np.max(np.abs(fx[2] - fl[2])) < 2e-6                           # x_Sup, m
+    assert np.max(np.abs(fx[0] - fl[0])) < 1e-5                           # leg targets, rad
+    base = np.asarray(float_run()[2])
+    assert np.max(np.abs(np.asarray(fl[2]) - base)) > 1e-3                # the option acts
+
+
 def test_default_words_with_latency_track_float_controller():
     """Default words, a 1.4-tick latency; the batch also checks vmap (second trace unused)."""
     cfg = FixedPointConfig(straight_through=False, latency_ticks=1, latency_frac=0.4)

@@ -47,7 +47,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from tkujax.control.fixed.coefficients import Coefficients, coef_format
+from tkujax.control.fixed.coefficients import MODE_BITS, Coefficients, coef_format
 from tkujax.control.fixed.config import FixedPointConfig
 from tkujax.control.fixed.qformat import QFormat
 
@@ -235,7 +235,7 @@ def state_register_bits(config: FixedPointConfig) -> dict[str, int]:
 
 
 def coefficient_register_bits(config: FixedPointConfig) -> int:
-    return sum(1 if f.name == "lateral" else coef_format(f.name, config).word_bits
+    return sum(1 if f.name in MODE_BITS else coef_format(f.name, config).word_bits
                for f in dataclasses.fields(Coefficients))
 
 

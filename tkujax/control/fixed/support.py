@@ -9,10 +9,10 @@ study, sweeps and rollouts with `RolloutConfig.fixed`), never inside jit.
 
 The rule iterates over `dataclasses.fields(ControllerParams)`: a field added later is refused
 as soon as it is set away from its default, until it is implemented here and added to
-`IMPLEMENTED_FIELDS`. Options refused today: accel_gate (robust Kalman R), cp_excess,
-cp_update_window and gate_temperature (the twin's gate is the hard one of Algorithm 1; a
-soft gate acts only on the straight-through gradient path of `controller_step_fx` called
-directly, never on the values).
+`IMPLEMENTED_FIELDS`. Options refused today: accel_gate (robust Kalman R) and
+gate_temperature (the twin's gate is the hard one of Algorithm 1; a soft gate acts only on
+the straight-through gradient path of `controller_step_fx` called directly, never on the
+values). cp_excess and cp_update_window are implemented (controller_fx.py, issue 25).
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ from tkujax.control.params import ControllerParams
 IMPLEMENTED_FIELDS = frozenset({
     "control_period", "step_period", "double_support_ratio", "lift_height",
     "eps_forward", "eps_backward", "standing_lean", "cp_angle_offset", "cp_gain",
+    "cp_excess", "cp_update_window",
     "lateral_steps", "eps_lateral", "gravity", "kalman_q", "kalman_r",
     "hip_offset_y", "hip_to_ankle_z", "thigh_length", "calf_length", "leg_length", "com_height",
 })
