@@ -39,8 +39,11 @@ def same_value(value, default) -> bool:
     ulp). Traced values cannot be checked: TypeError (call it outside jit)."""
     if isinstance(value, jax.core.Tracer):
         raise TypeError("check_supported needs concrete parameter values (call it outside jit)")
-    a = np.asarray(value, float)
-    return bool(np.all(np.isclose(a, float(default), rtol=1e-12, atol=0.0)))
+    try:
+        a, b = np.asarray(value, float), float(default)
+    except (TypeError, ValueError):      # a non-numeric option: plain equality
+        return bool(value == default)
+    return bool(np.all(np.isclose(a, b, rtol=1e-12, atol=0.0)))
 
 
 def unsupported(params: ControllerParams) -> list[tuple[str, object, object]]:
