@@ -21,6 +21,17 @@ dknee/dD = 2 D / (2 l_t l_c sin knee) = 22 rad/m at the stand pose (D = 0.2 m, l
 0.11 m), so rounding D to the 7.6 um `length` LSB alone moved the knee by up to 0.17 mrad (the
 measured stand-pose knee error was 0.21 mrad, 0.14 of the servo's 1.53 mrad step). Commands that
 close to a servo rounding boundary flip by one servo step against the float controller.
+
+What remains (bound): with the guard bits the commands differ from the float ones by eps ~
+0.1-0.2 mrad before the servos' rounding (measured), so after it by at most one servo step
+s = 2 pi / 4096 per joint, and only where the float value lies within eps of a rounding
+boundary. Moving joint j by dq moves the ankle by exactly 2 r_j sin(dq / 2) <= r_j dq, r_j the
+ankle's distance from that axis (<= l_t + l_c for hip roll and hip pitch, l_c for the knee, 0
+for the ankle axes; hip yaw is 0). Over both legs the commanded step (left ankle x - right
+ankle x) therefore differs by <= 2 dq (2 l_t + 3 l_c): 1.69 mm with dq = s, and 2 eps (2 l_t +
+3 l_c) before rounding (tests/test_fixed_point.py::test_commanded_step_length_within_its_bound).
+The realised step in the physics has no such bound (contact amplifies a one-step flip; see
+results/fpga/README.md).
 """
 
 from __future__ import annotations
