@@ -208,27 +208,30 @@ class Ref:
     def solve_leg(self, p, hip_y):
         c, k, rnd = self.c, self.k, self.c.rounding
         fl, fu, fa = c.length, c.unit, c.angle
+        # The IK's internal lengths: ik_guard_bits more fraction bits, the word <= 26 bits.
+        fk = QFormat(fl.int_bits, fl.frac_bits + max(0, min(c.ik_guard_bits, 26 - fl.word_bits)))
         li = 2 * fl.int_bits + 1
-        fq = QFormat(li, min(fl.frac_bits + 4, 30 - li))
+        fq = QFormat(li, min(fk.frac_bits + 4, 30 - li))
         cl, sl = r_sincos(k["standing_lean"], fa, fu, *self.cs)
         x, y, z = p[0], r_sat(p[1] - hip_y, fl), p[2]
-        m = lambda a, b: r_mul(a, fl, b, fu, fl, rnd)  # noqa: E731
-        px, py, pz = r_sat(m(x, cl) - m(z, sl), fl), y, r_sat(m(x, sl) + m(z, cl), fl)
-        roll, lp = r_atan2(py, r_sat(-pz, fl), fl, fa, *self.cs, fmag=fl)
-        target, dist = r_atan2(r_sat(-px, fl), lp, fl, fa, *self.cs, fmag=fl)
-        th, ca = k["thigh"], k["calf"]
-        lo, hi = abs(r_sat(th - ca, fl)), r_sat(th + ca, fl)
+        m = lambda a, b: r_mul(a, fl, b, fu, fk, rnd)  # noqa: E731
+        px, py, pz = (r_sat(m(x, cl) - m(z, sl), fk), r_requant(y, fl, fk, rnd),
+                      r_sat(m(x, sl) + m(z, cl), fk))
+        roll, lp = r_atan2(py, r_sat(-pz, fk), fk, fa, *self.cs, fmag=fk)
+        target, dist = r_atan2(r_sat(-px, fk), lp, fk, fa, *self.cs, fmag=fk)
+        th, ca = (r_requant(k[n], fl, fk, rnd) for n in ("thigh", "calf"))
+        lo, hi = abs(r_sat(th - ca, fk)), r_sat(th + ca, fk)
         ok = lo <= dist <= hi
         d = max(lo, min(hi, dist))
-        sq = lambda v: r_mul(v, fl, v, fl, fq, rnd)  # noqa: E731
+        sq = lambda v: r_mul(v, fk, v, fk, fq, rnd)  # noqa: E731
         num = r_sat(r_sat(sq(d) - sq(th), fq) - sq(ca), fq)
         one = 1 << fu.frac_bits
         cos_k = max(-one, min(one, r_mul(num, fq, k["inv_2ltlc"], self.cf("inv_2ltlc"), fu, rnd)))
         sin_k = r_sqrt(r_mul(one - cos_k, fu, one + cos_k, fu, fu, rnd), fu, fu, *self.cs)
         knee, _ = r_atan2(sin_k, cos_k, fu, fa, *self.cs)
-        off_y = r_mul(ca, fl, sin_k, fu, fl, rnd)
-        off_x = r_sat(th + r_mul(ca, fl, cos_k, fu, fl, rnd), fl)
-        offset, _ = r_atan2(off_y, off_x, fl, fa, *self.cs)
+        off_y = r_mul(k["calf"], fl, sin_k, fu, fk, rnd)
+        off_x = r_sat(th + r_mul(k["calf"], fl, cos_k, fu, fk, rnd), fk)
+        offset, _ = r_atan2(off_y, off_x, fk, fa, *self.cs)
         pitch = r_sat(target - offset, fa)
         cr, sr = r_sincos(roll, fa, fu, *self.cs)
         m22, m12 = r_mul(cr, fu, cl, fu, fu, rnd), r_mul(sr, fu, cl, fu, fu, rnd)
@@ -484,6 +487,24 @@ def test_wide_words_match_float_controller():
     assert np.max(np.abs(fx[0] - fl[0])) < 1e-5                           # leg targets, rad
 
 
+@pytest.mark.parametrize("changes", [dict(cp_excess=1.0), dict(cp_update_window=0.03),
+                                     dict(cp_update_window=0.09, cp_excess=1.0)])
+def test_wide_words_match_float_controller_with_cp_options(changes):
+    """cp_excess and cp_update_window (implemented in the twin, issue 25): near-float words
+    follow the float controller's x_Sup tick by tick, and the option changes x_Sup."""
+    import dataclasses
+    params = dataclasses.replace(PARAMS, **changes)
+    cfg = FixedPointConfig.wide(straight_through=False)
+    trace = push_trace()
+    fx = jax.jit(functools.partial(scan_fx, cfg=cfg))(params, *trace)
+    fl = jax.jit(scan_float)(params, *trace)
+    assert np.array_equal(np.asarray(fx[3]), np.asarray(fl[3]))
+    assert np.max(np.abs(fx[2] - fl[2])) < 2e-6                           # x_Sup, m
+    assert np.max(np.abs(fx[0] - fl[0])) < 1e-5                           # leg targets, rad
+    base = np.asarray(float_run()[2])
+    assert np.max(np.abs(np.asarray(fl[2]) - base)) > 1e-3                # the option acts
+
+
 def test_default_words_with_latency_track_float_controller():
     """Default words, a 1.4-tick latency; the batch also checks vmap (second trace unused)."""
     cfg = FixedPointConfig(straight_through=False, latency_ticks=1, latency_frac=0.4)
@@ -546,3 +567,187 @@ def test_words_identical_with_x64_enabled():
         on = jax.tree_util.tree_map(np.asarray, jax.jit(f)(a, b))
     assert all(np.array_equal(x, y) and y.dtype == np.int32
                for x, y in zip(jax.tree_util.tree_leaves(off), jax.tree_util.tree_leaves(on)))
+
+
+# ------------------------------------------------------------------ (d) refusal (issue 25)
+
+
+def test_supported_fields_are_fields_and_paper_params_pass():
+    """The implemented list names real fields; ControllerParams() and .paper() (geometry and
+    Kalman noises, both variants) are accepted."""
+    import dataclasses
+    from tkujax.control.fixed import IMPLEMENTED_FIELDS, check_supported, unsupported
+    names = {f.name for f in dataclasses.fields(ControllerParams)}
+    assert IMPLEMENTED_FIELDS <= names
+    for p in (ControllerParams(), ControllerParams.paper(),
+              ControllerParams.paper(variant="estimated")):
+        assert unsupported(p) == [] and check_supported(p) is p
+    # Every field outside the list is refused when moved off its default: the rule iterates
+    # over all fields (nothing hard-coded), so each one is named in turn.
+    for f in dataclasses.fields(ControllerParams):
+        if f.name in IMPLEMENTED_FIELDS:
+            continue
+        bumped = dataclasses.replace(ControllerParams(), **{f.name: f.default + 0.5})
+        assert [u[0] for u in unsupported(bumped)] == [f.name]
+
+
+def test_a_new_controller_option_is_refused_without_code_changes():
+    """A field added later (here on a subclass) is refused once set away from its default, and
+    accepted at its default: no list of unsupported options to maintain."""
+    import dataclasses
+    from tkujax.control.fixed import check_supported
+
+    @dataclasses.dataclass(frozen=True)
+    class Future(ControllerParams):
+        multi_step: float = 0.0
+
+    check_supported(Future())
+    with pytest.raises(ValueError, match=r'^ControllerParams\.multi_step = 2\.0 is not '
+                                         r'implemented by arithmetic = "fixed"'):
+        check_supported(Future(multi_step=2.0))
+
+
+def test_check_supported_refuses_traced_values():
+    import dataclasses
+    from tkujax.control.fixed import check_supported
+    with pytest.raises(TypeError, match="outside jit"):
+        jax.jit(lambda g: check_supported(dataclasses.replace(PARAMS, accel_gate=g)) and 0)(1.0)
+
+
+# ------------------------------------------------------------------ (e) step lengths (issue 25)
+
+SERVO_STEP = 2 * math.pi / 4096          # rad, Dynamixel MX (tkujax.sim.tick)
+
+
+def _ankle_x(q6, params):
+    """Level-frame x of an ankle relative to its hip from one leg's 6 commands (forward
+    kinematics of tkujax.control.ik's convention, the pelvis leaning by standing_lean)."""
+    _, r, hp, k = (float(v) for v in q6[:4])
+    lt, lc, lean = params.thigh_length, params.calf_length, params.standing_lean
+    # R_y(hp) [(0, 0, -l_t) + R_y(k) (0, 0, -l_c)], then R_x(r) (leaves x), then R_y(lean).
+    x = -lt * math.sin(hp) - lc * math.sin(hp + k)
+    z0 = -lt * math.cos(hp) - lc * math.cos(hp + k)
+    z = math.cos(r) * z0
+    return math.cos(lean) * x + math.sin(lean) * z
+
+
+def _step_cmd(q12, params):
+    """Commanded step length: left ankle x minus right ankle x (the hips share x = 0)."""
+    return _ankle_x(q12[6:], params) - _ankle_x(q12[:6], params)
+
+
+def test_forward_kinematics_inverts_the_float_ik():
+    """_ankle_x is an independent check: FK(float IK(p)) = p for a stepped pose."""
+    from tkujax.control.cpg import cpg_feet
+    from tkujax.control.solve import solve_legs
+    pr, pl = cpg_feet(jnp.asarray(0.3), jnp.asarray(0.06), PARAMS)   # landed, x_Sup = 6 cm
+    q = np.asarray(solve_legs(pr, pl, PARAMS)[0], np.float64)
+    assert abs(_ankle_x(q[6:], PARAMS) - float(pl[0])) < 1e-6
+    assert abs(_step_cmd(q, PARAMS) - 0.06) < 1e-6
+
+
+def test_ik_guard_bits_remove_the_stand_pose_bias():
+    """The cause of issue 25's step-length gap: the knee moves 22 rad/m of the ankle distance D,
+    so D rounded to the 7.6 um `length` LSB biased the stand knee by 0.21 mrad (0.14 servo
+    step; commands near a servo rounding boundary then flip by one step). ik_guard_bits = 4
+    (default) carries the IK's lengths with 4 more fraction bits."""
+    import dataclasses
+    from tkujax.control.controller import stand_leg_targets
+    from tkujax.control.fixed import stand_leg_targets_fx
+    ref = np.asarray(stand_leg_targets(PARAMS), np.float64)
+    err = {}
+    for bits in (0, 4):
+        cfg = dataclasses.replace(DEFAULT, ik_guard_bits=bits)
+        q = np.asarray(stand_leg_targets_fx(PARAMS, cfg), np.float64) * cfg.angle.lsb
+        err[bits] = np.abs(q - ref).max()
+    # Closed form of the D term alone: dknee/dD * LSB/2 with dknee/dD = D / (l_t l_c sin knee).
+    lt, lc, d = PARAMS.thigh_length, PARAMS.calf_length, PARAMS.hip_to_ankle_z
+    cos_k = (d * d - lt * lt - lc * lc) / (2 * lt * lc)
+    slope = d / (lt * lc * math.sqrt(1 - cos_k ** 2))
+    assert 21.0 < slope < 23.0                                        # rad/m
+    d_term = slope * DEFAULT.length.lsb / 2          # D rounded to the length LSB: 0.083 mrad
+    assert err[0] > 0.15e-3                          # measured 0.207 mrad (D and p' rounded)
+    assert err[4] < 0.5 * d_term                     # measured 0.037 mrad
+
+
+def test_commanded_step_length_within_its_bound():
+    """Same sensors, both controllers, default words (18 bits): before the servos' rounding the
+    commands differ by eps << one servo step s; after it by at most one step per joint. Moving
+    joint j by dq moves the ankle by exactly 2 r_j sin(dq / 2) <= r_j dq, r_j its distance to
+    the ankle (<= l_t + l_c for the two hip axes, l_c for the knee, 0 for the ankle axes), so the
+    commanded step (left ankle x - right ankle x) differs by <= 2 dq (2 l_t + 3 l_c): 1.69 mm
+    with dq = s, 2 eps (2 l_t + 3 l_c) before rounding."""
+    from tkujax.sim.tick import quantise_targets
+    fx = jax.jit(functools.partial(scan_fx, cfg=DEFAULT))(PARAMS, *push_trace())
+    fl = float_run()
+    assert np.array_equal(np.asarray(fx[3]), np.asarray(fl[3])) and np.asarray(fl[3]).any()
+    qx, qf = np.asarray(fx[0], np.float64), np.asarray(fl[0], np.float64)
+    eps = np.abs(qx - qf).max()
+    assert eps < 0.25 * SERVO_STEP                                   # measured 0.1 mrad
+    sx, sf = (np.asarray(quantise_targets(jnp.asarray(q, jnp.float32)), np.float64)
+              for q in (qx, qf))
+    assert np.abs(sx - sf).max() <= SERVO_STEP * 1.001               # at most one step
+    lever = 2 * PARAMS.thigh_length + 3 * PARAMS.calf_length
+    step_fx = np.array([_step_cmd(q, PARAMS) for q in qx])
+    step_fl = np.array([_step_cmd(q, PARAMS) for q in qf])
+    assert np.abs(step_fl).max() > 0.03                              # the trace steps
+    assert np.abs(step_fx - step_fl).max() <= 2 * eps * lever
+    served = np.array([_step_cmd(a, PARAMS) - _step_cmd(b, PARAMS) for a, b in zip(sx, sf)])
+    assert np.abs(served).max() <= 2 * SERVO_STEP * lever            # 1.69 mm
+    assert np.abs(step_fx - step_fl).max() < 1e-4                    # 0.1 mm before rounding
+
+
+# ------------------------------------------------------------------ (f) EP3C120 resources
+
+
+def test_multiplier_block_rule():
+    from tkujax.control.fixed.resources import mul_blocks
+    assert [mul_blocks(a, b) for a, b in [(18, 18), (19, 18), (24, 24), (36, 36), (37, 18)]] \
+        == [1, 2, 4, 4, 3]
+
+
+def test_resource_count_of_one_kalman_update_by_hand():
+    """kalman_step_fx on [pitch, roll] (kalman_fx.py, read by hand): per axis 3 products
+    (rate dt, k innovation, (1 - k) p), 6 adders (phi + rate dt, p + q, p + r, innovation,
+    phi + k innovation, 1 - k) and one divide. Default words: rate 18, dt 18, unit 18,
+    state 24, cov 18 bits."""
+    from tkujax.control.fixed import kalman_fx, qformat
+    from tkujax.control.fixed.resources import count_ops, module_resources, op_cycles
+    coef = coefficients(PARAMS, DEFAULT)
+    z = jnp.zeros(2, jnp.int32)
+    ops = count_ops(DEFAULT, fn=lambda: kalman_step_fx(z, z, z, z, coef, DEFAULT))
+    assert sorted((o.kind, o.count, o.widths) for o in ops) == sorted([
+        ("mul", 2, (18, 18, 24)), ("mul", 2, (18, 24, 24)), ("mul", 2, (18, 18, 18)),
+        ("add", 2, (24,)), ("add", 2, (18,)), ("add", 2, (18,)), ("add", 2, (24,)),
+        ("add", 2, (24,)), ("add", 2, (18,)), ("div", 2, (18, 15))])
+    m = module_resources(ops, "fn")
+    assert (m["multiplies"], m["adds"], m["divides"]) == (6, 12, 2)
+    assert m["multipliers_18x18"] == 2                   # the 18 x 24 product: 1 x 2 blocks
+    assert m["multipliers_18x18_parallel"] == 2 * 1 + 2 * 2 + 2 * 1
+    # cycles: 2 x (3 + 4 + 3) products, 12 adds, 2 x (15 + 2) divides
+    assert m["latency_cycles"] == 20 + 12 + 34 == sum(o.count * op_cycles(o) for o in ops)
+    # registers: results 2 x (24 + 24 + 18) + 2 x (24 + 18 + 18 + 24 + 24 + 18) + 2 x 17,
+    # the divider 18 + 15 + 1
+    assert m["register_bits"] == 132 + 252 + 34 + 34
+    assert m["cordic_runs"] == 0 and m["rom_words"] == 0
+    # The primitives are restored after counting.
+    assert kalman_fx.mul is qformat.mul and kalman_fx.div_fraction is qformat.div_fraction
+
+
+def test_resource_count_of_cordic_runs_by_hand():
+    """Three rotations of 16 iterations: 3 runs x (16 + 2) cycles, 48 unrolled stages, one atan
+    ROM of 16 words of the z register (Q3.(15 + 2): 21 bits)."""
+    from tkujax.control.fixed.resources import count_ops, module_resources
+    spec = cordic.spec_of(DEFAULT)
+    ops = count_ops(DEFAULT, fn=lambda: cordic.sincos(jnp.zeros(3, jnp.int32), DEFAULT.angle,
+                                                      DEFAULT.unit, spec))
+    m = module_resources(ops, "fn")
+    assert (m["cordic_runs"], m["latency_cycles"], m["cordic_stages_unrolled"]) == (3, 54, 48)
+    assert (m["rom_words"], m["rom_bits"], m["m9k_blocks"]) == (16, 16 * 21, 1)
+    assert (m["cordic_xy_bits"], m["cordic_z_bits"]) == (1 + 1 + 17, 21)
+
+
+def test_state_registers_cover_every_state_word():
+    from tkujax.control.fixed.resources import state_register_bits
+    bits = state_register_bits(FixedPointConfig(latency_ticks=2))
+    assert bits["delay"] == 3 * 12 * 18 and bits["phi"] == 2 * 24 and bits["p"] == 2 * 18

@@ -176,9 +176,15 @@ def _cmd_map(args) -> int:
 
 
 def _cmd_fpga(args) -> int:
-    from tkujax.studies.fpga import run_fpga
+    from tkujax.studies.fpga import run_fpga, write_resources
     from tkujax.studies.sweep import load_params_json
 
+    if args.resources:   # the EP3C120 estimate of the spec's [fpga] config (default: defaults)
+        md, files = write_resources(args.spec, args.out)
+        print("\n".join(str(f) for f in files) + ("\n" if files else "") + md)
+        return 0
+    if args.spec is None or args.out is None:
+        raise ValueError("give SPEC and --out (or --resources)")
     params = load_params_json(args.params) if args.params else None
     res = run_fpga(args.spec, args.out, params=params, backend=args.backend)
     print("\n".join(res["files"]))
@@ -332,9 +338,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("fpga", help="fixed-point FPGA controller: word lengths, CORDIC "
                                     "iterations, latency vs the float controller's outcomes")
-    p.add_argument("spec", help="spec with controller.arithmetic = \"fixed\", e.g. "
-                                "sweeps/fpga_cpu.toml")
-    p.add_argument("--out", required=True, help="output folder (sweep/, float/, fpga/)")
+    p.add_argument("spec", nargs="?", default=None,
+                   help="spec with controller.arithmetic = \"fixed\", e.g. sweeps/fpga_cpu.toml")
+    p.add_argument("--out", default=None, help="output folder (sweep/, float/, fpga/); with "
+                                               "--resources: where resources.md/.json go")
+    p.add_argument("--resources", action="store_true",
+                   help="only the EP3C120 resource estimate (multipliers, CORDIC, registers, "
+                        "ROM, latency) of the spec's [fpga] config, or of the defaults")
     p.add_argument("--params", default=None, help="controller parameters JSON (tkujax tune output)")
     p.add_argument("--backend", choices=["auto", "mjx", "mujoco"], default="auto",
                    help="auto: MJX on a GPU, MuJoCo C on a CPU")

@@ -26,7 +26,8 @@ from tkujax.sim.mjx_import import mjx
 
 from tkujax.sim import physics
 from tkujax.control.controller import StepOverride, controller_init
-from tkujax.control.fixed import FixedPointConfig, controller_init_fx, servo_switch_substep
+from tkujax.control.fixed import (FixedPointConfig, check_supported, controller_init_fx,
+                                  servo_switch_substep)
 from tkujax.control.params import ControllerParams
 from tkujax.model import FSR_SENSORS, LEG_ACTUATORS, ModelParams
 from tkujax.sim.push import CONTROL_PERIOD_S, Push, force_at
@@ -245,6 +246,8 @@ def simulate(pushes: Push, enabled, params: ControllerParams, seed: int = 0,
              model_params: ModelParams | None = None,
              config: RolloutConfig = RolloutConfig()) -> tuple[Series, Outcomes]:
     """Run a batch of pushes (stacked Push, leading axis) and return numpy (series, outcomes)."""
+    if config.fixed is not None:   # options the fixed-point twin lacks: refused, not ignored
+        check_supported(params)
     n = int(np.shape(pushes.impulse_ns)[0])
     enabled = jnp.broadcast_to(jnp.asarray(enabled, jnp.float32), (n,))
     keys = jax.random.split(jax.random.PRNGKey(seed), n)

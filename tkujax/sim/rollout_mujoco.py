@@ -66,7 +66,8 @@ import numpy as np
 
 from tkujax.sim import physics
 from tkujax.control.controller import StepOverride, controller_init
-from tkujax.control.fixed import FixedPointConfig, controller_init_fx, servo_switch_substep
+from tkujax.control.fixed import (FixedPointConfig, check_supported, controller_init_fx,
+                                  servo_switch_substep)
 from tkujax.control.params import ControllerParams
 from tkujax.sim.metrics import outcomes as _outcomes
 from tkujax.model import ModelParams
@@ -246,6 +247,8 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
             dataclasses.replace(overrides, onset_s=pushes.onset_s))
     qv = setup.qvel_slice
     fixed = config.fixed
+    if fixed is not None:   # options the fixed-point twin lacks: refused, not ignored
+        check_supported(params)
     if fixed is not None and overrides is not None:
         raise ValueError("commanded steps (overrides) have no fixed-point controller twin; "
                          "use RolloutConfig(fixed=None)")

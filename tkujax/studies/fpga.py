@@ -10,7 +10,9 @@ DIR/float; then, in DIR/fpga:
   boundary.png      max survivable impulse per azimuth (`maps.max_recoverable_impulse`) per
                     value of each key, against the float boundary
   latency.png       the boundary (mean and min over azimuths) vs total latency in periods
-  summary.md / summary.json
+  summary.md / summary.json   (each configuration with its EP3C120 resource estimate:
+                    18x18 multipliers, register bits, latency cycles; `resources.py`)
+  resources.md / resources.json   the full estimate of the spec's [fpga] config
 
 "Most generous": the most bits and iterations, zero latency, round-to-nearest; for one key's
 curve every other key sits there, so each curve isolates one design choice. A boundary "moves"
@@ -27,10 +29,13 @@ from pathlib import Path
 import numpy as np
 
 from tkujax.control.fixed.qformat import ROUNDING_MODES
+from tkujax.control.fixed.support import check_supported
 from tkujax.control.params import ControllerParams
 from tkujax.studies.maps import max_recoverable_impulse
-from tkujax.studies.spec import FPGA_COLUMN, SpecError, SweepSpec, load_spec, parse_spec
-from tkujax.studies.sweep import load, run_sweep
+from tkujax.control.fixed.config import FixedPointConfig
+from tkujax.studies.spec import (FPGA_COLUMN, SpecError, SweepSpec, fixed_point_config, load_spec,
+                                 parse_spec)
+from tkujax.studies.sweep import controller_params_from, load, run_sweep
 
 # Keys whose generous end is the smallest value (less latency is better); the rest: largest
 # (more bits, more iterations); rounding: "nearest" (index 0).
@@ -259,16 +264,59 @@ def _markdown(res: dict, spec: SweepSpec, manifests: dict) -> str:
                  f"{lat['tolerated_periods']} periods (tested {lat['periods']}; boundary mean "
                  f"{[round(x, 3) for x in lat['boundary_mean_ns']]} N s, min "
                  f"{[round(x, 3) for x in lat['boundary_min_ns']]})")
+    rcols = "resources" in res["configs"][0]
     L += ["", "| " + " | ".join(res["gridded"]) + " | agreement | differ | max step diff (mm) | "
-          "boundary moved at (deg) |",
-          "|" + "---|" * (len(res["gridded"]) + 4)]
+          "boundary moved at (deg) |" + (" 18x18 shared / parallel | register bits | latency "
+                                          "(cycles) |" if rcols else ""),
+          "|" + "---|" * (len(res["gridded"]) + 4 + 3 * rcols)]
     for r in res["configs"]:
         vals = [str(v) if isinstance(v, str) else f"{v:g}" for v in r["config"].values()]
-        L.append("| " + " | ".join(vals) + f" | {100 * r['agreement']:.1f} % | {r['n_differ']} | "
-                 f"{1000 * r['max_step_diff_m']:.2f} | "
-                 f"{', '.join(f'{a:g}' for a in r['moved_azimuths_deg']) or '-'} |")
+        row = ("| " + " | ".join(vals) + f" | {100 * r['agreement']:.1f} % | {r['n_differ']} | "
+               f"{1000 * r['max_step_diff_m']:.2f} | "
+               f"{', '.join(f'{a:g}' for a in r['moved_azimuths_deg']) or '-'} |")
+        if rcols:
+            q = r["resources"]
+            row += (f" {q['multipliers_18x18']} / {q['multipliers_18x18_parallel']} | "
+                    f"{q['register_bits']:,} | {q['latency_cycles']:,} |")
+        L.append(row)
+    if rcols:
+        L += ["", "Resources: EP3C120 estimate per configuration (`tkujax fpga --resources`, "
+              "architecture and rules in tkujax/control/fixed/resources.py; resources.md holds "
+              "the spec's base configuration)."]
     L.append("")
     return "\n".join(L)
+
+
+def resource_summary(config) -> dict:
+    """The few resource numbers shown beside agreement (resources.py for the full estimate)."""
+    from tkujax.control.fixed.resources import resources
+    t = resources(config)["total"]
+    return {k: t[k] for k in ("multipliers_18x18", "multipliers_18x18_parallel", "register_bits",
+                              "logic_elements", "latency_cycles", "cordic_stages_unrolled")}
+
+
+def write_resources(spec: SweepSpec | str | Path | None, out: str | Path | None):
+    """The EP3C120 estimate (markdown, and json) of the spec's [fpga] values over the
+    FixedPointConfig defaults (no spec: the defaults); written to out/resources.md and .json
+    when out is given. Returns (markdown, files)."""
+    from tkujax.control.fixed.resources import resources, resources_markdown
+    if spec is None:
+        config = FixedPointConfig()
+    else:
+        spec = spec if isinstance(spec, SweepSpec) else load_spec(spec)
+        if spec.arithmetic != "fixed":
+            raise SpecError('tkujax fpga: the spec needs controller.arithmetic = "fixed"')
+        config = fixed_point_config(spec.fpga)
+    res = resources(config)
+    md = resources_markdown(res)
+    files = []
+    if out is not None:
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        files = [out / "resources.md", out / "resources.json"]
+        files[0].write_text(md)
+        files[1].write_text(json.dumps(res, indent=1))
+    return md, files
 
 
 def run_fpga(spec: SweepSpec | str | Path, out: str | Path,
@@ -280,6 +328,7 @@ def run_fpga(spec: SweepSpec | str | Path, out: str | Path,
     spec = spec if isinstance(spec, SweepSpec) else load_spec(spec)
     if spec.arithmetic != "fixed":
         raise SpecError('tkujax fpga: the spec needs controller.arithmetic = "fixed"')
+    check_supported(controller_params_from(params or ControllerParams.paper(), spec.controller))
     out = Path(out)
     m_fixed = run_sweep(spec, out / "sweep", params=params, backend=backend, quiet=quiet)
     m_float = run_sweep(float_reference_spec(spec), out / "float", params=params,
@@ -287,8 +336,11 @@ def run_fpga(spec: SweepSpec | str | Path, out: str | Path,
     if not (m_fixed["complete"] and m_float["complete"]):
         raise RuntimeError(f"{out}: sweep incomplete; rerun the same command to resume")
     res = analyse(load(out / "sweep"), load(out / "float"), spec)
+    for row in res["configs"]:     # resources beside agreement
+        row["resources"] = resource_summary(fixed_point_config(spec.fpga | row["config"]))
     dest = out / "fpga"
     dest.mkdir(parents=True, exist_ok=True)
+    write_resources(spec, dest)
     files = _plots(res, dest)
     (dest / "summary.json").write_text(json.dumps(res, indent=1))
     summary = dest / "summary.md"

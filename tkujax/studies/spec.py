@@ -43,7 +43,9 @@ FPGA fixed-point controller (issue 15; `tkujax.control.fixed`):
     angle_frac_bits = 15       # <group>_int_bits / <group>_frac_bits for angle, rate, length,
     cordic_iterations = 16     #   accel, unit, state, cov; angle_state_frac_bits sets both
     latency_ticks = 0          #   angle and state fraction bits; coef_bits, cordic_guard_bits,
-    latency_frac = 0.0         #   rounding ("nearest" / "truncate")
+    latency_frac = 0.0         #   rounding ("nearest" / "truncate"), ik_guard_bits
+    # ControllerParams options the twin does not implement (accel_gate, cp_excess, ...) must
+    # stay at their defaults: tkujax.control.fixed.check_supported.
     [controller.grid]
     fpga.cordic_iterations = [6, 8, 12]   # any [fpga] key gridded: one record column fpga_<key>
 
@@ -149,6 +151,7 @@ FPGA_FIELDS = (
     | {"angle_state_frac_bits": (1, MAX_GROUP_WORD_BITS - 3, "bits (angle and state together)"),
        "coef_bits": (12, 31, "bits"), "cordic_iterations": (1, 30, "iterations"),
        "cordic_guard_bits": (0, 3, "bits"), "latency_ticks": (0, 100, "control periods"),
+       "ik_guard_bits": (0, 8, "bits (extra fraction bits of the IK's lengths)"),
        "latency_frac": (0.0, 1.0, "(fraction of a control period; 1 excluded)"),
        "rounding": (0, len(ROUNDING_MODES) - 1, f"(one of {ROUNDING_MODES})")})
 FPGA_COLUMN = "fpga_"   # record column prefix of a gridded [fpga] key
@@ -324,6 +327,8 @@ def parse_spec(data: dict) -> SweepSpec:
     if arithmetic == "fixed" and step_grid:
         raise SpecError("[step]: commanded steps have no fixed-point controller twin; "
                         "use controller.arithmetic = \"float\"")
+    if arithmetic == "fixed":
+        _check_fixed_controller(controller, controller_grid)
     return SweepSpec(name=sweep.get("name", "sweep"), seed=sweep.get("seed", 0),
                      chunk_size=chunk, duration_s=duration, control=control,
                      push_grid=push_grid, push_random=push_random, n_random=n_random,
@@ -332,6 +337,27 @@ def parse_spec(data: dict) -> SweepSpec:
                      step_grid=step_grid,
                      step_reference=step_reference, arithmetic=arithmetic, fpga=fpga,
                      fpga_grid=fpga_grid)
+
+
+def _check_fixed_controller(controller: dict, grid: dict) -> None:
+    """arithmetic = "fixed": every [controller] value and [controller.grid] value of a field the
+    fixed-point twin does not implement must be that field's default (`check_supported`)."""
+    from tkujax.control.fixed.support import IMPLEMENTED_FIELDS, same_value
+    from tkujax.control.params import ControllerParams
+    defaults = ControllerParams()
+    items = [(f"controller.{k}", k, v) for k, v in controller.items()]
+    items += [(f"controller.grid.{k}[{i}]", k, float(v)) for k, vals in grid.items()
+              for i, v in enumerate(vals)]
+    for key, k, v in items:
+        field = k[:-4] if k.endswith("_deg") else k
+        if field in IMPLEMENTED_FIELDS:
+            continue
+        si = v * (math.pi / 180.0) if k.endswith("_deg") else v
+        default = getattr(defaults, field)
+        if not same_value(si, default):
+            shown = default * 180.0 / math.pi if k.endswith("_deg") else default
+            raise SpecError(f"{key} = {v!r}: controller.arithmetic = \"fixed\" does not implement "
+                            f"{field} (only its default {shown!r}); use arithmetic = \"float\"")
 
 
 def _fpga_value(key: str, name: str, value):

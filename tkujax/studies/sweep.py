@@ -43,7 +43,7 @@ from tkujax.model import ModelParams
 from tkujax.sim.push import Push
 from tkujax.sim.rollout_mjx import RolloutConfig, model_index, rollout
 from tkujax.studies import chunks
-from tkujax.control.fixed import FixedPointConfig
+from tkujax.control.fixed import FixedPointConfig, check_supported
 from tkujax.studies.spec import FPGA_COLUMN, SpecError, SweepSpec, fixed_point_config, load_spec
 
 OUTCOME_KEYS = ("fell", "diverged", "recovery_time_s", "step_length_m", "step_width_m",
@@ -379,6 +379,8 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
     sharding = NamedSharding(mesh, PartitionSpec("push"))
     varied = tuple(sorted(spec.controller_grid))
     base = controller_params_from(params, spec.controller)
+    if spec.arithmetic == "fixed":   # the twin lacks some float options: refuse, do not ignore
+        check_supported(base)
     steps = bool(spec.step_grid)
     fpga = spec.fpga if spec.arithmetic == "fixed" else None
     fpga_varied = tuple(sorted(spec.fpga_grid))

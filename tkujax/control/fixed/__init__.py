@@ -7,6 +7,7 @@ Pure JAX integer arithmetic (int32 words, jit/vmap-able, independent of jax's x6
   coefficients.py      ControllerParams -> coefficient registers
   kalman_fx.py, capture_point_fx.py, cpg_fx.py, ik_fx.py    the four modules
   controller_fx.py     controller_step_fx: drop-in twin of controller.controller_step
+  support.py           check_supported: refuse ControllerParams options the twin lacks
 """
 
 from tkujax.control.fixed.capture_point_fx import capture_point_fx, step_length_fx
@@ -20,9 +21,10 @@ from tkujax.control.fixed.cpg_fx import cpg_feet_fx
 from tkujax.control.fixed.ik_fx import leg_ik_fx, solve_legs_fx
 from tkujax.control.fixed.kalman_fx import accel_to_angle_fx, kalman_step_fx
 from tkujax.control.fixed.qformat import QFormat, quantize, straight_through, to_float
+from tkujax.control.fixed.support import IMPLEMENTED_FIELDS, check_supported, unsupported
 
 __all__ = [
-    "Coefficients", "CordicSpec", "FixedControllerOutput", "FixedControllerState",
+    "Coefficients", "CordicSpec", "IMPLEMENTED_FIELDS", "check_supported", "unsupported", "FixedControllerOutput", "FixedControllerState",
     "FixedPointConfig", "QFormat", "accel_to_angle_fx", "capture_point_fx", "coef_format",
     "coefficients", "controller_init_fx", "controller_step_fx", "cpg_feet_fx", "kalman_step_fx",
     "leg_ik_fx", "quantize", "servo_command", "servo_switch_substep", "solve_legs_fx",

@@ -14,6 +14,11 @@ registers whose binary point is placed for a design range (value beyond it satur
   inv_2ltlc     1/m^2   Q7.(c-8)   1/(2 l_t l_c) < 128  (l_t l_c > 39 cm^2)
   t_lift, t_land ticks  Q10.(c-11) step phase boundaries in control periods, < 1024
   dphase_x, _z  rad/tick Q2.(c-3)  CPG phase increments omega * dt
+  update_ticks  ticks  Q10.(c-11) cp_update_window / dt + 1/2: x_Sup is recomputed while the
+                                  step is younger than this many periods (cp_update_window)
+  cp_mid        rad    state      (eps_forward - eps_backward) / 2: which threshold cp_excess
+                                  measures the excess over
+  cp_excess, cp_update, lateral   mode bits (bools)
 """
 
 from __future__ import annotations
@@ -29,9 +34,10 @@ from tkujax.control.fixed.qformat import QFormat, quantize
 from tkujax.control.params import ControllerParams
 
 _COEF_INT_BITS = {"dt": 0, "cp_gain": 4, "two_sqrt_gl": 5, "sqrt_hg": 0, "inv_2ltlc": 7,
-                  "t_lift": 10, "t_land": 10, "dphase_x": 2, "dphase_z": 2}
+                  "t_lift": 10, "t_land": 10, "dphase_x": 2, "dphase_z": 2, "update_ticks": 10}
+MODE_BITS = ("lateral", "cp_excess", "cp_update")   # one-bit registers (bools)
 _GROUP = {"kalman_q": "cov", "kalman_r": "cov", "eps_forward": "state", "eps_backward": "state",
-          "eps_lateral": "state", "cp_angle_offset": "angle", "standing_lean": "angle",
+          "eps_lateral": "state", "cp_mid": "state", "cp_angle_offset": "angle", "standing_lean": "angle",
           "leg_length": "length", "hip_offset_y": "length", "hip_to_ankle_z": "length",
           "thigh": "length", "calf": "length", "lift": "length"}
 
@@ -47,7 +53,8 @@ def coef_format(name: str, config: FixedPointConfig) -> QFormat:
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class Coefficients:
-    """int32 scalar words, one per coefficient (formats: `coef_format`); lateral is a bool."""
+    """int32 scalar words, one per coefficient (formats: `coef_format`); lateral, cp_excess and
+    cp_update are bools (mode bits)."""
 
     dt: jax.Array
     kalman_q: jax.Array
@@ -71,7 +78,11 @@ class Coefficients:
     t_land: jax.Array
     dphase_x: jax.Array
     dphase_z: jax.Array
+    update_ticks: jax.Array
+    cp_mid: jax.Array
     lateral: jax.Array
+    cp_excess: jax.Array
+    cp_update: jax.Array
 
 
 def coefficients(params: ControllerParams, config: FixedPointConfig) -> Coefficients:
@@ -89,7 +100,10 @@ def coefficients(params: ControllerParams, config: FixedPointConfig) -> Coeffici
         calf=p.calf_length, lift=p.lift_height,
         inv_2ltlc=1.0 / (2.0 * p.thigh_length * p.calf_length),
         t_lift=0.5 * gamma * T / dt, t_land=(T - 0.5 * gamma * T) / dt,
-        dphase_x=math.pi * dt / (2.0 * swing), dphase_z=math.pi * dt / swing)
+        dphase_x=math.pi * dt / (2.0 * swing), dphase_z=math.pi * dt / swing,
+        update_ticks=p.cp_update_window / dt + 0.5, cp_mid=0.5 * (p.eps_forward - p.eps_backward))
     words = {k: quantize(jax.lax.stop_gradient(jnp.asarray(v)), coef_format(k, config), "nearest")
              for k, v in values.items()}
-    return Coefficients(lateral=jnp.asarray(p.lateral_steps) > 0.5, **words)
+    return Coefficients(lateral=jnp.asarray(p.lateral_steps) > 0.5,
+                        cp_excess=jnp.asarray(p.cp_excess) > 0.5,
+                        cp_update=jnp.asarray(p.cp_update_window) > 0.0, **words)

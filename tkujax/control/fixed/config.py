@@ -12,6 +12,7 @@ a 24-bit Kalman accumulator, 16 CORDIC iterations and 2 guard bits:
   state   rad      Q2.21     +-4 rad, 4.8e-7 rad        accumulates gyro*dt ~ 1e-5 per tick
   cov     rad^2    Q-3.20    +-0.125, 9.5e-7            P ~ 5e-4 .. 3e-3
   coef    -        18 bits   binary point per coefficient (coefficients.py)
+  IK      m        Q0.21     length + ik_guard_bits: the IK's internal lengths (issue 25)
 
 Limits: every group's word 1 + int_bits + frac_bits is <= 26 bits and guard bits <= 3, so the
 widest CORDIC register (word + 2 headroom + 3 guard bits) still fits the 31-bit limit of the
@@ -44,6 +45,11 @@ class FixedPointConfig:
     coef_bits            word length of the coefficient registers (params-derived constants).
     rounding             "nearest" (add half LSB, floor) or "truncate" (floor), for every
                          rounding of the datapath; CORDIC shifts always truncate (wiring).
+    ik_guard_bits        extra fraction bits of the IK's internal length words (pelvis-frame
+                         ankle position, leg-plane length L', ankle distance D), capped so the
+                         word stays <= 26 bits. The knee moves 22 rad per metre of D at the
+                         stand pose, so D rounded to the 7.6 um length LSB alone costs
+                         0.17 mrad (0.11 servo LSB); 4 bits cut that 16-fold (issue 25).
     latency_ticks        whole control periods between sensor read and servo command (delay
                          line in the state).
     latency_frac         extra fraction of a period [0, 1): the sim applies the previous
@@ -64,6 +70,7 @@ class FixedPointConfig:
     cordic_iterations: int = 16
     cordic_guard_bits: int = 2
     rounding: str = "nearest"
+    ik_guard_bits: int = 4
     latency_ticks: int = 0
     latency_frac: float = 0.0
     straight_through: bool = True
@@ -97,7 +104,7 @@ class FixedPointConfig:
                 bad(f"{name}.frac_bits", f"in [1, {MAX_GROUP_WORD_BITS - 1 - f.int_bits}] "
                     f"(word 1 + int + frac in [4, {MAX_GROUP_WORD_BITS}])", f.frac_bits)
         ints = {"coef_bits": (12, 31), "cordic_iterations": (1, 30), "cordic_guard_bits": (0, 3),
-                "latency_ticks": (0, 100)}
+                "ik_guard_bits": (0, 8), "latency_ticks": (0, 100)}
         for name, (lo, hi) in ints.items():
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or not lo <= v <= hi:
@@ -111,6 +118,13 @@ class FixedPointConfig:
         if not isinstance(self.straight_through, bool):
             bad("straight_through", "a bool", self.straight_through)
         return self
+
+    @property
+    def ik_length(self) -> QFormat:
+        """Format of the IK's internal lengths: `length` with ik_guard_bits more fraction bits
+        (fewer where the word would pass MAX_GROUP_WORD_BITS)."""
+        extra = max(0, min(self.ik_guard_bits, MAX_GROUP_WORD_BITS - self.length.word_bits))
+        return QFormat(self.length.int_bits, self.length.frac_bits + extra)
 
     @property
     def latency_periods(self) -> float:

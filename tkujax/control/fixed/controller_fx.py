@@ -3,6 +3,9 @@
 Float sensors are quantised at the input (the ADC: gyro in rad/s -> `rate` words, accel in
 m/s^2 -> `accel` words in g), the four modules run on integer words, and the 12 leg targets
 leave as floats. Hard gates only (Algorithm 1); `gate_temperature` acts on the gradient path.
+cp_excess and cp_update_window are implemented (mode bits and two coefficient registers);
+options that are not (accel_gate, a soft gate, later ones) are refused at the edges by
+`support.check_supported`.
 
 Latency (sensor-to-servo, latency_ticks + latency_frac control periods):
   * whole ticks are a delay line of servo commands inside the state (pure state in / out);
@@ -28,7 +31,7 @@ import jax.numpy as jnp
 from tkujax.control.controller import (ControllerState, Sensors, StepsState, controller_init,
                                       controller_step)
 from tkujax.control.fixed.capture_point_fx import band_gate_fx, step_length_fx
-from tkujax.control.fixed.coefficients import coefficients
+from tkujax.control.fixed.coefficients import coef_format, coefficients
 from tkujax.control.fixed.config import FixedPointConfig
 from tkujax.control.fixed.cpg_fx import cpg_feet_fx
 from tkujax.control.fixed.ik_fx import solve_legs_fx
@@ -140,10 +143,21 @@ def controller_step_fx(state: FixedControllerState, sensors: Sensors, params: Co
     gate = on & (band_gate_fx(pitch, neg(coef.eps_backward, c.state), coef.eps_forward) | gate_lat)
     trigger = gate & ~state.stepping                      # only the first detection counts
     theta = sub(requant(pitch, c.state, c.angle, rnd), coef.cp_angle_offset, c.angle)
+    # cp_excess: the excess over the threshold on pitch's side of cp_mid (controller.cp_angle).
+    threshold = jnp.where(pitch >= coef.cp_mid, coef.eps_forward, neg(coef.eps_backward, c.state))
+    excess = requant(sub(pitch, threshold, c.state), c.state, c.angle, rnd)
+    theta = jnp.where(coef.cp_excess, excess, theta)
     steps = step_length_fx(jnp.stack([theta, requant(psi, c.state, c.angle, rnd)]), coef, c)
     x_sup = jnp.where(trigger, steps[0], state.x_sup)
     y_sup = jnp.where(trigger & coef.lateral, steps[1], state.y_sup)
     start = jnp.where(trigger, state.tick, state.step_start_tick)
+    # cp_update_window: x_Sup follows the current angle while the step is younger than
+    # update_ticks periods and the pitch still lies outside its band (controller_step's rule).
+    age = jnp.left_shift(jnp.clip(state.tick - start, 0, (1 << 10) - 1),
+                         coef_format("update_ticks", c).frac_bits)
+    updating = (coef.cp_update & state.stepping & ~trigger & (age < coef.update_ticks)
+                & band_gate_fx(pitch, neg(coef.eps_backward, c.state), coef.eps_forward))
+    x_sup = jnp.where(updating, steps[0], x_sup)
     targets, reachable = _targets(state.tick - start, x_sup, y_sup, coef, c)
     # Delay line: [T_{k-N-1} .. T_{k-1}] + T_k; command T_{k-N}, previous command T_{k-N-1}.
     full = jnp.concatenate([state.delay, targets[None]], 0)
