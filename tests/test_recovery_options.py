@@ -208,3 +208,18 @@ def test_later_step_feet_profile(params):
 def test_validate_names_the_option_and_its_range(params, field, value):
     with pytest.raises(ValueError, match=rf"ControllerParams\.{field} must be in "):
         dataclasses.replace(params, **{field: value}).validate()
+
+
+def test_recommended_is_the_committed_tuning_result(params):
+    import json
+    from pathlib import Path
+
+    rec = ControllerParams.recommended()
+    tuned = json.loads((Path(__file__).parents[1] / "results" / "tune_recovery"
+                        / "params_after.json").read_text())
+    for f in dataclasses.fields(ControllerParams):
+        assert getattr(rec, f.name) == tuned[f.name], f.name
+    # Everything the tuning did not touch is the paper's (geometry, Kalman noises, thresholds).
+    for name in ("leg_length", "com_height", "kalman_q", "kalman_r", "standing_lean"):
+        assert getattr(rec, name) == getattr(params, name)
+    assert rec.cp_trigger == 1.0 and rec.max_steps == 2.0 and rec.lateral_steps == 1.0

@@ -157,6 +157,15 @@ class ControllerParams:
             **(KALMAN_ESTIMATED if variant == "estimated" else {}))
         return p.validate()
 
+    @classmethod
+    def recommended(cls, model_params=None) -> "ControllerParams":
+        """The recommended recovery controller: the paper's architecture with the recovery
+        extensions on (rate-aware capture point and trigger, stance feedback, up to two steps,
+        sideways steps, the accelerometer gate), tuned by CMA-ES through MJX on the default
+        robot (`tkujax tune sweeps/tune_recovery.toml`, NVIDIA H200; results/tune_recovery/,
+        whose params_after.json holds these values). Geometry and Kalman noises as `paper`."""
+        return dataclasses.replace(cls.paper(model_params), **RECOMMENDED).validate()
+
     def validate(self) -> "ControllerParams":
         """Check ranges on concrete values; raises ValueError naming the field. Returns self.
 
@@ -220,3 +229,28 @@ class ControllerParams:
 
 # The Kalman noises before calibration (ControllerParams.paper(..., variant="estimated")).
 KALMAN_ESTIMATED = dict(kalman_q=1e-4, kalman_r=3e-3)
+
+
+# The recommended set (`ControllerParams.recommended()`): the third CMA-ES run of
+# results/tune_recovery (values exactly as its params_after.json).
+RECOMMENDED = dict(
+    step_period=0.21796063714176211,
+    double_support_ratio=0.008870187177758282,
+    lift_height=0.07730342603325048,
+    cp_gain=3.0460748835149944,
+    lateral_steps=1.0,
+    accel_gate=0.07084230281711561,
+    cp_rate_blend=0.9990902368214323,
+    cp_lookahead_s=0.0012920432052628882,
+    cp_trigger=1.0,
+    cp_trigger_forward_m=0.03993349378052501,
+    cp_trigger_backward_m=0.2802021533462098,
+    cp_trigger_lateral_m=0.15116217402324547,
+    stance_ankle_kp=0.40986881503036643,
+    stance_ankle_kd=0.09494472882779928,
+    stance_hip_kp=-0.30625184783466985,
+    stance_hip_kd=0.018971448906724336,
+    stance_roll_kp=-0.4233408953649201,
+    stance_roll_kd=0.055000800158451546,
+    max_steps=2.0,
+)
