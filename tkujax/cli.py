@@ -257,9 +257,11 @@ def _cmd_refine(args) -> int:
 def _cmd_tune(args) -> int:
     from tkujax.studies.tune import run_tune
 
-    run_tune(args.spec, args.out, iterations=args.iterations, compare=not args.no_compare,
-             evaluation=not args.no_eval)
+    record = run_tune(args.spec, args.out, iterations=args.iterations,
+                      compare=not args.no_compare, evaluation=not args.no_eval)
     print(Path(args.out, "summary.md").read_text())
+    print(f"recommendation: {record['recommendation']['reason']} "
+          f"({Path(args.out, 'params_after.json')})")
     return 0
 
 

@@ -69,6 +69,14 @@ def summary_markdown(rec: dict, comparison: dict | None = None) -> str:
         lo, hi = rec["ranges_user_units"][f]
         lines.append(f"| {f} ({TUNABLE[f][3] or '-'}) | [{lo:g}, {hi:g}] | "
                      f"{rec['params_user']['before'][f]:.4g} | {rec['params_user']['after'][f]:.4g} |")
+    dec = rec.get("recommendation")
+    if dec:
+        lines[4:4] = ["## Recommendation (params_after.json)", "",
+                      f"**{_first_upper(dec['reason'])}.**"
+                      + ("" if dec["recommended"] == "after" else
+                         " params_after.json is the starting set (`recommended_from`: start); "
+                         "the search's result is in params_tuned.json."), "",
+                      f"Rule: {dec['rule']}.", ""]
     ev = rec["evaluation"]
     if ev:
         azs = sorted({a for v in ev.values() for a in v.get("max_impulse", {})}, key=float)
@@ -98,6 +106,10 @@ def summary_markdown(rec: dict, comparison: dict | None = None) -> str:
 
         lines += ["", compare_markdown(comparison).replace("# tkujax tune: method", "## Method")]
     return "\n".join(lines) + "\n"
+
+
+def _first_upper(text: str) -> str:
+    return text[:1].upper() + text[1:]
 
 
 def _mean_se(x) -> str:
