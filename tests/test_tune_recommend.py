@@ -112,3 +112,18 @@ def test_run_tune_writes_the_recommendation(tmp_path, monkeypatch, capsys, bette
     assert json.loads((out / "history.json").read_text())["recommendation"]["recommended"] == (
         "after" if better else "before")
     assert RULE in summary
+
+
+def test_direction_harm_is_reported_not_vetoed():
+    from tkujax.studies.tune.evaluate import harmed_directions
+
+    # Sectors: 0 = behind, 2 = front; 4 pushes each. Behind: 3 -> 1 falls; front: 0 -> 1.
+    sector = np.array([0, 0, 0, 0, 2, 2, 2, 2])
+    before = _ev([1, 1, 1, 0, 0, 0, 0, 0], [5, 5, 5, 1, 1, 1, 1, 1])
+    after = _ev([1, 0, 0, 0, 1, 0, 0, 0], [5, 1, 1, 1, 5, 1, 1, 1])
+    evals = {"before": before, "after": after}
+    harmed = harmed_directions(evals, sector, ("behind", "right", "front", "left"))
+    assert harmed == [dict(direction="front", before=0.0, after=0.25, n=4)]
+    d = recommend(evals, harmed)
+    assert d["recommended"] == "after" and "WARNING" in d["reason"] and "from front" in d["reason"]
+    assert d["harmed_directions"] == harmed

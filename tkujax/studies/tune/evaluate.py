@@ -77,18 +77,50 @@ RULE = ("the tuned set is recommended only when, on the held-out pushes (hard co
         "difference; otherwise the starting set is kept")
 
 
-def recommend(evals: dict) -> dict:
+def harmed_directions(evals: dict, sector, names, harm_pp: float = 2.0) -> list[dict]:
+    """Direction sectors where the tuned set falls more often on the held-out pushes than the
+    starting set by more than harm_pp points (sector: the held-out pushes' sector indices;
+    names: their names). Reported with the recommendation, never a veto: per-direction counts
+    of a small evaluation are noisy."""
+    b, a = evals.get("before", {}), evals.get("after", {})
+    if "heldout_fell" not in a or "heldout_fell" not in b:
+        return []
+    sector = np.asarray(sector)
+    rates = {}
+    for name, v in (("before", b), ("after", a)):
+        div = np.asarray(v.get("heldout_push_diverged", np.zeros(sector.size, bool)), bool)
+        if div.size != sector.size:
+            return []
+        fell = np.full(sector.size, np.nan)
+        fell[~div] = np.asarray(v["heldout_fell"], float)
+        rates[name] = fell
+    out = []
+    for k, name in enumerate(names):
+        fb = rates["before"][(sector == k) & np.isfinite(rates["before"])]
+        fa = rates["after"][(sector == k) & np.isfinite(rates["after"])]
+        if fb.size and fa.size and 100 * (fa.mean() - fb.mean()) > harm_pp + 1e-9:
+            out.append(dict(direction=name, before=float(fb.mean()), after=float(fa.mean()),
+                            n=int(min(fb.size, fa.size))))
+    return out
+
+
+def recommend(evals: dict, harmed: list[dict] | None = None) -> dict:
     """Which set to recommend, "after" (the tuned one) or "before" (the starting one), by
     `RULE`, from `evaluate`'s result for both.
 
     Returns dict(recommended ("after" | "before"), verified (False when there was no held-out
     evaluation: the tuned set is then recommended unchecked), fall_before, fall_after,
     loss_diff (mean paired after - before over pushes that diverged in neither), loss_diff_se,
-    n_paired, reason (a sentence), rule)."""
+    n_paired, harmed_directions (`harmed_directions`, passed in: a warning added to the
+    reason, not part of the rule), reason (a sentence), rule)."""
+    harmed = list(harmed or [])
+    warn = ("" if not harmed else "; WARNING: the tuned set falls more often on held-out "
+            "pushes " + ", ".join(f"from {h['direction']} ({100 * h['before']:.1f} % -> "
+                                  f"{100 * h['after']:.1f} % of {h['n']})" for h in harmed))
     b, a = evals.get("before", {}), evals.get("after", {})
     out = dict(rule=RULE, fall_before=b.get("heldout_fall_rate"),
                fall_after=a.get("heldout_fall_rate"), loss_diff=None, loss_diff_se=None,
-               n_paired=0)
+               n_paired=0, harmed_directions=harmed)
     if out["fall_before"] is None or out["fall_after"] is None:
         return out | dict(recommended="after", verified=False,
                           reason="no held-out evaluation ran (--no-eval or evaluate.n = 0): "
@@ -114,4 +146,4 @@ def recommend(evals: dict) -> dict:
             f"{se:.4f} (paired, s.e.), more than one standard error"))
     return out | dict(recommended="after", verified=True, reason=(
         f"recommended the tuned set: held-out fall rate {pct(fa)} vs the starting set's "
-        f"{pct(fb)}, held-out loss {mean:+.4f} +- {se:.4f} (paired, s.e.) against it"))
+        f"{pct(fb)}, held-out loss {mean:+.4f} +- {se:.4f} (paired, s.e.) against it{warn}"))

@@ -17,7 +17,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from tkujax.studies.tune.evaluate import evaluate, params_json, recommend
+from tkujax.studies.tune.evaluate import evaluate, harmed_directions, params_json, recommend
 from tkujax.studies.tune.problem import TuneProblem, _x64
 from tkujax.studies.tune.report import plot_outputs, summary_markdown
 from tkujax.studies.tune.search import SearchConfig, run_search
@@ -86,7 +86,13 @@ def _run_tune(spec: TuneSpec, out: Path, quiet: bool, compiler_options: dict | N
 
     # Never recommend a worse set: params_after.json is the tuned set only when the held-out
     # evaluation says it is better (evaluate.RULE); else the starting set, with a note.
-    decision = recommend(evals)
+    harmed = []
+    if evaluation and spec.eval_n:
+        from tkujax.studies.compare import SECTOR_NAMES, sector_index
+
+        harmed = harmed_directions(evals, sector_index(heldout["azimuth_deg"], 4),
+                                   SECTOR_NAMES[4])
+    decision = recommend(evals, harmed)
     log(decision["reason"])
     params = {name: reparam.params_np(base, z) for name, z in cands.items()}
     chosen = decision["recommended"]
