@@ -13,6 +13,7 @@ MUJOCO_GL and XLA options first):
   tkujax.run_paper                           the paper's experiment
   tkujax.run_sweep, tkujax.load              sweeps and their records
   tkujax.make_maps                           stability maps
+  tkujax.compare_runs                        runs of one spec compared: difference maps, no harm
   tkujax.replay                              one sweep record re-simulated
   tkujax.run_tune                            gradient tuning
   tkujax.run_calibrate                       fit the model to the paper's Tables 4-5
@@ -34,7 +35,7 @@ _API = {
     "simulate_mujoco": "tkujax.sim.rollout_mujoco",
     "run_paper": "tkujax.studies.paper",
     "run_sweep": "tkujax.studies.sweep", "load": "tkujax.studies.sweep",
-    "make_maps": "tkujax.studies.maps", "replay": "tkujax.studies.replay",
+    "make_maps": "tkujax.studies.maps", "compare_runs": "tkujax.studies.compare", "replay": "tkujax.studies.replay",
     "run_tune": "tkujax.studies.tune",
     "run_calibrate": "tkujax.studies.calibrate",
     "run_capture": "tkujax.studies.capture", "StepOverride": "tkujax.control",

@@ -175,6 +175,24 @@ def _cmd_map(args) -> int:
     return 0
 
 
+def _cmd_compare(args) -> int:
+    from tkujax.studies.compare import Bands, compare_runs
+
+    edges = (tuple(float(x) for x in args.impulse_edges.split(",")) if args.impulse_edges
+             else None)
+    labels = args.labels.split(",") if args.labels else None
+    res = compare_runs(args.runs, args.out, labels=labels,
+                       bands=Bands(sectors=args.sectors, impulse_edges=edges,
+                                   impulse_bands=args.impulse_bands,
+                                   phase_bands=args.phase_bands),
+                       min_pushes=args.min_pushes, harm_pp=args.harm_pp, subset=args.subset,
+                       azimuth_bins=args.azimuth_bins, impulse_bins=args.impulse_bins,
+                       min_map_count=args.min_map_count)
+    print("\n".join(res["files"]))
+    print(Path(res["summary"]).read_text())
+    return 0
+
+
 def _cmd_fpga(args) -> int:
     from tkujax.studies.fpga import run_fpga, write_resources
     from tkujax.studies.sweep import load_params_json
@@ -245,9 +263,11 @@ def _cmd_refine(args) -> int:
 def _cmd_tune(args) -> int:
     from tkujax.studies.tune import run_tune
 
-    run_tune(args.spec, args.out, iterations=args.iterations, compare=not args.no_compare,
-             evaluation=not args.no_eval)
+    record = run_tune(args.spec, args.out, iterations=args.iterations,
+                      compare=not args.no_compare, evaluation=not args.no_eval)
     print(Path(args.out, "summary.md").read_text())
+    print(f"recommendation: {record['recommendation']['reason']} "
+          f"({Path(args.out, 'params_after.json')})")
     return 0
 
 
@@ -335,6 +355,37 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("map", help="stability maps and capturability checks of a sweep folder")
     p.add_argument("dir")
     p.set_defaults(func=_cmd_map)
+
+    p = sub.add_parser("compare", help="where controllers help or hurt: difference maps, fall "
+                                       "rate by direction x impulse x phase, a no-harm verdict")
+    p.add_argument("runs", nargs="+", metavar="RUN",
+                   help="sweep output folders of one spec, each DIR, DIR:on or DIR:off (the "
+                        "control setting to take; default on when present); the first is the "
+                        "reference")
+    p.add_argument("--out", required=True, help="output folder (difference_maps.png, "
+                                                 "table.csv/.md, verdict.json, summary.md)")
+    p.add_argument("--labels", default=None, help="comma-separated names, one per run")
+    p.add_argument("--sectors", type=int, choices=[4, 8], default=4,
+                   help="direction sectors (4: behind/right/front/left)")
+    p.add_argument("--impulse-bands", type=int, default=4,
+                   help="equal impulse bands from the smallest impulse to the largest (1-50)")
+    p.add_argument("--impulse-edges", default=None, metavar="E0,E1,...",
+                   help="impulse band edges in N·s instead (must cover every impulse)")
+    p.add_argument("--phase-bands", type=int, default=3,
+                   help="equal bands of the onset phase in the control period (1-30)")
+    p.add_argument("--min-pushes", type=int, default=100,
+                   help="no-harm check: only cells with at least this many pushes")
+    p.add_argument("--harm-pp", type=float, default=2.0,
+                   help="no-harm check: a cell is harmed above this many percentage points")
+    p.add_argument("--subset", choices=["all", "grid", "random"], default="all",
+                   help="which records: all, the spec's grid, or its random samples")
+    p.add_argument("--azimuth-bins", type=int, default=24, help="difference maps: at most "
+                                                                "this many azimuth cells")
+    p.add_argument("--impulse-bins", type=int, default=12, help="difference maps: at most "
+                                                                "this many impulse cells")
+    p.add_argument("--min-map-count", type=int, default=10,
+                   help="difference maps: leave cells with fewer pushes blank")
+    p.set_defaults(func=_cmd_compare)
 
     p = sub.add_parser("fpga", help="fixed-point FPGA controller: word lengths, CORDIC "
                                     "iterations, latency vs the float controller's outcomes")

@@ -64,8 +64,14 @@ def controller_params_from(base: ControllerParams, overrides: dict) -> Controlle
     return dataclasses.replace(base, **values)
 
 
+# String notes a parameter file may carry besides the fields ("recommended_from": which set
+# `tkujax tune` recommends, see tkujax.studies.tune.run).
+PARAMS_NOTE_KEYS = ("recommended_from",)
+
+
 def load_params_json(path: str | Path) -> ControllerParams:
-    """ControllerParams from a JSON object {field: value} (SI units, radians), as tune writes."""
+    """ControllerParams from a JSON object {field: value} (SI units, radians), as tune writes;
+    string notes of PARAMS_NOTE_KEYS are ignored."""
     path = Path(path)
     try:
         data = json.loads(path.read_text())
@@ -75,6 +81,9 @@ def load_params_json(path: str | Path) -> ControllerParams:
         raise SpecError(f"--params {path}: expected a JSON object {{field: value}}, "
                         f"got {type(data).__name__}")
     fields = {f.name for f in dataclasses.fields(ControllerParams)}
+    for k in PARAMS_NOTE_KEYS:                  # a note, not a parameter (tkujax tune writes it)
+        if isinstance(data.get(k), str):
+            data = {key: v for key, v in data.items() if key != k}
     unknown = sorted(set(data) - fields)
     if unknown:
         raise SpecError(f"--params {path}: unknown field(s) {unknown}; allowed: {sorted(fields)}")

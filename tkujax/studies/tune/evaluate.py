@@ -1,8 +1,10 @@
-"""Hard-gate evaluation of tuned latents on held-out pushes and a grid."""
+"""Hard-gate evaluation of tuned latents on held-out pushes and a grid, and the rule that
+decides which set `tkujax tune` recommends (`recommend`)."""
 
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any
 
 import jax
@@ -42,6 +44,7 @@ def evaluate(problem: TuneProblem, latents: dict[str, np.ndarray], heldout: dict
                      heldout_loss=float(np.mean(aux["terms"]["total"][~div])) if fell.size
                      else None,
                      heldout_push_loss=aux["terms"]["total"].tolist(),
+                     heldout_push_diverged=div.tolist(),
                      heldout_fell=fell.tolist(),
                      heldout_terms={k: float(np.mean(aux["terms"][k]))
                                     for k in ("fall", "recovery", "step")})
@@ -66,3 +69,81 @@ def params_json(params: ControllerParams) -> dict[str, float]:
     d = {k: float(v) for k, v in dataclasses.asdict(params).items()}
     d["gate_temperature"] = 0.0
     return d
+
+
+RULE = ("the tuned set is recommended only when, on the held-out pushes (hard controller), its "
+        "fall rate is strictly below the starting set's AND its mean held-out loss is not worse "
+        "than the starting set's by more than one standard error of the paired per-push loss "
+        "difference; otherwise the starting set is kept")
+
+
+def harmed_directions(evals: dict, sector, names, harm_pp: float = 2.0) -> list[dict]:
+    """Direction sectors where the tuned set falls more often on the held-out pushes than the
+    starting set by more than harm_pp points (sector: the held-out pushes' sector indices;
+    names: their names). Reported with the recommendation, never a veto: per-direction counts
+    of a small evaluation are noisy."""
+    b, a = evals.get("before", {}), evals.get("after", {})
+    if "heldout_fell" not in a or "heldout_fell" not in b:
+        return []
+    sector = np.asarray(sector)
+    rates = {}
+    for name, v in (("before", b), ("after", a)):
+        div = np.asarray(v.get("heldout_push_diverged", np.zeros(sector.size, bool)), bool)
+        if div.size != sector.size:
+            return []
+        fell = np.full(sector.size, np.nan)
+        fell[~div] = np.asarray(v["heldout_fell"], float)
+        rates[name] = fell
+    out = []
+    for k, name in enumerate(names):
+        fb = rates["before"][(sector == k) & np.isfinite(rates["before"])]
+        fa = rates["after"][(sector == k) & np.isfinite(rates["after"])]
+        if fb.size and fa.size and 100 * (fa.mean() - fb.mean()) > harm_pp + 1e-9:
+            out.append(dict(direction=name, before=float(fb.mean()), after=float(fa.mean()),
+                            n=int(min(fb.size, fa.size))))
+    return out
+
+
+def recommend(evals: dict, harmed: list[dict] | None = None) -> dict:
+    """Which set to recommend, "after" (the tuned one) or "before" (the starting one), by
+    `RULE`, from `evaluate`'s result for both.
+
+    Returns dict(recommended ("after" | "before"), verified (False when there was no held-out
+    evaluation: the tuned set is then recommended unchecked), fall_before, fall_after,
+    loss_diff (mean paired after - before over pushes that diverged in neither), loss_diff_se,
+    n_paired, harmed_directions (`harmed_directions`, passed in: a warning added to the
+    reason, not part of the rule), reason (a sentence), rule)."""
+    harmed = list(harmed or [])
+    warn = ("" if not harmed else "; WARNING: the tuned set falls more often on held-out "
+            "pushes " + ", ".join(f"from {h['direction']} ({100 * h['before']:.1f} % -> "
+                                  f"{100 * h['after']:.1f} % of {h['n']})" for h in harmed))
+    b, a = evals.get("before", {}), evals.get("after", {})
+    out = dict(rule=RULE, fall_before=b.get("heldout_fall_rate"),
+               fall_after=a.get("heldout_fall_rate"), loss_diff=None, loss_diff_se=None,
+               n_paired=0, harmed_directions=harmed)
+    if out["fall_before"] is None or out["fall_after"] is None:
+        return out | dict(recommended="after", verified=False,
+                          reason="no held-out evaluation ran (--no-eval or evaluate.n = 0): "
+                                 "the tuned set is recommended UNCHECKED; it may be worse than "
+                                 "the starting set")
+    la, lb = (np.asarray(x["heldout_push_loss"], float) for x in (a, b))
+    ok = ~(np.asarray(a.get("heldout_push_diverged", np.zeros(la.size, bool)), bool)
+           | np.asarray(b.get("heldout_push_diverged", np.zeros(lb.size, bool)), bool))
+    d = (la - lb)[ok]
+    mean = float(d.mean()) if d.size else math.nan
+    se = float(d.std(ddof=1) / math.sqrt(d.size)) if d.size > 1 else 0.0
+    out.update(loss_diff=mean, loss_diff_se=se, n_paired=int(d.size))
+    fb, fa = out["fall_before"], out["fall_after"]
+    pct = lambda v: f"{100 * v:.1f} %"  # noqa: E731
+    if not fa < fb:
+        return out | dict(recommended="before", verified=True, reason=(
+            f"kept the starting set: the tuned set's held-out fall rate {pct(fa)} is not below "
+            f"the starting set's {pct(fb)}"))
+    if not (math.isfinite(mean) and mean <= se):
+        return out | dict(recommended="before", verified=True, reason=(
+            f"kept the starting set: the tuned set falls less on the held-out pushes "
+            f"({pct(fa)} vs {pct(fb)}) but its held-out loss is worse by {mean:.4f} +- "
+            f"{se:.4f} (paired, s.e.), more than one standard error"))
+    return out | dict(recommended="after", verified=True, reason=(
+        f"recommended the tuned set: held-out fall rate {pct(fa)} vs the starting set's "
+        f"{pct(fb)}, held-out loss {mean:+.4f} +- {se:.4f} (paired, s.e.) against it{warn}"))

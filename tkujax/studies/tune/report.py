@@ -69,6 +69,14 @@ def summary_markdown(rec: dict, comparison: dict | None = None) -> str:
         lo, hi = rec["ranges_user_units"][f]
         lines.append(f"| {f} ({TUNABLE[f][3] or '-'}) | [{lo:g}, {hi:g}] | "
                      f"{rec['params_user']['before'][f]:.4g} | {rec['params_user']['after'][f]:.4g} |")
+    dec = rec.get("recommendation")
+    if dec:
+        lines[4:4] = ["## Recommendation (params_after.json)", "",
+                      f"**{_first_upper(dec['reason'])}.**"
+                      + ("" if dec["recommended"] == "after" else
+                         " params_after.json is the starting set (`recommended_from`: start); "
+                         "the search's result is in params_tuned.json."), "",
+                      f"Rule: {dec['rule']}.", ""]
     ev = rec["evaluation"]
     if ev:
         azs = sorted({a for v in ev.values() for a in v.get("max_impulse", {})}, key=float)
@@ -93,11 +101,47 @@ def summary_markdown(rec: dict, comparison: dict | None = None) -> str:
             lines += ["", f"Paired held-out fall difference tuned - paper: "
                       f"{100 * d.mean():+.2f} +- {100 * se:.2f} pp (s.e., n = {d.size})"
                       + (" — significant." if d.mean() < -2 * se else " — not significant.")]
+            lines += _by_direction(rec)
     if comparison is not None:
         from tkujax.studies.tune.compare import compare_markdown
 
         lines += ["", compare_markdown(comparison).replace("# tkujax tune: method", "## Method")]
     return "\n".join(lines) + "\n"
+
+
+def _by_direction(rec: dict) -> list[str]:
+    """Held-out fall rate per direction sector (tkujax.studies.compare's sectors: 0 deg =
+    pushed from behind), before and after: a gain from behind must not hide a loss in front."""
+    from tkujax.studies.compare import SECTOR_NAMES, sector_index
+    from tkujax.studies.tune.spec import sample_pushes
+
+    ev = rec["evaluation"]
+    spec = parse_tune_spec(rec["spec"])
+    az = sample_pushes(spec, spec.eval_n, spec.eval_seed)["azimuth_deg"]
+    sector = sector_index(az, 4)
+    rows = {}
+    for name in ("before", "after"):
+        v = ev.get(name, {})
+        div = np.asarray(v.get("heldout_push_diverged", np.zeros(len(az), bool)), bool)
+        if "heldout_fell" not in v or div.size != az.size:
+            return []
+        fell = np.full(az.size, np.nan)
+        fell[~div] = np.asarray(v["heldout_fell"], float)
+        rows[name] = fell
+    out = ["", "Held-out fall rate by direction (pushes):", "",
+           "| parameters | " + " | ".join(f"from {s}" for s in SECTOR_NAMES[4]) + " |",
+           "|---|---|---|---|---|"]
+    for name, fell in rows.items():
+        cells = []
+        for k in range(4):
+            f = fell[(sector == k) & np.isfinite(fell)]
+            cells.append(f"{100 * f.mean():.1f}% ({f.size})" if f.size else "-")
+        out.append(f"| {'paper' if name == 'before' else 'tuned'} | " + " | ".join(cells) + " |")
+    return out
+
+
+def _first_upper(text: str) -> str:
+    return text[:1].upper() + text[1:]
 
 
 def _mean_se(x) -> str:

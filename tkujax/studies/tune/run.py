@@ -1,5 +1,10 @@
 """`tkujax tune SPEC --out DIR`: run the spec's method (or the [compare] study), evaluate the
-result with the hard controller on held-out pushes, and write the outputs."""
+result with the hard controller on held-out pushes, and write the outputs.
+
+params_tuned.json is what the search found; params_after.json is the recommendation: the tuned
+set when the held-out evaluation says it is better than the starting set (the rule:
+`tkujax.studies.tune.evaluate.RULE`), else the starting set; its `recommended_from` says which
+("tuned", "start", or "tuned (unchecked)" without an evaluation)."""
 
 from __future__ import annotations
 
@@ -12,7 +17,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from tkujax.studies.tune.evaluate import evaluate, params_json
+from tkujax.studies.tune.evaluate import evaluate, harmed_directions, params_json, recommend
 from tkujax.studies.tune.problem import TuneProblem, _x64
 from tkujax.studies.tune.report import plot_outputs, summary_markdown
 from tkujax.studies.tune.search import SearchConfig, run_search
@@ -79,17 +84,31 @@ def _run_tune(spec: TuneSpec, out: Path, quiet: bool, compiler_options: dict | N
         evals = evaluate(eval_problem, cands, heldout, grid_pushes(spec), spec.batch,
                          spec.eval_seed)
 
+    # Never recommend a worse set: params_after.json is the tuned set only when the held-out
+    # evaluation says it is better (evaluate.RULE); else the starting set, with a note.
+    harmed = []
+    if evaluation and spec.eval_n:
+        from tkujax.studies.compare import SECTOR_NAMES, sector_index
+
+        harmed = harmed_directions(evals, sector_index(heldout["azimuth_deg"], 4),
+                                   SECTOR_NAMES[4])
+    decision = recommend(evals, harmed)
+    log(decision["reason"])
     params = {name: reparam.params_np(base, z) for name, z in cands.items()}
-    (out / "params_before.json").write_text(json.dumps(params_json(params["before"].validate()),
-                                                       indent=1))
-    (out / "params_after.json").write_text(json.dumps(params_json(params["after"].validate()),
-                                                      indent=1))
+    chosen = decision["recommended"]
+    note = {"recommended_from": ("tuned" if decision["verified"] else "tuned (unchecked)")
+            if chosen == "after" else "start"}
+    for name, payload in (("params_before.json", params_json(params["before"].validate())),
+                          ("params_tuned.json", params_json(params["after"].validate())),
+                          ("params_after.json", params_json(params[chosen].validate()) | note)):
+        (out / name).write_text(json.dumps(payload, indent=1))
     record = dict(
         name=spec.name, spec=spec.raw, method=spec.method, tuned=list(reparam.fields),
         ranges_user_units=reparam.user_ranges(), batch=spec.batch, duration_s=spec.duration_s,
         iterations=run["iterations"], float64=spec.float64, remat=spec.remat, run=run,
         params_user={n: reparam.user(z) for n, z in cands.items()},
         latents={n: np.asarray(z).tolist() for n, z in cands.items()}, evaluation=evals,
+        recommendation=decision,
         compare=None if comparison is None else dict(winner=comparison["winner"],
                                                      pooled=comparison["pooled"]),
         wall_s=round(time.perf_counter() - t_start, 2), devices=[str(d) for d in jax.devices()])
