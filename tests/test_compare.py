@@ -167,3 +167,24 @@ def test_one_sweep_folder_gives_reference_and_controller(tmp_path):
     assert v["reference"]["fall_rate"] == pytest.approx(np.mean(half > 1.0))
     assert v["runs"]["sweep (on)"]["fall_rate"] == pytest.approx(np.mean(half >= 1.4))
     assert v["runs"]["sweep (on)"]["no_harm"]
+
+
+def test_unpaired_robots_accepts_other_draws_and_uses_independent_errors(tmp_path):
+    """Two runs of one push set whose robot draws differ: refused by default, accepted with
+    unpaired_robots, with the standard error of a difference of two independent rates."""
+    import numpy as np
+    from tkujax.studies.compare import Run, _paired, check_same_pushes
+    from tkujax.studies.spec import SpecError
+
+    n = 200
+    base = dict(impulse_ns=np.full(n, 1.0), azimuth_deg=np.zeros(n), onset_phase=np.zeros(n))
+    ref = Run("a", "a", "off", base | dict(link_mass_scale=np.full(n, 1.0)),
+              np.arange(n) < 50, np.zeros(n, bool), True)
+    run = Run("b", "b", "on", base | dict(link_mass_scale=np.full(n, 1.02)),
+              np.arange(n) < 80, np.zeros(n, bool), True)
+    with pytest.raises(SpecError, match="link_mass_scale"):
+        check_same_pushes(ref, run)
+    check_same_pushes(ref, run, frozenset({"link_mass_scale"}))
+    d, se = _paired(np.zeros(n, int), 1, ref, run, unpaired=True)
+    assert d[0] == pytest.approx(0.4 - 0.25)
+    assert se[0] == pytest.approx(np.sqrt(0.25 * 0.75 / n + 0.4 * 0.6 / n))

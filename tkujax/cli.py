@@ -187,7 +187,8 @@ def _cmd_compare(args) -> int:
                                    phase_bands=args.phase_bands),
                        min_pushes=args.min_pushes, harm_pp=args.harm_pp, subset=args.subset,
                        azimuth_bins=args.azimuth_bins, impulse_bins=args.impulse_bins,
-                       min_map_count=args.min_map_count)
+                       min_map_count=args.min_map_count,
+                       unpaired_robots=args.unpaired_robots)
     print("\n".join(res["files"]))
     print(Path(res["summary"]).read_text())
     return 0
@@ -385,6 +386,8 @@ def build_parser() -> argparse.ArgumentParser:
                                                                 "this many impulse cells")
     p.add_argument("--min-map-count", type=int, default=10,
                    help="difference maps: leave cells with fewer pushes blank")
+    p.add_argument("--unpaired-robots", action="store_true",
+                   help="accept runs whose robot randomisation draws differ (unpaired s.e.)")
     p.set_defaults(func=_cmd_compare)
 
     p = sub.add_parser("fpga", help="fixed-point FPGA controller: word lengths, CORDIC "

@@ -49,7 +49,7 @@ import numpy as np
 from tkujax.sim.push import onset_phase
 from tkujax.studies.chunks import read_manifest
 from tkujax.studies.maps import MAX_AZIMUTH_BINS, ROUND, _polar_mesh
-from tkujax.studies.spec import PHASE_KEY, SpecError
+from tkujax.studies.spec import PHASE_KEY, RANDOMIZE_FIELDS, SpecError
 from tkujax.studies.sweep import load, outcome_keys
 
 SECTOR_NAMES = {4: ("behind", "right", "front", "left"),
@@ -144,8 +144,9 @@ def load_run(arg: str, label: str | None = None, subset: str = "all") -> Run:
                complete=complete)
 
 
-def check_same_pushes(ref: Run, run: Run) -> None:
-    """Raise SpecError naming the first difference between two runs' push inputs."""
+def check_same_pushes(ref: Run, run: Run, ignore: frozenset = frozenset()) -> None:
+    """Raise SpecError naming the first difference between two runs' push inputs (columns in
+    `ignore` may differ: the robot draws of an unpaired comparison)."""
     who = f"run {run.label!r} ({run.path})"
     against = f"the reference {ref.label!r} ({ref.path})"
     only_ref = sorted(set(ref.inputs) - set(run.inputs))
@@ -161,7 +162,7 @@ def check_same_pushes(ref: Run, run: Run) -> None:
                         f"{n_ref}" + (f"; incomplete sweep(s) {incomplete}: rerun their "
                                       "`tkujax sweep` command to finish them"
                                       if incomplete else "; compare needs runs of one spec"))
-    for k in sorted(ref.inputs):
+    for k in sorted(set(ref.inputs) - ignore):
         a = np.asarray(ref.inputs[k], float)
         b = np.asarray(run.inputs[k], float)
         same = np.isclose(a, b, rtol=0.0, atol=MATCH_ATOL, equal_nan=True)
@@ -213,9 +214,16 @@ def _rates(cell: np.ndarray, n_cells: int, fell: np.ndarray, ok: np.ndarray):
     return falls, count
 
 
-def _paired(cell: np.ndarray, n_cells: int, ref: Run, run: Run):
+def _paired(cell: np.ndarray, n_cells: int, ref: Run, run: Run, unpaired: bool = False):
     """Per cell: mean paired difference fell(run) - fell(ref) and its standard error, over the
-    records that diverged in neither run."""
+    records that diverged in neither run. unpaired: the two runs' robots are independent draws,
+    so the standard error is that of a difference of two independent rates."""
+    if unpaired:
+        (fa, na), (fb, nb) = (_rates(cell, n_cells, r.fell, ~r.diverged) for r in (ref, run))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            pa, pb = fa / na, fb / nb
+            se = np.sqrt(pa * (1 - pa) / na + pb * (1 - pb) / nb)
+        return pb - pa, np.where((na > 1) & (nb > 1), se, np.nan)
     ok = ~(ref.diverged | run.diverged)
     d = run.fell.astype(float) - ref.fell.astype(float)
     n = np.bincount(cell[ok], minlength=n_cells).astype(float)
@@ -228,7 +236,7 @@ def _paired(cell: np.ndarray, n_cells: int, ref: Run, run: Run):
     return mean, np.where(n > 1, se, np.nan)
 
 
-def cell_table(runs: list[Run], bands: Bands) -> dict:
+def cell_table(runs: list[Run], bands: Bands, unpaired: bool = False) -> dict:
     """Fall rates per (sector, impulse band, phase band) and per (sector, impulse band) with the
     phases pooled (phase band -1), for every run; and the differences to runs[0].
 
@@ -248,7 +256,7 @@ def cell_table(runs: list[Run], bands: Bands) -> dict:
     rows = []
     for level, cell, n_cells in levels:
         stats = {r.label: _rates(cell, n_cells, r.fell, ~r.diverged) for r in runs}
-        paired = {r.label: _paired(cell, n_cells, ref, r) for r in runs[1:]}
+        paired = {r.label: _paired(cell, n_cells, ref, r, unpaired) for r in runs[1:]}
         for c in range(n_cells):
             if level == "phase":
                 si, ji, pi = c // (n_j * n_p), (c // n_p) % n_j, c % n_p
@@ -566,8 +574,12 @@ def summary_markdown(runs: list[Run], table: dict, verdict_: dict, files: list[s
 def compare_runs(run_args: list[str], out: str | Path, labels: list[str] | None = None,
                  bands: Bands = Bands(), min_pushes: int = 100, harm_pp: float = 2.0,
                  subset: str = "all", azimuth_bins: int = 24, impulse_bins: int = 12,
-                 min_map_count: int = 10) -> dict:
+                 min_map_count: int = 10, unpaired_robots: bool = False) -> dict:
     """Compare sweep runs against the first (see the module doc); write the outputs into out.
+
+    unpaired_robots: accept runs whose model randomisation columns differ (independent robot
+    draws from one distribution, e.g. the control-off and control-on blocks of sweeps made
+    before the draws were shared); the standard errors are then unpaired.
 
     run_args: 'DIR', 'DIR:on' or 'DIR:off' each. labels: one per run (default: the folder's
     name and the control setting). Returns dict(verdict, table, files, summary)."""
@@ -586,9 +598,10 @@ def compare_runs(run_args: list[str], out: str | Path, labels: list[str] | None 
         if r.label in seen:
             runs[i] = dataclasses.replace(r, label=f"{r.label} #{i + 1}")
         seen.add(runs[i].label)
+    ignore = frozenset(RANDOMIZE_FIELDS) if unpaired_robots else frozenset()
     for r in runs[1:]:
-        check_same_pushes(runs[0], r)
-    table = cell_table(runs, bands)
+        check_same_pushes(runs[0], r, ignore)
+    table = cell_table(runs, bands, unpaired_robots)
     v = verdict(runs, table, min_pushes, harm_pp)
     cells = difference_cells(runs, azimuth_bins, impulse_bins, bands.phase_bands)
 
@@ -604,9 +617,13 @@ def compare_runs(run_args: list[str], out: str | Path, labels: list[str] | None 
                  "rate (pushes); after the reference: difference to it, pp ± paired s.e.\n\n"
                  + "\n".join(_markdown_table(table, lab, None)) + "\n\n## Phases pooled\n\n"
                  + "\n".join(_markdown_table(table, lab, "all")) + "\n")
-    _atomic_text(files[4], json.dumps(dict(v, bands=dict(
+    _atomic_text(files[4], json.dumps(dict(v, unpaired_robots=unpaired_robots, bands=dict(
         sectors=table["sector_names"], impulse_edges_ns=table["impulse_edges"],
         phase_edges=table["phase_edges"])), indent=1))
     text = summary_markdown(runs, table, v, [str(f) for f in files])
+    if unpaired_robots:
+        text = text.replace("\n", "\n\n**Unpaired robots:** the runs' model randomisation draws "
+                            "differ, so every standard error here is that of two independent "
+                            "rates, not a paired one.\n", 1)
     _atomic_text(files[5], text)
     return dict(verdict=v, table=table, files=[str(f) for f in files], summary=str(files[5]))
