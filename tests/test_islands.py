@@ -46,3 +46,13 @@ def test_default_robot_holds_8_of_8_at_the_fit_phase():
     s = I.score(P.base_vector(), I.default_reading(), (0.0,))
     assert s["all_hold"], s["rows"]
     assert 6.0 <= s["stand_deg"] <= 8.0
+
+
+def test_expectation_markdown_picks_the_best_worst_row():
+    rows = lambda a, b: {"r1": a, "r2": b}  # noqa: E731
+    sl = {"leg_kp": dict(default=16.8, hit_phases_ms=[0.0, 2.0], points=[
+        dict(value=10.0, fall_ok=rows(0.2, 1.0)), dict(value=16.8, fall_ok=rows(0.6, 1.0)),
+        dict(value=20.0, fall_ok=rows(0.9, 0.8)), dict(value=25.0, fall_ok=rows(0.9, 0.7))])}
+    line = I.expectation_markdown(sl).splitlines()[2]
+    cells = [c.strip() for c in line.strip("|").split("|")]
+    assert cells == ["leg_kp", "2", "0.60 / 0.80", "20", "0.80 / 0.85", "20"]

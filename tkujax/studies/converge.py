@@ -13,6 +13,10 @@ default the finest: smallest timestep, then most iterations). Two sets of pushes
          control period (onset 0.75 s + phase x 30 ms), 20 ms pulse at height_m. The same pushes
          for both controllers and every setting (seeded).
 
+A setting may scale every impulse (impulse_scale, e.g. 1.001): run at the reference's physics it
+measures the sensitivity floor, the agreement one can expect at all when the pushes themselves
+move by that much, i.e. how many pushes lie that close to a fall boundary.
+
 Agreement of a setting = the fraction of pushes whose fall outcome equals the reference's, per
 set and controller, with a 95 % Wilson interval; pushes that diverged (tkujax.sim.metrics) in
 either setting are counted apart and excluded. Also per setting: the paper rows' fall outcomes as
@@ -46,6 +50,7 @@ class Setting:
     timestep_ms: float
     solver_iterations: int
     ls_iterations: int
+    impulse_scale: float = 1.0   # != 1: every push's impulse scaled, a sensitivity floor (below)
 
     def model_params(self):
         from tkujax.model import ModelParams
@@ -108,27 +113,31 @@ def parse_spec(data: dict) -> ConvergeSpec:
     settings = []
     for i, s in enumerate(raw):
         where = f"converge.setting[{i}]"
-        extra = set(s) - {"name", "timestep_ms", "solver_iterations", "ls_iterations"}
+        extra = set(s) - {"name", "timestep_ms", "solver_iterations", "ls_iterations",
+                          "impulse_scale"}
         if extra:
             raise SpecError(f"{where}: unknown key(s) {sorted(extra)}; allowed: name, "
-                            "timestep_ms, solver_iterations, ls_iterations")
+                            "timestep_ms, solver_iterations, ls_iterations, impulse_scale")
         ts = _num(s, "timestep_ms", where, 0.5, 10.0)
         if abs(30.0 / ts - round(30.0 / ts)) > 1e-6:
             raise SpecError(f"{where}.timestep_ms must divide the 30 ms control period, "
                             f"got {ts!r}")
         it = _num(s, "solver_iterations", where, 1, 100, 1, integer=True)
         ls = _num(s, "ls_iterations", where, 1, 100, 4, integer=True)
-        nm = s.get("name", f"{ts:g}ms-newton{it}-ls{ls}")
+        scale = _num(s, "impulse_scale", where, 0.5, 2.0, 1.0)
+        nm = s.get("name", f"{ts:g}ms-newton{it}-ls{ls}" + (
+            "" if scale == 1.0 else f"-imp{scale:g}"))
         if not isinstance(nm, str) or not nm.replace("_", "").replace("-", "").replace(
                 ".", "").isalnum():
             raise SpecError(f"{where}.name must be letters, digits, '.', '-' or '_', "
                             f"got {nm!r}")
-        settings.append(Setting(nm, float(ts), int(it), int(ls)))
+        settings.append(Setting(nm, float(ts), int(it), int(ls), float(scale)))
     names = [s.name for s in settings]
     if len(set(names)) != len(names):
         raise SpecError(f"converge.setting names must be distinct, got {names}")
-    finest = min(settings, key=lambda s: (s.timestep_ms, -s.solver_iterations,
-                                          -s.ls_iterations)).name
+    finest = min((s for s in settings if s.impulse_scale == 1.0),
+                 key=lambda s: (s.timestep_ms, -s.solver_iterations, -s.ls_iterations),
+                 default=settings[0]).name
     reference = c.get("reference", finest)
     if reference not in names:
         raise SpecError(f"converge.reference must be one of the setting names {names}, "
@@ -216,6 +225,9 @@ def _simulate(spec: ConvergeSpec, setting: Setting, pushes, enabled) -> dict:
 
     mp = setting.model_params()
     params = ControllerParams.paper(mp)
+    if setting.impulse_scale != 1.0:
+        pushes = dataclasses.replace(pushes, impulse_ns=np.asarray(pushes.impulse_ns)
+                                     * np.float32(setting.impulse_scale))
     n = int(np.shape(pushes.impulse_ns)[0])
     keep = ("fell", "diverged", "recovery_time_s", "recovery_time_pitch_s", "step_length_m",
             "step_width_m", "peak_incl_deg")
@@ -261,7 +273,7 @@ def agreement(spec: ConvergeSpec, labels: dict, results: dict[str, dict]) -> dic
             continue
         r = results[s.name]
         entry = dict(timestep_ms=s.timestep_ms, solver_iterations=s.solver_iterations,
-                     ls_iterations=s.ls_iterations, wall_s=float(r.get("wall_s", math.nan)))
+                     ls_iterations=s.ls_iterations, impulse_scale=s.impulse_scale, wall_s=float(r.get("wall_s", math.nan)))
         for set_name in ("paper", "wide"):
             for c in CONTROLS:
                 sel = (labels["set"] == set_name) & (labels["control"] == c)
@@ -302,10 +314,10 @@ def agreement_markdown(spec: ConvergeSpec, agr: dict, device: str) -> str:
              f"{1000 * spec.duration_s:g} ms pulse, seed {spec.seed}).", "",
              "Fall outcomes equal to the reference's, fraction [95 % Wilson interval] (pushes "
              "that diverged in either setting left out, counted in 'div.'):", "",
-             "| setting | dt (ms) | Newton it. | ls it. | wide, control off | wide, control on | "
+             "| setting | dt (ms) | Newton it. | ls it. | impulse x | wide, control off | wide, control on | "
              "paper rows, off | paper rows, on | paper rows as the paper (phase 0 / all) | "
              "div. | max step change (cm, wide on) | wall (s) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
 
     def cell(e):
         if e is None:
@@ -319,7 +331,8 @@ def agreement_markdown(spec: ConvergeSpec, agr: dict, device: str) -> str:
         pa_s = "-" if pa is None else f"{pa['phase0']}/8, {pa['agree']}/{pa['n']}"
         lines.append(
             f"| {name}{' (ref.)' if name == spec.reference else ''} | {e['timestep_ms']:g} | "
-            f"{e['solver_iterations']} | {e['ls_iterations']} | {cell(e.get('wide_off'))} | "
+            f"{e['solver_iterations']} | {e['ls_iterations']} | {e['impulse_scale']:g} | "
+            f"{cell(e.get('wide_off'))} | "
             f"{cell(e.get('wide_on'))} | {cell(e.get('paper_off'))} | {cell(e.get('paper_on'))}"
             f" | {pa_s} | {div} | "
             f"{e['wide_on']['max_step_change_cm'] if 'wide_on' in e else 0:.2f} | "
@@ -349,13 +362,18 @@ def run_converge(spec: ConvergeSpec, out: str | Path, only: tuple[str, ...] = ()
         raise SpecError(f"--only: unknown setting(s) {bad}; allowed: {names}")
     sd = spec_dict(spec)
     sp = out / "spec.json"
+    new = json.loads(json.dumps(sd))
     if sp.exists():
+        # Settings may be added or dropped; the pushes (and a kept setting) may not change.
         old = json.loads(sp.read_text())
-        if old != json.loads(json.dumps(sd)):
-            raise SpecError(f"{out} holds a different convergence spec (spec.json); use another "
-                            "--out or remove it")
-    else:
-        sp.write_text(json.dumps(sd, indent=1))
+        same = {k: v for k, v in old.items() if k not in ("settings", "reference", "batch")} \
+            == {k: v for k, v in new.items() if k not in ("settings", "reference", "batch")}
+        kept = {s["name"]: {"impulse_scale": 1.0, **s} for s in old["settings"]}
+        same = same and all(kept.get(s["name"], s) == s for s in new["settings"])
+        if not same:
+            raise SpecError(f"{out} holds a convergence spec with other pushes or settings "
+                            "(spec.json); use another --out or remove it")
+    sp.write_text(json.dumps(new, indent=1))
     pushes, enabled, labels = pushes_of(spec)
     device = str(jax.devices()[0]) if spec.backend == "mjx" else "CPU (MuJoCo C)"
     for s in spec.settings:

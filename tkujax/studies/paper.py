@@ -43,7 +43,7 @@ RECOVERY_NOTE = (
     "(recovery_time_pitch_s) waits for the pitch alone, the paper's phi (\"pitch-axis\", Figs. "
     "13-16). They differ where a roll offset persists after a step. The calibration fit "
     "(tkujax.studies.calibrate.evaluate) reads recovery_time_s, the hypot one: see "
-    "results/calibration/README.md for why and what it changes.")
+    "results/calibration/FINDINGS.md (recovery readings) for why and what it changes.")
 
 
 def paper_cases() -> list[tuple[str, str, str]]:
