@@ -79,8 +79,10 @@ def test_shipped_specs_parse():
     for path, backend in (("sweeps/convergence.toml", "mjx"),
                           ("sweeps/convergence_cpu.toml", "mujoco")):
         s = C.load_spec(path)
-        assert s.backend == backend and s.reference == "1ms-newton4-ls8"
-        assert {x.timestep_ms for x in s.settings} == {1.0, 2.0, 3.0}
+        assert s.backend == backend and s.reference == "0.5ms-newton4-ls8"
+        assert {x.timestep_ms for x in s.settings} == {0.5, 1.0, 2.0, 3.0}
+        assert s.setting("2ms-newton1-ls4").model_params() == __import__(
+            "tkujax.model", fromlist=["ModelParams"]).ModelParams()      # today's default
         assert s.phases == 15 and s.impulse_ns == (0.2, 1.8)
 
 
@@ -127,6 +129,14 @@ def test_tiny_run_mujoco(tmp_path):
     # the default robot at phase 0 holds the paper's 8 fall outcomes at 2 ms
     assert agr["a"]["paper_as_paper"]["phase0"] == 8
     assert "| a (ref.) |" in (out / "agreement.md").read_text()
+    # the report against another setting, without running anything
+    assert cli.main(["converge", str(spec_path), "--out", str(out), "--no-run",
+                     "--reference", "c"]) == 0
+    vs_c = json.loads((out / "agreement_vs_c.json").read_text())["settings"]
+    assert vs_c["c"]["wide_on"]["fraction"] == 1.0
+    assert vs_c["a"]["wide_off"]["agree"] == agr["c"]["wide_off"]["agree"]   # symmetric
+    assert cli.main(["converge", str(spec_path), "--out", str(out), "--no-run",
+                     "--reference", "zz"]) == 2
     # a different spec in the same folder is refused, naming spec.json
     spec_path.write_text(TINY.replace("pushes = 2", "pushes = 3"))
     assert cli.main(["converge", str(spec_path), "--out", str(out)]) == 2

@@ -250,7 +250,8 @@ def _cmd_converge(args) -> int:
 
     spec = load_spec(args.spec)
     only = tuple(x.strip() for x in (args.only or "").split(",") if x.strip())
-    run_converge(spec, args.out, only=only, log=lambda m: print(m, flush=True))
+    run_converge(spec, args.out, only=only, log=lambda m: print(m, flush=True),
+                 run=not args.no_run, reference=args.reference)
     return 0
 
 
@@ -412,6 +413,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output folder (spec.json, outcomes_*.npz, "
                                                  "agreement.json, agreement.md)")
     p.add_argument("--only", default=None, help="comma-separated setting names to run now")
+    p.add_argument("--no-run", action="store_true",
+                   help="run nothing: write the agreement from the settings in --out")
+    p.add_argument("--reference", default=None, help="compare against this setting instead of "
+                                                     "the spec's (writes agreement_vs_NAME.*)")
     p.set_defaults(func=_cmd_converge)
 
     p = sub.add_parser("islands", help="island widths of the fitted parameters (1-D slices "

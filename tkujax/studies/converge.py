@@ -349,9 +349,11 @@ def agreement_markdown(spec: ConvergeSpec, agr: dict, device: str) -> str:
 
 
 def run_converge(spec: ConvergeSpec, out: str | Path, only: tuple[str, ...] = (),
-                 log=print) -> dict:
-    """Run the settings missing from `out` (all, or those named in `only`), then write
-    agreement.json / agreement.md from every setting present. Returns the agreement dict."""
+                 log=print, run: bool = True, reference: str | None = None) -> dict:
+    """Run the settings missing from `out` (all, or those named in `only`; none when run is
+    False), then write agreement.json / agreement.md from every setting present. reference: a
+    setting name to compare against instead of the spec's (the report is then written as
+    agreement_vs_<name>.json / .md, beside the spec's). Returns the agreement dict."""
     import jax
 
     out = Path(out)
@@ -360,6 +362,9 @@ def run_converge(spec: ConvergeSpec, out: str | Path, only: tuple[str, ...] = ()
     bad = [o for o in only if o not in names]
     if bad:
         raise SpecError(f"--only: unknown setting(s) {bad}; allowed: {names}")
+    if reference is not None and reference not in names:
+        raise SpecError(f"--reference must be one of the setting names {names}, "
+                        f"got {reference!r}")
     sd = spec_dict(spec)
     sp = out / "spec.json"
     new = json.loads(json.dumps(sd))
@@ -378,7 +383,7 @@ def run_converge(spec: ConvergeSpec, out: str | Path, only: tuple[str, ...] = ()
     device = str(jax.devices()[0]) if spec.backend == "mjx" else "CPU (MuJoCo C)"
     for s in spec.settings:
         f = out / f"outcomes_{s.name}.npz"
-        if f.exists() or (only and s.name not in only):
+        if not run or f.exists() or (only and s.name not in only):
             continue
         t0 = time.perf_counter()
         res = _simulate(spec, s, pushes, enabled)
@@ -391,14 +396,17 @@ def run_converge(spec: ConvergeSpec, out: str | Path, only: tuple[str, ...] = ()
         if f.exists():
             with np.load(f) as z:
                 results[s.name] = {k: z[k] for k in z.files}
+    stem = "agreement"
+    if reference is not None and reference != spec.reference:
+        spec = dataclasses.replace(spec, reference=reference)
+        stem = f"agreement_vs_{reference}"
     if spec.reference not in results:
         log(f"reference {spec.reference} not run yet: no agreement written")
         return {}
     agr = agreement(spec, labels, results)
     devices = sorted({str(r["device"]) for r in results.values()})
-    (out / "agreement.json").write_text(json.dumps(dict(devices=devices, settings=agr),
-                                                   indent=1))
+    (out / f"{stem}.json").write_text(json.dumps(dict(devices=devices, settings=agr), indent=1))
     md = agreement_markdown(spec, agr, ", ".join(devices))
-    (out / "agreement.md").write_text(md)
+    (out / f"{stem}.md").write_text(md)
     log(md)
     return agr
