@@ -259,7 +259,8 @@ def _cmd_islands(args) -> int:
     from tkujax.studies.calibrate import islands
 
     argv = ["--out", args.out, "--points", str(args.points), "--refine", str(args.refine),
-            "--slice-phases", str(args.slice_phases), "--phases", str(args.phases)]
+            "--slice-phases", str(args.slice_phases), "--phases", str(args.phases),
+            "--window", str(args.window)]
     if args.params is not None:
         argv += ["--params", args.params]
     return islands.main(argv)
@@ -431,6 +432,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="hit phases per slice value (1: the fit's 0 ms)")
     p.add_argument("--phases", type=int, default=15,
                    help="phases of the default robot's expectation table (0 skips it)")
+    p.add_argument("--window", type=float, default=1.0,
+                   help="fraction of each parameter's bounds a slice spans, centred on the "
+                        "default (default 1: the whole bounds)")
     p.set_defaults(func=_cmd_islands)
     return parser
 

@@ -107,10 +107,15 @@ def _island(values: list[float], holds: list[bool], i0: int) -> tuple[int, int] 
 
 
 def island_slices(names=P.NAMES, points: int = 41, refine: int = 4,
-                  hit_phases: tuple[float, ...] = (0.0,), log=print) -> dict:
-    """{name: slice and island} for each parameter (see the module docstring)."""
+                  hit_phases: tuple[float, ...] = (0.0,), log=print,
+                  window: float = 1.0) -> dict:
+    """{name: slice and island} for each parameter (see the module docstring). window: the
+    slice spans this fraction of the parameter's bounds, centred on the default and clipped to
+    the bounds (1 = the whole bounds)."""
     _check_int("points", points, 3, 1000)
     _check_int("refine", refine, 0, 20)
+    if not (isinstance(window, (int, float)) and 0.0 < window <= 1.0):
+        raise ValueError(f"window must be a number in (0, 1], got {window!r}")
     unknown = [n for n in names if n not in P.NAMES]
     if unknown:
         raise ValueError(f"names: unknown parameter(s) {unknown}; allowed: {list(P.NAMES)}")
@@ -120,7 +125,10 @@ def island_slices(names=P.NAMES, points: int = 41, refine: int = 4,
     for name in names:
         p = P.PARAMS[P.NAMES.index(name)]
         t0 = time.perf_counter()
-        grid = sorted(set(np.linspace(p.lo, p.hi, points).tolist()) | {x0[name]})
+        half = 0.5 * window * (p.hi - p.lo)
+        a_lo = p.lo if window == 1.0 else max(p.lo, x0[name] - half)
+        a_hi = p.hi if window == 1.0 else min(p.hi, x0[name] + half)
+        grid = sorted(set(np.linspace(a_lo, a_hi, points).tolist()) | {x0[name]})
         cache = {}
 
         def run(v):
@@ -137,7 +145,7 @@ def island_slices(names=P.NAMES, points: int = 41, refine: int = 4,
         i0 = grid.index(x0[name])
         isl = _island(grid, [q["all_hold"] for q in pts], i0)
         entry = dict(lo=p.lo, hi=p.hi, default=x0[name], log10=p.log, points=pts,
-                     grid_step=(p.hi - p.lo) / (points - 1), reading=reading,
+                     grid_step=(a_hi - a_lo) / (points - 1), reading=reading, window=window,
                      hit_phases_ms=list(hit_phases))
         if isl is None:
             entry.update(island=None)
@@ -145,7 +153,7 @@ def island_slices(names=P.NAMES, points: int = 41, refine: int = 4,
             a, b = isl
             edges = []
             for inside, outside in ((a, a - 1), (b, b + 1)):
-                if outside < 0 or outside >= len(grid):     # the island reaches the bound
+                if outside < 0 or outside >= len(grid):     # the island reaches the slice end
                     edges.append(dict(value=grid[inside], open=True, resolution=0.0))
                     continue
                 vin, vout = grid[inside], grid[outside]
@@ -206,8 +214,9 @@ def islands_markdown(sl: dict) -> str:
                          f"{e['evaluations']} |")
             continue
         i = e["island"]
-        lo = ("(bound) " if i["lo"]["open"] else "") + _fmt(i["lo"]["value"], name)
-        hi = _fmt(i["hi"]["value"], name) + (" (bound)" if i["hi"]["open"] else "")
+        end = "(bound)" if e.get("window", 1.0) == 1.0 else "(slice end)"
+        lo = (f"{end} " if i["lo"]["open"] else "") + _fmt(i["lo"]["value"], name)
+        hi = _fmt(i["hi"]["value"], name) + (f" {end}" if i["hi"]["open"] else "")
         res = max(i["lo"]["resolution"], i["hi"]["resolution"])
         lines.append(f"| {name} | {b} | {_fmt(e['default'], name)} | {lo} .. {hi} | "
                      f"{_fmt(i['width'], name)} | {i['width_frac_of_bounds']:.3f} | "
@@ -273,6 +282,8 @@ def main(argv=None) -> int:
                     "(1: the fit's 0 ms; n: k/n * 30 ms and all must hold)")
     ap.add_argument("--phases", type=int, default=15, help="phases of the default robot's "
                     "expectation table (0 skips it)")
+    ap.add_argument("--window", type=float, default=1.0, help="fraction of each parameter's "
+                    "bounds the slice spans, centred on the default (default 1: all)")
     a = ap.parse_args(argv)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -285,7 +296,7 @@ def main(argv=None) -> int:
     names = tuple(s.strip() for s in a.params.split(",") if s.strip())
     if names:
         sl = island_slices(names, a.points, a.refine, phases_ms(a.slice_phases),
-                           log=lambda s: print(s, flush=True))
+                           log=lambda s: print(s, flush=True), window=a.window)
         (out / "islands.json").write_text(json.dumps(sl, indent=1))
         md = islands_markdown(sl)
         if a.slice_phases > 1:
