@@ -29,7 +29,7 @@ from tkujax.studies import paper
 from tkujax.sim import push as push_lib
 
 COLUMNS = ["direction", "ball", "force_N", "control", "fell", "recovery_time_s",
-           "step_length_cm"]
+           "recovery_time_pitch_s", "step_length_cm"]
 # Liu et al. 2020, Tables 4 (back) and 5 (front): recovery time and step length as printed
 # there ("falls": the robot fell; "X": no step). Written out here, not taken from
 # tkujax.studies.paper.PAPER_TABLE, so a typo there fails this test.
@@ -78,9 +78,14 @@ def test_csv_recovery_empty_iff_fell_and_steps(rows):
     for r in rows:
         fell = r["fell"] == "true"
         # Empty when it fell, or when it had not settled by the end of the horizon.
-        assert r["recovery_time_s"] == "" or not fell, r
+        for key in ("recovery_time_s", "recovery_time_pitch_s"):
+            assert r[key] == "" or not fell, r
+            if r[key]:
+                assert 0.0 <= float(r[key]) <= 2.4 - push_lib.PAPER_ONSET_S
+        # |d pitch| <= hypot(d pitch, d roll): the pitch reading settles no later.
         if r["recovery_time_s"]:
-            assert 0.0 <= float(r["recovery_time_s"]) <= 2.4 - push_lib.PAPER_ONSET_S
+            assert r["recovery_time_pitch_s"]
+            assert float(r["recovery_time_pitch_s"]) <= float(r["recovery_time_s"])
         if r["step_length_cm"]:
             step = float(r["step_length_cm"])
             assert abs(step) >= 100 * paper.NO_STEP_M
@@ -105,6 +110,11 @@ def test_csv_is_the_simulation(rows):
                 float(outcomes["recovery_time_s"][i]), abs=0.006)
         else:
             assert math.isnan(float(outcomes["recovery_time_s"][i]))
+        if r["recovery_time_pitch_s"]:
+            assert float(r["recovery_time_pitch_s"]) == pytest.approx(
+                float(outcomes["recovery_time_pitch_s"][i]), abs=0.006)
+        else:
+            assert math.isnan(float(outcomes["recovery_time_pitch_s"][i]))
         step_cm = 100 * float(outcomes["step_length_m"][i])
         if r["step_length_cm"]:
             assert float(r["step_length_cm"]) == pytest.approx(step_cm, abs=0.006)
@@ -116,7 +126,7 @@ def _md_rows(md):
     table = {}
     for line in md.splitlines():
         cells = [c.strip() for c in line.strip().strip("|").split("|")]
-        if len(cells) == 9 and cells[0] in ("back", "front"):
+        if len(cells) == 10 and cells[0] in ("back", "front"):
             ball = cells[1].split()[0]
             table[(cells[0], ball, cells[2])] = cells
     return table
@@ -134,18 +144,20 @@ def test_markdown_puts_paper_numbers_beside_simulated(out, rows):
     for r in rows:
         key = (r["direction"], r["ball"], r["control"])
         cells = table[key]
-        paper_rec, sim_rec, paper_step, sim_step = cells[3], cells[4], cells[5], cells[6]
+        paper_rec, sim_rec, sim_rec_pitch = cells[3], cells[4], cells[5]
+        paper_step, sim_step = cells[6], cells[7]
         assert (paper_rec, paper_step) == PAPER[key]
-        if r["fell"] == "true":
-            assert sim_rec == "falls"
-        elif r["recovery_time_s"]:
-            assert sim_rec == f"{r['recovery_time_s']} s"
-        else:
-            assert sim_rec == "not settled"
+        for cell, col in ((sim_rec, "recovery_time_s"), (sim_rec_pitch, "recovery_time_pitch_s")):
+            if r["fell"] == "true":
+                assert cell == "falls"
+            elif r[col]:
+                assert cell == f"{r[col]} s"
+            else:
+                assert cell == "not settled"
         assert sim_step == (f"{r['step_length_cm']} cm" if r["step_length_cm"] else "X")
         same = (r["fell"] == "true") == (PAPER[key][0] == "falls")
-        assert cells[8] == ("yes" if same else "**no**")
-    n_same = sum(c[8] == "yes" for c in table.values())
+        assert cells[9] == ("yes" if same else "**no**")
+    n_same = sum(c[9] == "yes" for c in table.values())
     assert f"Fall/no-fall outcomes as in the paper: {n_same}/8" in md
 
 

@@ -272,6 +272,27 @@ def _cmd_tune(args) -> int:
     return 0
 
 
+def _cmd_converge(args) -> int:
+    from tkujax.studies.converge import load_spec, run_converge
+
+    spec = load_spec(args.spec)
+    only = tuple(x.strip() for x in (args.only or "").split(",") if x.strip())
+    run_converge(spec, args.out, only=only, log=lambda m: print(m, flush=True),
+                 run=not args.no_run, reference=args.reference)
+    return 0
+
+
+def _cmd_islands(args) -> int:
+    from tkujax.studies.calibrate import islands
+
+    argv = ["--out", args.out, "--points", str(args.points), "--refine", str(args.refine),
+            "--slice-phases", str(args.slice_phases), "--phases", str(args.phases),
+            "--window", str(args.window)]
+    if args.params is not None:
+        argv += ["--params", args.params]
+    return islands.main(argv)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="tkujax", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -450,6 +471,35 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", action="append", metavar="FILE.json|KEY=VALUE",
                    help="start from this model (default: the calibrated ModelParams())")
     p.set_defaults(func=_cmd_refine)
+
+    p = sub.add_parser("converge", help="fall outcomes at several timesteps / solver "
+                                        "iterations against the finest (resumable)")
+    p.add_argument("spec", help="converge spec, e.g. sweeps/convergence_cpu.toml")
+    p.add_argument("--out", required=True, help="output folder (spec.json, outcomes_*.npz, "
+                                                 "agreement.json, agreement.md)")
+    p.add_argument("--only", default=None, help="comma-separated setting names to run now")
+    p.add_argument("--no-run", action="store_true",
+                   help="run nothing: write the agreement from the settings in --out")
+    p.add_argument("--reference", default=None, help="compare against this setting instead of "
+                                                     "the spec's (writes agreement_vs_NAME.*)")
+    p.set_defaults(func=_cmd_converge)
+
+    p = sub.add_parser("islands", help="island widths of the fitted parameters (1-D slices "
+                                       "through the default robot) and its paper rows over "
+                                       "the hit phase (MuJoCo C)")
+    p.add_argument("--out", required=True, help="output folder (islands.*, "
+                                                 "phase_expectation.*)")
+    p.add_argument("--points", type=int, default=41, help="grid values per slice (3-1000)")
+    p.add_argument("--refine", type=int, default=4, help="bisections per island edge (0-20)")
+    p.add_argument("--params", default=None, help="comma-separated parameters (default all)")
+    p.add_argument("--slice-phases", type=int, default=1,
+                   help="hit phases per slice value (1: the fit's 0 ms)")
+    p.add_argument("--phases", type=int, default=15,
+                   help="phases of the default robot's expectation table (0 skips it)")
+    p.add_argument("--window", type=float, default=1.0,
+                   help="fraction of each parameter's bounds a slice spans, centred on the "
+                        "default (default 1: the whole bounds)")
+    p.set_defaults(func=_cmd_islands)
     return parser
 
 

@@ -8,6 +8,12 @@ Definitions (the band and thresholds are arguments, defaults documented here):
                    roll over the `baseline_s` before onset; the deviation is hypot(d pitch,
                    d roll), so sideways pushes count); 0 if it never left the band; NaN if it
                    fell or is still outside at the end.
+  recovery_time_pitch_s  the same reading on the pelvis pitch alone, |d pitch| (the paper's
+                   phi, "pitch-axis", Figs. 13-16): a roll offset that persists after a step
+                   (the swing foot lands a little off the line) keeps recovery_time_s "not
+                   settled" while the pitch has settled. Both come from `_recovery_time`, so the
+                   two differ only in the deviation they read; the MJX and MuJoCo C backends
+                   share this function.
   step_length_m    displacement of the swing (left) ankle along x, end minus onset; step_width_m
                    the same along y.
   peak_incl_deg    largest inclination deviation (as above) after onset, degrees.
@@ -56,6 +62,19 @@ def diverged_indicator(series: Series, bound_m_s: float = DIVERGED_SPEED_M_S) ->
     return ~finite | too_fast
 
 
+def _recovery_time(t, dev, after, fell, onset_s, band_deg):
+    """Time from onset until `dev` (deg, per period) re-enters and stays within band_deg: 0 if it
+    never left, NaN if fell or still outside at the last period (see the module docstring)."""
+    outside = after & (dev > band_deg)
+    # Last period outside the band (-1 if none); recovered when the next period exists.
+    idx = jnp.arange(t.shape[0])
+    last_out = jnp.max(jnp.where(outside, idx, -1))
+    recovered = (last_out < t.shape[0] - 1) & ~fell
+    t_back = t[jnp.minimum(last_out + 1, t.shape[0] - 1)]
+    recovery = jnp.where(last_out < 0, 0.0, t_back - onset_s)
+    return jnp.where(recovered, recovery, jnp.nan)
+
+
 def outcomes(series: Series, onset_s, band_deg: float = RECOVERY_BAND_DEG,
              baseline_s: float = 0.3) -> Outcomes:
     """Outcomes of one rollout (series fields (n_ticks, ...)); see the module docstring."""
@@ -70,14 +89,9 @@ def outcomes(series: Series, onset_s, band_deg: float = RECOVERY_BAND_DEG,
     dev = jnp.sqrt((pitch_deg - standing) ** 2 + (roll_deg - standing_roll) ** 2 + 1e-12)
 
     fell = jnp.any(fall_indicator(series))
-    outside = after & (dev > band_deg)
-    # Last period outside the band (-1 if none); recovered when the next period exists.
-    idx = jnp.arange(t.shape[0])
-    last_out = jnp.max(jnp.where(outside, idx, -1))
-    recovered = (last_out < t.shape[0] - 1) & ~fell
-    t_back = t[jnp.minimum(last_out + 1, t.shape[0] - 1)]
-    recovery = jnp.where(last_out < 0, 0.0, t_back - onset_s)
-    recovery = jnp.where(recovered, recovery, jnp.nan)
+    recovery = _recovery_time(t, dev, after, fell, onset_s, band_deg)
+    recovery_pitch = _recovery_time(t, jnp.abs(pitch_deg - standing), after, fell, onset_s,
+                                    band_deg)
 
     i_onset = jnp.argmax(after)  # first period after onset
     step = series["l_ankle"][-1] - series["l_ankle"][jnp.maximum(i_onset - 1, 0)]
@@ -86,6 +100,7 @@ def outcomes(series: Series, onset_s, band_deg: float = RECOVERY_BAND_DEG,
     return Outcomes(
         fell=fell,
         recovery_time_s=recovery,
+        recovery_time_pitch_s=recovery_pitch,
         step_length_m=step[0],
         step_width_m=step[1],
         peak_incl_deg=jnp.max(jnp.where(after, dev, 0.0)),

@@ -88,6 +88,7 @@ class Outcomes(_Columns):
 
     fell: jax.Array
     recovery_time_s: jax.Array
+    recovery_time_pitch_s: jax.Array
     step_length_m: jax.Array
     step_width_m: jax.Array
     peak_incl_deg: jax.Array
