@@ -6,7 +6,6 @@ test runs the real MuJoCo evaluation on a single candidate."""
 
 from __future__ import annotations
 
-import importlib
 import json
 import math
 
@@ -263,10 +262,3 @@ def test_real_evaluation_one_candidate(tmp_path):
     assert all(isinstance(r["fell"], bool) for r in rows.values())
     cp = load_params_json(tmp_path / "controller_params.json")
     assert cp == P.controller_params(s["T4"]["x"], "deviation/updated")
-
-
-@pytest.mark.parametrize("name", ["check_mjx", "phase_robustness", "probe_sampling", "report",
-                                  "search", "sensitivity", "slices", "trace"])
-def test_analysis_scripts_import(name):
-    mod = importlib.import_module(f"tkujax.studies.calibrate.{name}")
-    assert callable(getattr(mod, "main"))

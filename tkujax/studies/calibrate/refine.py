@@ -1,6 +1,6 @@
 """Gradient refinement of the calibration through MJX (issue 11, "use the differentiable simulator").
 
-CMA-ES (`search.py`, over MuJoCo C) finds the basin of the paper's 8 fall outcomes; this module
+CMA-ES (`run.py`, `tkujax calibrate`, over MuJoCo C) finds the basin of the paper's 8 fall outcomes; this module
 polishes the continuous parameters inside it with `jax.grad` through the MJX closed loop. What
 it can reach is limited by what in Tables 4-5 is differentiable:
 
@@ -227,7 +227,3 @@ def apply(model: ModelParams, contact: push_lib.BallContact, user: dict
     return (dataclasses.replace(model, leg_servo=servo).validate(),
             dataclasses.replace(contact, impulse_factor=user["impulse_factor"]).validate())
 
-
-if __name__ == "__main__":      # python -m tkujax.studies.calibrate.refine OUT [ITERATIONS]
-    import sys
-    refine(sys.argv[1], int(sys.argv[2]) if len(sys.argv) > 2 else 10)
