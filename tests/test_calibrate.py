@@ -251,7 +251,7 @@ def test_archive_of_another_fit_is_refused(tmp_path):
 
 def test_real_evaluation_one_candidate(tmp_path):
     """The MuJoCo C evaluation end to end on one candidate (the start point)."""
-    from tkujax.studies.sweep import load_params_json
+    from tkujax.control.io import load_controller_params_json as load_params_json
 
     spec = _spec({"params": ["leg_kp", "foot_length_m"], "readings": ["deviation/updated"],
                   "rows": "table4"}, {"max_evals": 1}, report={"sensitivity": False})

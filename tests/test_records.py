@@ -23,8 +23,8 @@ from tkujax.sim import metrics
 from tkujax.sim.records import Series
 from tkujax.studies import chunks
 from tkujax.studies.maps import max_recoverable_impulse
-from tkujax.studies.spec import SpecError
-from tkujax.studies.sweep import load, load_params_json, run_sweep
+from tkujax.control.io import load_controller_params_json as load_params_json
+from tkujax.studies.sweep import load, run_sweep
 
 ROOT = Path(__file__).resolve().parents[1]
 SPEC = """
@@ -83,7 +83,7 @@ def test_maps_leave_diverged_records_out():
 ])
 def test_params_json_names_key_and_range(tmp_path, value, match):
     (tmp_path / "p.json").write_text(value)
-    with pytest.raises(SpecError, match=match):
+    with pytest.raises(ValueError, match=match):
         load_params_json(tmp_path / "p.json")
 
 

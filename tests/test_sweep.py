@@ -18,7 +18,8 @@ from tkujax.studies import capturability
 from tkujax.control.params import ControllerParams
 from tkujax.model import ModelParams
 from tkujax.studies.spec import SpecError, load_spec, parse_spec
-from tkujax.studies.sweep import load, load_params_json, run_sweep
+from tkujax.control.io import load_controller_params_json as load_params_json
+from tkujax.studies.sweep import load, run_sweep
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ROOT / "sweeps" / "tiny.toml"
@@ -59,10 +60,19 @@ def _with(path: str, value):
      r"push.random.onset_phase.uniform\[0\]: 1.0 is out of range \[0, 1\)"),
     ("push.random.onset_phase", {"uniform": [0.0, 1.5]},
      r"push.random.onset_phase.uniform\[1\]: 1.5 is out of range \[0, 1\)"),
-    ("controller.accel_gate", -1.0, r"controller.accel_gate: -1.0 is out of range \[0.0, 100.0\] m/s\^2"),
-    ("controller.step_period", 5.0, r"controller.step_period: 5.0 is out of range \[0.05, 2.0\] s"),
+    # Controller ranges are ControllerParams.validate's (stated once), named with the key.
+    ("controller.accel_gate", -1.0,
+     r"controller.accel_gate: -1.0 is out of range: .*accel_gate must be in \[0, 100\] m/s\^2"),
+    ("controller.step_period", 5.0,
+     r"controller.step_period: 5.0 is out of range: .*step_period must be in \(0, 2\] s"),
+    ("controller.eps_forward_deg", 95.0,
+     r"controller.eps_forward_deg: 95.0 deg is out of range: .*eps_forward must be in \[0, pi/2\)"),
+    ("controller.kalman_r", "x", r"controller.kalman_r: expected a number, .*\(0, inf\)"),
     ("controller.T", 0.3, r"\[controller\]: unknown key\(s\) \['T'\]"),
-    ("controller.grid.lift_height", [0.01, 0.5], r"controller.grid.lift_height\[1\]: 0.5 is out of range"),
+    ("controller.grid.lift_height", [0.01, 0.5],
+     r"controller.grid.lift_height\[1\]: 0.5 is out of range: .*\[0, 0.1\] m"),
+    ("controller.grid.step_period", {"start": 0.2, "stop": 3.0, "num": 3},
+     r"controller.grid.step_period.stop: 3.0 is out of range"),
     ("randomize.floor_friction", {"uniform": [0.0, 1.0]}, r"randomize.floor_friction.uniform\[0\]"),
     ("randomize.servo_kp_scale", {"normal": [1, 0.1]}, r"randomize.servo_kp_scale: expected \{uniform"),
 ])
@@ -138,7 +148,7 @@ def test_params_json(tmp_path):
     assert p.step_period == 0.25 and p.leg_length == ControllerParams.paper().leg_length
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps({"step_periodd": 0.25}))
-    with pytest.raises(SpecError, match="unknown field"):
+    with pytest.raises(ValueError, match="unknown field"):
         load_params_json(bad)
     bad.write_text(json.dumps({"step_period": -1.0}))
     with pytest.raises(ValueError, match="step_period must be in"):

@@ -37,7 +37,7 @@ import pytest
 
 from tkujax.control.params import ControllerParams
 from tkujax.studies.spec import RANDOMIZE_DEFAULTS, SpecError
-from tkujax.studies.sweep import load_params_json
+from tkujax.control.io import load_controller_params_json as load_params_json
 from tkujax.studies.tune import (DEG, TUNABLE, LossConfig, Reparam, TuneProblem, evolution_baseline,
                          make_optimizer, optimise, params_json, parse_tune_spec,
                          temperature_schedule)
@@ -250,8 +250,11 @@ def test_spec_validation_names_key_and_range():
     assert spec.eval_seed != spec.seed
     bad = [({"tune": {**SPEC["tune"], "iterations": 0}}, "tune.iterations"),
            ({"tune": {**SPEC["tune"], "params": ["standing_lean"]}}, "tune.params"),
-           ({"tune": {**SPEC["tune"], "ranges": {"step_period": [0.01, 0.5]}}},
-            r"tune.ranges.step_period\[0\].*0.05, 2.0"),
+           ({"tune": {**SPEC["tune"], "ranges": {"step_period": [-0.1, 0.5]}}},
+            r"tune.ranges.step_period\[0\]: -0.1 is out of range: ControllerParams.step_period "
+            r"must be in \(0, 2\] s"),
+           ({"tune": {**SPEC["tune"], "ranges": {"step_period": [0.2, 2.5]}}},
+            r"tune.ranges.step_period\[1\]: 2.5 is out of range"),
            ({"tune": {**SPEC["tune"], "ranges": {"step_period": [0.35, 0.5]}}},
             "strictly inside"),
            ({"tune": {**SPEC["tune"], "anneal": {"start_deg": 1.0, "end_deg": 2.0}}},

@@ -271,13 +271,12 @@ def render_case(case: str, control_on: bool, out: str | Path, width: int = 480,
     import jax
 
     from tkujax import render
-    from tkujax.sim import physics
     from tkujax.sim import rollout_mjx as sim
+    from tkujax.sim.setup import init
 
     config = RolloutConfig(duration_s=2.1, record_qpos=True)
-    host = physics.host_model()
-    series = sim.rollout(physics.device_model(), physics.stand_state(host, 1.0), push,
-                         ControllerParams.paper(), 1.0 if control_on else 0.0,
-                         jax.random.PRNGKey(0), config=config)
+    host, model, index, state = init()
+    series = sim.rollout(model, state, push, ControllerParams.paper(), 1.0 if control_on else 0.0,
+                         jax.random.PRNGKey(0), config=config, index=index)
     frames = render.render_frames(host, np.asarray(series["qpos"]), width, height)
     return render.save_gif(frames, out, fps=1.0 / config.control_period_s)

@@ -67,6 +67,7 @@ from typing import Any
 
 import numpy as np
 
+from tkujax.control.io import checked_value
 from tkujax.control.fixed.config import GROUP_INT_BITS, MAX_GROUP_WORD_BITS, FixedPointConfig
 from tkujax.control.fixed.qformat import ROUNDING_MODES, QFormat
 from tkujax.sim.push import onset_from_phase, onset_phase
@@ -88,22 +89,13 @@ PUSH_FIELDS = {
 # (the tune specs share PUSH_FIELDS and have no phase).
 PHASE_KEY = "onset_phase"
 PHASE_UNIT = "(fraction of the 30 ms control period; 1 excluded)"
-# ControllerParams fields a spec may set; *_deg fields are converted to radians.
-CONTROLLER_FIELDS = {
-    "step_period": (0.05, 2.0, "s"),
-    "double_support_ratio": (0.0, 0.89, ""),
-    "lift_height": (0.0, 0.1, "m"),
-    "eps_forward_deg": (0.0, 60.0, "deg"),
-    "eps_backward_deg": (0.0, 60.0, "deg"),
-    "cp_angle_offset_deg": (-30.0, 30.0, "deg"),
-    "cp_gain": (0.0, 10.0, ""),
-    "gate_temperature_deg": (0.0, 30.0, "deg"),
-    "lateral_steps": (0.0, 1.0, "(0 = paper, 1 = sideways steps too)"),
-    "eps_lateral_deg": (0.0, 60.0, "deg"),
-    "kalman_q": (0.0, 1.0, "rad^2"),
-    "kalman_r": (1e-9, 1.0, "rad^2"),
-    "accel_gate": (0.0, 100.0, "m/s^2 (0 = off: the paper; robust detection, see README)"),
-}
+# ControllerParams fields a spec may set; *_deg fields are given in degrees. Their ranges are
+# ControllerParams.validate's (tkujax.control.io.checked_value), stated there once.
+CONTROLLER_FIELDS = (
+    "step_period", "double_support_ratio", "lift_height", "eps_forward_deg", "eps_backward_deg",
+    "cp_angle_offset_deg", "cp_gain", "gate_temperature_deg", "lateral_steps", "eps_lateral_deg",
+    "kalman_q", "kalman_r", "accel_gate",
+)
 # Randomisation: multiplicative scales and additive values applied per push.
 RANDOMIZE_FIELDS = {
     "link_mass_scale": (0.5, 1.5, "x (all bodies)"),
@@ -206,6 +198,30 @@ def _values(key: str, value, lo: float, hi: float, unit: str = "") -> np.ndarray
     return np.array([_number(f"{key}[{i}]", v, lo, hi, unit) for i, v in enumerate(items)])
 
 
+def controller_value(where: str, key: str, value) -> float:
+    """A spec-style ControllerParams value (key a field, or FIELD_deg in degrees), in the range
+    ControllerParams.validate allows; SpecError names `where` and the range."""
+    try:
+        return checked_value(where, key, value)
+    except ValueError as err:
+        raise SpecError(str(err)) from err
+
+
+def controller_values(where: str, key: str, value) -> np.ndarray:
+    """A list, a scalar or a {start, stop, num, endpoint} range of a controller key (as
+    `_values`), every value checked by `controller_value`."""
+    if isinstance(value, dict):
+        for end in ("start", "stop"):
+            if end in value:
+                controller_value(f"{where}.{end}", key, value[end])
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            controller_value(f"{where}[{i}]", key, v)
+    else:
+        controller_value(where, key, value)
+    return _values(where, value, -math.inf, math.inf)
+
+
 def _uniform(key: str, value, lo: float, hi: float, unit: str = "") -> tuple[float, float]:
     if not (isinstance(value, dict) and set(value) == {"uniform"}
             and isinstance(value["uniform"], list) and len(value["uniform"]) == 2):
@@ -294,11 +310,12 @@ def parse_spec(data: dict) -> SweepSpec:
 
     ctrl = _table("controller", data.get("controller", {}),
                   set(CONTROLLER_FIELDS) | {"grid", "arithmetic"})
-    controller = {k: _number(f"controller.{k}", v, *CONTROLLER_FIELDS[k])
+    controller = {k: controller_value(f"controller.{k}", k, v)
                   for k, v in ctrl.items() if k not in ("grid", "arithmetic")}
-    cgrid = dict(_table("controller.grid", ctrl.get("grid", {}), set(CONTROLLER_FIELDS) | {"fpga"}))
+    cgrid = dict(_table("controller.grid", ctrl.get("grid", {}),
+                        set(CONTROLLER_FIELDS) | {"fpga"}))
     arithmetic, fpga, fpga_grid = _parse_fpga(data, ctrl, cgrid.pop("fpga", {}))
-    controller_grid = {k: _values(f"controller.grid.{k}", v, *CONTROLLER_FIELDS[k])
+    controller_grid = {k: controller_values(f"controller.grid.{k}", k, v)
                        for k, v in cgrid.items()}
     both = sorted(set(controller) & set(controller_grid))
     if both:

@@ -24,6 +24,7 @@ from typing import Callable
 
 import numpy as np
 
+from tkujax.control.io import save_controller_params_json
 from tkujax.studies.calibrate import evaluate as E
 from tkujax.studies.calibrate import params as P
 from tkujax.studies.calibrate import report as R
@@ -408,7 +409,7 @@ def write_report(spec: CalibrateSpec, out: Path, recs: list[dict], start_rec: di
     mp = P.model_params(x)
     save_model_params_json(mp, out / "model_params.json")
     cp = P.controller_params(x, best["reading"], mp)
-    (out / "controller_params.json").write_text(json.dumps(dataclasses.asdict(cp), indent=1) + "\n")
+    save_controller_params_json(cp, out / "controller_params.json")
     md += ["## Using the fit", "",
            f"`model_params.json` and `controller_params.json` hold the {primary} best "
            f"(reading {best['reading']}); other commands load them:", "",
