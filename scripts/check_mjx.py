@@ -1,5 +1,5 @@
-"""Cross-check a calibrated set on the MJX closed loop (tkujax.sim.simulate, the backend of
-`tkujax paper`) against the MuJoCo C numbers of the fit.
+"""Cross-check a calibrated set on the MJX closed loop (tkujax.sim.rollout_mjx.simulate, the
+backend of `tkujax paper`) against the MuJoCo C numbers of the fit.
 
 python scripts/check_mjx.py results/calibration/calibration.json ALL --out OUT.json
 """

@@ -9,7 +9,7 @@ from pathlib import Path
 if "MUJOCO_GL" not in os.environ and ctypes.util.find_library("EGL"):
     os.environ["MUJOCO_GL"] = "egl"
 
-import jax  # noqa: E402
+import jax
 
 _cache = os.environ.get("TKUJAX_CACHE_DIR", str(Path.home() / ".cache" / "tkujax" / "jax"))
 jax.config.update("jax_compilation_cache_dir", _cache)

@@ -112,7 +112,7 @@ def test_period_start_wrench_approximation(runs):
 
 
 def test_push_wrench_twin_matches_sim():
-    """_force/_wrench reproduce push.force_at and sim._push_wrench on tilted chest poses."""
+    """_force/_wrench reproduce push.force_at and rollout_mjx._push_wrench on tilted chest poses."""
     setup = bm._setup(None)
     m, idx = setup.model, setup.index
     data = mujoco.MjData(m)

@@ -6,7 +6,6 @@ float64 gradient of a 0.3 s rollout; the rest is MuJoCo C and the jitted control
 """
 
 import copy
-import math
 
 import jax
 import jax.numpy as jnp
@@ -17,7 +16,7 @@ import pytest
 from tkujax.control import ControllerParams, StepOverride
 from tkujax.control.controller import Sensors, controller_init, controller_step
 from tkujax.model import LEG_ACTUATORS, load_model
-from tkujax.sim.push import Push, make_push, stack_pushes
+from tkujax.sim.push import Push
 from tkujax.studies.capture import theory
 from tkujax.studies.capture.optimize import MarginProblem
 from tkujax.studies.capture.region import analyse

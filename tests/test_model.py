@@ -50,7 +50,8 @@ def test_mass_height_dof(model):
     assert all(model.jnt_type[i] == mujoco.mjtJoint.mjJNT_HINGE for i in range(1, model.njnt))
     assert sorted(hinges) == sorted(JOINT_NAMES) and len(hinges) == 23
     assert [model.actuator(i).name for i in range(model.nu)] == list(JOINT_NAMES)
-    assert len(LEG_ACTUATORS) == 12 and LEG_ACTUATORS[0] == "r_hip_yaw" and LEG_ACTUATORS[-1] == "l_ankle_roll"
+    assert len(LEG_ACTUATORS) == 12
+    assert LEG_ACTUATORS[0] == "r_hip_yaw" and LEG_ACTUATORS[-1] == "l_ankle_roll"
 
 
 def test_actuators_model_the_servos(model):

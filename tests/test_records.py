@@ -69,7 +69,8 @@ def test_diverged_and_nan_never_survives():
 
 
 def test_maps_leave_diverged_records_out():
-    rec = dict(control=np.ones(3, bool), azimuth_deg=np.zeros(3), impulse_ns=np.array([1.0, 2.0, 3.0]),
+    rec = dict(control=np.ones(3, bool), azimuth_deg=np.zeros(3),
+               impulse_ns=np.array([1.0, 2.0, 3.0]),
                fell=np.array([False, True, True]), diverged=np.array([False, True, False]))
     azs, jmax = max_recoverable_impulse(rec, True)
     assert jmax[0] == 1.0 and len(azs) == 1               # 2.0 (diverged) is no cell at all
@@ -116,7 +117,8 @@ def _writer(spec, out, slow_s: float) -> subprocess.Popen:
     code = ("import json, sys; from tkujax.cli import configure_runtime; configure_runtime(); "
             "from tkujax.studies.sweep import run_sweep; "
             "m = run_sweep(sys.argv[1], sys.argv[2], quiet=True, backend='mujoco'); "
-            "print(json.dumps(dict(computed=m['chunks_computed_last_run'], complete=m['complete'])))")
+            "print(json.dumps(dict(computed=m['chunks_computed_last_run'], "
+            "complete=m['complete'])))")
     return subprocess.Popen([sys.executable, "-c", code, str(spec), str(out)],
                             env=_env(TKUJAX_TEST_SLOW_WRITE=str(slow_s)),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

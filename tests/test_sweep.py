@@ -45,7 +45,8 @@ def _with(path: str, value):
     ("sweep.chunk_size", 0, r"sweep.chunk_size: 0 is out of range \[1, 1048576\]"),
     ("sweep.duration_s", 99.0, r"sweep.duration_s: 99.0 is out of range \[0.1, 30.0\] s"),
     ("sweep.control", ["maybe"], r"sweep.control"),
-    ("push.grid.impulse_ns", [0.5, 12.0], r"push.grid.impulse_ns\[1\]: 12.0 is out of range \[0.0, 10.0\]"),
+    ("push.grid.impulse_ns", [0.5, 12.0],
+     r"push.grid.impulse_ns\[1\]: 12.0 is out of range \[0.0, 10.0\]"),
     ("push.grid.impulse_ns", [True], r"push.grid.impulse_ns\[0\]: expected a number"),
     ("push.grid.azimuth_deg", {"start": 0, "stop": 90}, r"push.grid.azimuth_deg: a range needs"),
     ("push.grid.height_m", [0.9], r"push.grid.height_m\[0\]: 0.9 is out of range \[0.25, 0.46\] m"),
@@ -74,7 +75,8 @@ def _with(path: str, value):
     ("controller.grid.step_period", {"start": 0.2, "stop": 3.0, "num": 3},
      r"controller.grid.step_period.stop: 3.0 is out of range"),
     ("randomize.floor_friction", {"uniform": [0.0, 1.0]}, r"randomize.floor_friction.uniform\[0\]"),
-    ("randomize.servo_kp_scale", {"normal": [1, 0.1]}, r"randomize.servo_kp_scale: expected \{uniform"),
+    ("randomize.servo_kp_scale", {"normal": [1, 0.1]},
+     r"randomize.servo_kp_scale: expected \{uniform"),
 ])
 def test_bad_specs_name_the_key_and_range(path, value, match):
     with pytest.raises(SpecError, match=match):
@@ -373,7 +375,8 @@ def test_persistent_cache_serves_a_new_process(full_run):
         "recs = record_inputs(spec)\n"
         "keys_in = [k for k in recs if k not in ('push_id', 'from_grid')]\n"
         "from jax.sharding import Mesh, NamedSharding, PartitionSpec\n"
-        "sh = NamedSharding(Mesh(np.array(jax.local_devices()), ('push',)), PartitionSpec('push'))\n"
+        "sh = NamedSharding(Mesh(np.array(jax.local_devices()), ('push',)), "
+        "PartitionSpec('push'))\n"
         "batch = {k: jax.device_put(np.asarray(recs[k][:4], np.float32), sh) for k in keys_in}\n"
         "keys = jax.device_put(jax.random.split(jax.random.PRNGKey(0), 4), sh)\n"
         "fn = make_chunk_fn((), spec.duration_s, None)\n"

@@ -152,7 +152,8 @@ def _markdown(rows: list[dict], title: str) -> str:
         ss = f"{r['step_length_cm']} cm" if r["step_length_cm"] else "X"
         same = "yes" if sim_fell == (p_rec is None) else "**no**"
         lines.append(f"| {r['direction']} | {r['ball']} ({r['force_N']} N, {r['impulse_Ns']} N·s)"
-                     f" | {r['control']} | {pr} | {sr} | {ps} | {ss} | {r['peak_incl_deg']}° | {same} |")
+                     f" | {r['control']} | {pr} | {sr} | {ps} | {ss} | {r['peak_incl_deg']}° "
+                     f"| {same} |")
     return "\n".join(lines) + "\n"
 
 
@@ -199,8 +200,9 @@ def run_paper(out: Path, figures: bool = True, params: ControllerParams | None =
 
     impulse_scale multiplies both balls' impulses (1 = the paper's rig); other values are
     labelled as such in table.md. variant: "calibrated" (default) or "estimated" (the model,
-    ball contact and Kalman noises before calibration; see `variant_setup`). phases: onsets 0.75 s + k / phases * 30 ms, k < phases
-    (each a batch of the 8 cases with the table's compiled rollout); 0 skips them.
+    ball contact and Kalman noises before calibration; see `variant_setup`). phases: onsets
+    0.75 s + k / phases * 30 ms, k < phases (each a batch of the 8 cases with the table's
+    compiled rollout); 0 skips them.
     """
     if not (0.0 < impulse_scale <= 10.0):
         raise ValueError(f"impulse_scale must be in (0, 10], got {impulse_scale!r}")

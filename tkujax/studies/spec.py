@@ -33,7 +33,8 @@ record carries an onset_phase column (derived from onset_s when not given).
     [controller]               # fixed ControllerParams overrides (angles in degrees)
     step_period = 0.3
     [controller.grid]          # ControllerParams varied as a grid (crossed with the pushes)
-    [randomize]                # per-push model/sensor randomisation ({uniform = [lo, hi]} or a value)
+    [randomize]                # per-push model/sensor randomisation ({uniform = [lo, hi]} or
+                               # a value)
 
 FPGA fixed-point controller (issue 15; `tkujax.control.fixed`):
 
@@ -47,7 +48,8 @@ FPGA fixed-point controller (issue 15; `tkujax.control.fixed`):
     [controller.grid]
     fpga.cordic_iterations = [6, 8, 12]   # any [fpga] key gridded: one record column fpga_<key>
 
-    [step]                     # capture regions: commanded recovery steps (tkujax.control.StepOverride)
+    [step]                     # capture regions: commanded recovery steps
+                               # (tkujax.control.StepOverride)
     reference = true           # also run each push with the controller's own step
     [step.grid]                # crossed with every push record; x_m, y_m: swing ankle vs its stand
     x_m = {start = -0.1, stop = 0.2, num = 21}
@@ -278,8 +280,10 @@ def parse_spec(data: dict) -> SweepSpec:
         raise SpecError(f"sweep.chunk_size: {chunk} is out of range [1, 1048576]")
     duration = _number("sweep.duration_s", sweep.get("duration_s", 2.4), 0.1, 30.0, "s")
     control = tuple(sweep.get("control", ["off", "on"]))
-    if not control or any(c not in ("on", "off") for c in control) or len(set(control)) != len(control):
-        raise SpecError(f"sweep.control: expected a list of distinct 'on'/'off', got {list(control)!r}")
+    if (not control or any(c not in ("on", "off") for c in control)
+            or len(set(control)) != len(control)):
+        raise SpecError(f"sweep.control: expected a list of distinct 'on'/'off', "
+                        f"got {list(control)!r}")
 
     push = _table("push", data.get("push", {}), {"grid", "random"})
     grid = _table("push.grid", push.get("grid", {}), set(PUSH_FIELDS) | {PHASE_KEY})
@@ -288,7 +292,8 @@ def parse_spec(data: dict) -> SweepSpec:
                  for k, v in grid.items()}
     rnd = _table("push.random", push.get("random", {}), set(PUSH_FIELDS) | {PHASE_KEY, "n"})
     n_random = rnd.get("n", 0)
-    if isinstance(n_random, bool) or not isinstance(n_random, int) or not 0 <= n_random <= 10_000_000:
+    if (isinstance(n_random, bool) or not isinstance(n_random, int)
+            or not 0 <= n_random <= 10_000_000):
         raise SpecError(f"push.random.n: expected an integer in [0, 10000000], got {n_random!r}")
     push_random = {k: _uniform(f"push.random.{k}", v, *PUSH_FIELDS[k][:2], PUSH_FIELDS[k][3])
                    for k, v in rnd.items() if k not in ("n", PHASE_KEY)}

@@ -68,5 +68,6 @@ def simulate_stand(seconds: float = 5.0, batch: int = 8, engine: str = "mjx",
         max_pitch_deviation_deg=float(np.abs(pitch_deg - lean_deg).max()),
         final_pelvis_height_m=height[:, -1].round(4).tolist(),
         fell=bool((height.min(axis=1) < 0.15).any()),
-        compile_s=round(compile_s, 2), wall_s=round(wall, 2), physics_steps_per_s=round(batch * n_steps / wall, 1),
+        compile_s=round(compile_s, 2), wall_s=round(wall, 2),
+        physics_steps_per_s=round(batch * n_steps / wall, 1),
     )

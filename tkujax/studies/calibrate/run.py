@@ -20,7 +20,7 @@ import os
 import sys
 import time
 from pathlib import Path
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -193,7 +193,7 @@ def run_calibrate(spec: CalibrateSpec | str | Path, out: str | Path, *,
     def run_many(xs: list[dict], runner: Runner | None) -> list[dict]:
         new = [x for x in xs if _key(x) not in archive.cache]
         recs = pool.map(scorer, new) if (pool is not None and len(new) > 1) else map(scorer, new)
-        for x, rec in zip(new, recs):
+        for _x, rec in zip(new, recs):
             rec.update(objective=runner.objective if runner else "start",
                        restart=runner.restarts if runner else 0,
                        gen=runner.gen if runner else -1, t=round(time.time() - t0, 3))

@@ -37,7 +37,8 @@ class TuneProblem:
     jitted gradient and forward-only versions (one compile each per batch size).
     """
 
-    def __init__(self, reparam: Reparam, base: ControllerParams, loss_cfg: LossConfig = LossConfig(),
+    def __init__(self, reparam: Reparam, base: ControllerParams,
+                 loss_cfg: LossConfig = LossConfig(),
                  duration_s: float = 1.2, remat: bool = True, float64: bool = False,
                  model_params=None, compiler_options: dict | None = None,
                  quantise_targets: bool = True):
@@ -132,7 +133,8 @@ class TuneProblem:
             sel = np.resize(np.arange(lo, min(lo + batch, n)), batch)
             chunk = {k: records[k][sel] for k in RECORD_KEYS}
             _, aux = self.forward(z, temperature, chunk, keys[sel])
-            parts.append(jax.tree_util.tree_map(lambda x: x[:min(batch, n - lo)], aux))
+            m = min(batch, n - lo)
+            parts.append(jax.tree_util.tree_map(lambda x, m=m: x[:m], aux))
         return jax.tree_util.tree_map(lambda *xs: np.concatenate(xs), *parts)
 
 
