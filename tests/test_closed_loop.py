@@ -89,6 +89,7 @@ def standing_pitch_deg():
 
 # --- the batch: jit / vmap, shapes, finiteness ------------------------------------------------
 
+@pytest.mark.slow
 def test_batch_shapes_and_time_axis(run):
     series, outcomes = run
     n = len(NAMES)
@@ -105,6 +106,7 @@ def test_batch_shapes_and_time_axis(run):
     np.testing.assert_allclose(series["t"], np.broadcast_to(expected_t, (n, N_TICKS)), atol=1e-4)
 
 
+@pytest.mark.slow
 def test_outputs_finite(run):
     series, outcomes = run
     for key, arr in series.items():
@@ -118,23 +120,23 @@ def test_outputs_finite(run):
             assert np.all(np.isfinite(arr)), key
 
 
-def test_vmap_rows_independent_and_jit_reused(run):
+@pytest.mark.slow
+def test_vmap_rows_independent_and_jit_reused(run, compiles):
     """Reversing the batch reverses the results (rows do not mix), with no recompilation."""
     _, outcomes = run
-    f = sim.batched_rollout(None, CONFIG)
-    size = getattr(f, "_cache_size", lambda: None)()
     rev = NAMES[::-1]
     pushes, enabled = _batch(rev)
+    compiles.reset()
     _, out_rev = sim.simulate(pushes, enabled, ControllerParams.paper(), config=CONFIG)
+    assert compiles.count == 0, f"the same batch shape compiled again: {compiles.names}"
     for key in ("fell", "step_length_m", "capture_point_m", "peak_incl_deg"):
         np.testing.assert_allclose(out_rev[key], outcomes[key][::-1], atol=1e-5, err_msg=key)
-    if size is not None:
-        assert f._cache_size() == size
 
 
 # --- behaviour --------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("name", ["no_push_on", "no_push_off"])
+@pytest.mark.slow
 def test_no_push_stands_whole_horizon(run, standing_pitch_deg, name):
     series, outcomes = run
     i = IDX[name]
@@ -161,6 +163,7 @@ def test_no_push_stands_3s_mujoco_backend(standing_pitch_deg):
     assert np.all(series["x_sup"] == 0.0)
 
 
+@pytest.mark.slow
 def test_baseball_from_back_control_off_recovers(run):
     series, outcomes = run
     i = IDX["baseball_back_off"]
@@ -169,6 +172,7 @@ def test_baseball_from_back_control_off_recovers(run):
     assert outcomes["peak_incl_deg"][i] > 0.2                   # it was actually pushed
 
 
+@pytest.mark.slow
 def test_strong_push_from_back_control_off_falls(run):
     """2.2 N s (not the paper's volleyball, see the module doc) topples the uncontrolled robot."""
     series, outcomes = run
@@ -179,6 +183,7 @@ def test_strong_push_from_back_control_off_falls(run):
     assert np.degrees(series["pitch"][i]).max() > 45.0
 
 
+@pytest.mark.slow
 def test_push_from_back_control_on_recovers_with_forward_step(run):
     series, outcomes = run
     i = IDX["step_back_on"]
@@ -191,6 +196,7 @@ def test_push_from_back_control_on_recovers_with_forward_step(run):
     assert np.isfinite(outcomes["recovery_time_s"][IDX["step_back_off"]])
 
 
+@pytest.mark.slow
 def test_push_from_front_control_on_steps_backward(run):
     series, outcomes = run
     i = IDX["step_front_on"]
@@ -201,6 +207,7 @@ def test_push_from_front_control_on_steps_backward(run):
     assert abs(outcomes["step_length_m"][IDX["step_front_off"]]) < 0.005
 
 
+@pytest.mark.slow
 def test_control_off_never_latches_a_step(run):
     series, outcomes = run
     off = [IDX[n] for n in NAMES if CASES[n][1] == 0.0]
@@ -217,6 +224,7 @@ def _standing_ticks(series, i):
     return series["t"][i] <= ONSET_S
 
 
+@pytest.mark.slow
 def test_sole_forces_carry_the_weight_while_standing(run):
     series, _ = run
     mg = ROBOT_MASS_KG * G
@@ -255,6 +263,7 @@ def _inside_margin(hull, p):
     return min(d)
 
 
+@pytest.mark.slow
 def test_zmp_inside_support_polygon_while_standing(run):
     """ZMP (sole sensors' centre of pressure) well inside the two feet, under the CoM."""
     series, _ = run

@@ -145,6 +145,7 @@ def mjx_stand_1s(model):
     return run
 
 
+@pytest.mark.slow
 def test_stands_5s_in_mjx_and_agrees_with_c(model, mjx_stand_1s):
     state = physics.stand_state(model)
     pitches, heights, traces = [], [], []
@@ -168,6 +169,7 @@ def test_stands_5s_in_mjx_and_agrees_with_c(model, mjx_stand_1s):
     np.testing.assert_allclose(fsr, c["sensordata"][-1, 6:], rtol=0.05, atol=0.1)
 
 
+@pytest.mark.slow
 def test_vmap_batch_of_standing_robots(model, mjx_stand_1s):
     states = physics.batch_state(physics.stand_state(model), 3)
     states = states.replace(qpos=states.qpos.at[:, 7:].add(

@@ -175,6 +175,7 @@ def _assert_same_records(a: dict, b: dict):
             np.testing.assert_allclose(a[k], b[k], rtol=1e-5, atol=1e-6, equal_nan=True, err_msg=k)
 
 
+@pytest.mark.slow
 def test_full_run_records_and_manifest(full_run):
     out, manifest, rec = full_run
     assert manifest["complete"] and manifest["n_pushes"] == 8 and manifest["n_chunks"] == 2
@@ -189,6 +190,7 @@ def test_full_run_records_and_manifest(full_run):
     np.testing.assert_array_equal(rec["fell"], rec["impulse_ns"] > 1.0)
 
 
+@pytest.mark.slow
 def test_interrupted_sweep_resumes_identically(full_run, tmp_path):
     _, _, reference = full_run
     first = run_sweep(TINY, tmp_path, max_chunks=1, quiet=True, backend="mjx")  # interrupted
@@ -227,6 +229,7 @@ def _assert_same_outcomes(a: dict, b: dict):
                                        err_msg=k)
 
 
+@pytest.mark.slow
 def test_two_devices_give_the_same_records(full_run, tmp_path):
     _, _, reference = full_run
     code = ("import jax; from tkujax.cli import configure_runtime; configure_runtime(); "
@@ -247,6 +250,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.slow
 def test_two_processes_give_the_same_records(full_run, tmp_path):
     _, _, reference = full_run
     port = _free_port()
@@ -293,6 +297,7 @@ def test_capturability_bounds_by_hand():
     assert capturability.capture_point_shift_m(lip, 0.5) == pytest.approx(0.5 / (4.5 * omega))
 
 
+@pytest.mark.slow
 def test_map_boundary_matches_individual_rollouts(full_run):
     """The tiny sweep's map puts the fall boundary where independent single rollouts (MuJoCo C
     backend, one push at a time) put it."""
@@ -320,6 +325,7 @@ def test_map_boundary_matches_individual_rollouts(full_run):
             assert j == expected, (control, az, fell)
 
 
+@pytest.mark.slow
 def test_auto_backend_is_mujoco_c_on_cpu_and_agrees_with_mjx(full_run, tmp_path):
     """On a CPU, "auto" runs MuJoCo C; its outcomes agree with the MJX sweep (>= 95 %: all 8
     here, the tiny sweep's impulses being far from the fall boundary)."""
@@ -340,23 +346,21 @@ def test_auto_backend_is_mujoco_c_on_cpu_and_agrees_with_mjx(full_run, tmp_path)
 
 # --- Controller parameters are traced inputs: one compile per batch shape ---
 
-def test_a_second_parameter_set_does_not_recompile(full_run, tmp_path):
+@pytest.mark.slow
+def test_a_second_parameter_set_does_not_recompile(full_run, tmp_path, compiles):
     """The tiny sweep again with other controller values (a tuned set, say): same compiled chunk
-    (the jit cache of make_chunk_fn gains no program), different records."""
-    from tkujax.studies.sweep import make_chunk_fn
-
-    fn = make_chunk_fn((), 1.5, None)
-    before = fn._cache_size()      # >= 1: other tests of this module may add batch shapes
-    assert before >= 1
+    (JAX lowers no program at all), different records."""
     other = dataclasses.replace(ControllerParams.paper(), eps_forward=math.radians(8.0),
                                 step_period=0.25)
+    compiles.reset()
     run_sweep(TINY, tmp_path / "other", params=other, quiet=True, backend="mjx")
-    assert fn._cache_size() == before, "a new controller parameter set recompiled the sweep"
+    assert compiles.count == 0, f"a new controller parameter set compiled {compiles.names}"
     rec = load(tmp_path / "other")
     _, _, first = full_run
     assert not np.allclose(rec["capture_point_m"], first["capture_point_m"], equal_nan=True)
 
 
+@pytest.mark.slow
 def test_persistent_cache_serves_a_new_process(full_run):
     """A fresh process compiling the same chunk reads it from the persistent cache (counted by
     JAX's own cache-hit event) instead of compiling again."""

@@ -97,6 +97,7 @@ def _report(fields, grad, fd):
         print(f"{f:22s} grad {g: .9e}  fd {d: .9e}  rel {abs(g - d) / max(abs(d), 1e-300):.2e}")
 
 
+@pytest.mark.slow
 def test_gradient_matches_finite_differences_without_a_step(problem, reparam, base):
     z0 = reparam.latent_of(base)
     _, aux, grad, fd = _fd_check(problem, z0, TINY)
@@ -112,6 +113,7 @@ def test_gradient_matches_finite_differences_without_a_step(problem, reparam, ba
             assert abs(grad[i] - fd[i]) <= REL_TOL * abs(fd[i]), (f, grad[i], fd[i])
 
 
+@pytest.mark.slow
 def test_gradient_matches_finite_differences_through_a_step(problem, reparam, base):
     z0 = reparam.latent_of(base)
     _, aux, grad, fd = _fd_check(problem, z0, STEP)
@@ -125,6 +127,7 @@ def test_gradient_matches_finite_differences_through_a_step(problem, reparam, ba
         assert abs(grad[i] - fd[i]) <= REL_TOL * abs(fd[i]), (f, grad[i], fd[i])
 
 
+@pytest.mark.slow
 def test_short_tuning_run_lowers_the_loss(problem, reparam, base):
     z0 = reparam.latent_of(base)
     step_fn = lambda z, tau: problem.value_and_grad(z, tau, STEP, KEYS)  # noqa: E731
@@ -139,6 +142,7 @@ def test_short_tuning_run_lowers_the_loss(problem, reparam, base):
         assert lo <= reparam.user(z)[f] <= hi
 
 
+@pytest.mark.slow
 def test_nan_gradient_is_skipped_and_reported(problem, reparam, base):
     z0 = reparam.latent_of(base)
     nan_push = dict(STEP, impulse_ns=np.array([np.nan, 1.0]))   # NaN into the rollout itself
