@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from tkujax.sim import physics
+from tkujax.sim.setup import init
 from tkujax.control.params import ControllerParams
 from tkujax.studies.provenance import package_versions
 from tkujax.studies.sweep import make_chunk_fn, traced_params
@@ -51,9 +52,8 @@ def _push_batch(n: int, seed: int = 0) -> dict:
 
 
 def raw_stepping(batch: int, n_steps: int, repeats: int) -> dict:
-    host = physics.host_model()
-    model = physics.device_model()
-    state = physics.batch_state(physics.stand_state(host), batch)
+    host, model, _, stand = init(settle_s=0.0)         # the keyframe itself, unsettled
+    state = physics.batch_state(stand, batch)
     ctrl = jnp.asarray(host.key("stand").ctrl, jnp.float32)
     run = jax.jit(jax.vmap(lambda d: physics.step_holding(model, d, ctrl, n_steps)[0].qpos))
     sec = _timed(lambda: run(state), repeats)
