@@ -26,6 +26,8 @@ def test_checked_value_degrees_and_errors():
         checked_value("w", "eps_forward_deg", 95)
     with pytest.raises(ValueError, match=r"^w: expected a number, .*step_period in \(0, 2\] s"):
         checked_value("w", "step_period", True)
+    with pytest.raises(ValueError, match=r"^w: 'T_deg' names no ControllerParams field"):
+        checked_value("w", "T_deg", 1.0)
 
 
 def test_overrides_convert_degrees():

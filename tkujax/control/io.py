@@ -54,6 +54,8 @@ def checked_value(where: str, key: str, value) -> float:
     """A concrete spec-style value, checked alone by ControllerParams.validate (the defaults
     hold the other fields). ValueError: "{where}: ..." naming the field and its range."""
     field, factor = field_of(key)
+    if field not in {f.name for f in dataclasses.fields(ControllerParams)}:
+        raise ValueError(f"{where}: {key!r} names no ControllerParams field")
     unit = " (given in deg)" if factor != 1.0 else ""
     if not _is_number(value):
         raise ValueError(f"{where}: expected a number, ControllerParams.{field} in "
