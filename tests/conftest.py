@@ -1,17 +1,56 @@
-"""Test-wide set-up: headless GL, persistent XLA cache (MJX compiles are slow on CPU)."""
+"""Test-wide set-up: headless GL, persistent XLA cache (MJX compiles are slow on CPU), and the
+`compiles` fixture: a count of the programs JAX lowers for compilation."""
 
 import ctypes.util
 import os
 from pathlib import Path
+
+import pytest
 
 # Headless rendering through EGL where libEGL exists; elsewhere rendering tests skip (setting
 # MUJOCO_GL=egl without libEGL would make `import mujoco` itself fail).
 if "MUJOCO_GL" not in os.environ and ctypes.util.find_library("EGL"):
     os.environ["MUJOCO_GL"] = "egl"
 
-import jax  # noqa: E402
+import jax
 
 _cache = os.environ.get("TKUJAX_CACHE_DIR", str(Path.home() / ".cache" / "tkujax" / "jax"))
 jax.config.update("jax_compilation_cache_dir", _cache)
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
+
+# Every program jit lowers for compilation (a jit-cache miss; a persistent-cache hit is lowered
+# too) emits this event; counted by program name from the start of the session.
+_LOWERED_EVENT = "/jax/core/compile/jaxpr_to_mlir_module_duration"
+_lowered: list[str] = []
+
+
+def _on_duration(event: str, duration: float, **kwargs) -> None:
+    if event == _LOWERED_EVENT:
+        _lowered.append(str(kwargs.get("fun_name", "")))
+
+
+jax.monitoring.register_event_duration_secs_listener(_on_duration)
+
+
+class CompileCounter:
+    """Programs lowered for compilation since the fixture was made (or `reset()`)."""
+
+    def __init__(self):
+        self.reset()
+
+    def reset(self) -> None:
+        self._start = len(_lowered)
+
+    @property
+    def names(self) -> list[str]:
+        return _lowered[self._start:]
+
+    @property
+    def count(self) -> int:
+        return len(self.names)
+
+
+@pytest.fixture
+def compiles() -> CompileCounter:
+    return CompileCounter()

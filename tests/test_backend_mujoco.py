@@ -54,6 +54,7 @@ def runs():
     return dict(mjx=mjx_out, c=c_out, ps=ps_out)
 
 
+@pytest.mark.slow
 def test_same_keys_shapes_dtypes(runs):
     (sm, om), (sc, oc) = runs["mjx"], runs["c"]
     assert sm.keys() == sc.keys() and om.keys() == oc.keys()
@@ -66,6 +67,7 @@ def test_same_keys_shapes_dtypes(runs):
     np.testing.assert_allclose(sc["t"], sm["t"], atol=1e-4)
 
 
+@pytest.mark.slow
 def test_fall_outcomes_agree_with_mjx(runs):
     (_, om), (_, oc) = runs["mjx"], runs["c"]
     print("\nimpulse az ctrl |  MJX: fell  rec_s  step_cm | MuJoCo: fell  rec_s  step_cm")
@@ -81,6 +83,7 @@ def test_fall_outcomes_agree_with_mjx(runs):
     assert om["fell"].any() and not om["fell"].all()   # the batch spans both outcomes
 
 
+@pytest.mark.slow
 def test_pre_push_standing_agrees(runs):
     (sm, om), (sc, oc) = runs["mjx"], runs["c"]
     pre = sm["t"][0] <= ONSET_S
@@ -97,6 +100,7 @@ def test_pre_push_standing_agrees(runs):
     assert not np.any(sc["gate"][:, pre])               # no detection while standing
 
 
+@pytest.mark.slow
 def test_period_start_wrench_approximation(runs):
     """Freezing the lever arm at the period's first step: measure what it changes."""
     (sc, oc), (sp, op) = runs["c"], runs["ps"]
@@ -112,7 +116,7 @@ def test_period_start_wrench_approximation(runs):
 
 
 def test_push_wrench_twin_matches_sim():
-    """_force/_wrench reproduce push.force_at and sim._push_wrench on tilted chest poses."""
+    """_force/_wrench reproduce push.force_at and rollout_mjx._push_wrench on tilted chest poses."""
     setup = bm._setup(None)
     m, idx = setup.model, setup.index
     data = mujoco.MjData(m)

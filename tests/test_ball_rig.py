@@ -20,7 +20,8 @@ import pytest
 from tkujax.sim import physics
 from tkujax.sim.ball_rig import (RIG_GAP_M, ball_rig_impulse, ball_rig_model, ball_rig_xml,
                              rig_geometry)
-from tkujax.sim.push import BALLS, DEFAULT_HEIGHT_M, ball_momentum_ns, ball_speed_m_s, pendulum_length_m
+from tkujax.sim.push import (BALLS, DEFAULT_HEIGHT_M, ball_momentum_ns, ball_speed_m_s,
+                             pendulum_length_m)
 
 CASES = [(b, d) for b in ("baseball", "volleyball") for d in ("back", "front")]
 # delivered / J with the default model and contact (see tkujax/ball_rig.py's docstring).

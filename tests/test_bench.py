@@ -4,9 +4,12 @@ closed-loop program compiled there is reused through make_chunk_fn's cache."""
 
 import json
 
+import pytest
+
 from tkujax.bench import run_bench
 
 
+@pytest.mark.slow
 def test_bench_end_to_end(tmp_path):
     out = tmp_path / "bench.json"
     result = run_bench(out, batches=(4,), duration_s=1.5, raw_steps=5, repeats=1, cpu_batch=4,

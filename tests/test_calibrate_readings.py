@@ -65,13 +65,15 @@ def test_param_mapping_hard_constraints():
     for _ in range(20):
         x = P.from_unit(rng.uniform(0, 1, len(P.NAMES)))
         m = P.model_params(x)
-        parts = m.pelvis_mass_kg + m.chest_mass_kg + m.head_mass_kg + 2 * m.arm_mass_kg + 2 * m.leg_mass_kg
+        parts = (m.pelvis_mass_kg + m.chest_mass_kg + m.head_mass_kg + 2 * m.arm_mass_kg
+                 + 2 * m.leg_mass_kg)
         assert abs(parts - 4.5) < 1e-6 and m.pelvis_mass_kg >= 0.2
         assert abs(m.height_m - 0.5645) < 1e-6
         assert m.leg_servo.stall_torque_nm == 6.0
     d = P.model_params(P.DEFAULT)
     # DEFAULT is the pre-calibration estimate, the search's documented start.
-    assert abs(d.leg_servo.damping_nms_per_rad - ModelParams.estimated().leg_servo.damping_nms_per_rad) < 1e-3
+    estimated = ModelParams.estimated().leg_servo.damping_nms_per_rad
+    assert abs(d.leg_servo.damping_nms_per_rad - estimated) < 1e-3
 
 
 def test_loss_zero_at_paper_values():

@@ -27,6 +27,7 @@ def at_start(refiner):
     return refiner.value_and_grad(refiner.start())
 
 
+@pytest.mark.slow
 def test_the_row_steps_and_the_loss_is_its_relative_step_error(refiner, at_start):
     val, out, g = at_start
     assert refiner.names == [("back", "volleyball", "on")]
@@ -38,6 +39,7 @@ def test_the_row_steps_and_the_loss_is_its_relative_step_error(refiner, at_start
     assert np.all(np.isfinite(g))
 
 
+@pytest.mark.slow
 def test_impulse_gradient_against_the_secant(refiner, at_start):
     """The step length is a rough function of the parameters (float32 contact dynamics and the
     30 ms detection tick): central differences of the loss in the impulse scale range from

@@ -6,7 +6,6 @@ float64 gradient of a 0.3 s rollout; the rest is MuJoCo C and the jitted control
 """
 
 import copy
-import math
 
 import jax
 import jax.numpy as jnp
@@ -17,7 +16,7 @@ import pytest
 from tkujax.control import ControllerParams, StepOverride
 from tkujax.control.controller import Sensors, controller_init, controller_step
 from tkujax.model import LEG_ACTUATORS, load_model
-from tkujax.sim.push import Push, make_push, stack_pushes
+from tkujax.sim.push import Push
 from tkujax.studies.capture import theory
 from tkujax.studies.capture.optimize import MarginProblem
 from tkujax.studies.capture.region import analyse
@@ -135,12 +134,14 @@ def small_regions(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_no_push_stand_pose_in_region(small_regions):
     for backend, regs in small_regions.items():
         r = regs[0.0]
         assert r.distance_to_region((0.0, 0.0)) == 0.0, backend
 
 
+@pytest.mark.slow
 def test_mjx_and_mujoco_regions_agree(small_regions):
     a, b = small_regions["mujoco"], small_regions["mjx"]
     for j in a:
@@ -173,6 +174,7 @@ def test_koolen_region_and_theory_j1():
     assert j_slow < j_fast and j_slow > 0.5 * lip.mass_kg * lip.omega * 0.05
 
 
+@pytest.mark.slow
 def test_margin_gradient_matches_finite_differences():
     """d margin / d target through MJX (float64, quantisation off) against central differences,
     on a horizon that ends before touchdown (no contact changes with the target)."""

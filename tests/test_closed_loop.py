@@ -1,11 +1,12 @@
 """The closed loop (MJX physics + the paper's controller) under pushes, and the push models.
 
-One batch of 8 pushes is simulated once for the whole module through `tkujax.sim.simulate`
-with `ControllerParams.paper()` and the default `RolloutConfig()` (2.4 s, hit at 0.75 s). It is
-deliberately the same batch shape and config as `tkujax paper` (tests/test_paper.py), so the
-compiled function (~40-80 s on a CPU) is shared through `sim.batched_rollout`'s cache. The issue's
-"stands 3 s" check runs on the MuJoCo C backend (`backend_mujoco.simulate_mujoco`, which only
-compiles the controller), so it needs no second MJX compile for a longer scan.
+One batch of 8 pushes is simulated once for the whole module through
+`tkujax.sim.rollout_mjx.simulate` with `ControllerParams.paper()` and the default
+`RolloutConfig()` (2.4 s, hit at 0.75 s). It is deliberately the same batch shape and config as
+`tkujax paper` (tests/test_paper.py), so the compiled function (~40-80 s on a CPU) is shared
+through `sim.batched_rollout`'s cache. The "stands 3 s" check runs on the MuJoCo C backend
+(`tkujax.sim.rollout_mujoco.simulate_mujoco`, which only compiles the controller), so it needs
+no second MJX compile for a longer scan.
 
 What is asserted here is qualitative closed-loop behaviour at impulses chosen for the default
 (calibrated) model, not the paper's exact outcome table. The paper's Tables 4-5 are a separate
@@ -52,7 +53,7 @@ CASES = {
     "step_front_off": (make_push(STEP_FRONT_NS, 180.0), 0.0),
 }
 NAMES = list(CASES)
-I = {name: i for i, name in enumerate(NAMES)}
+IDX = {name: i for i, name in enumerate(NAMES)}
 CONFIG = sim.RolloutConfig()                     # the paper command's config: shares the compile
 N_TICKS = int(round(CONFIG.duration_s / CONFIG.control_period_s))
 
@@ -69,7 +70,7 @@ def run():
     series, outcomes = sim.simulate(pushes, enabled, ControllerParams.paper(), config=CONFIG)
     print("\ncase                 fell  recovery_s  step_cm  capture_pt_cm  peak_dev_deg  "
           "phi_est range deg")
-    for n, i in I.items():
+    for n, i in IDX.items():
         phi = np.degrees(series["pitch_est"][i])
         print(f"{n:20s} {int(outcomes['fell'][i])}     {outcomes['recovery_time_s'][i]:6.2f}"
               f"    {100 * outcomes['step_length_m'][i]:6.2f}   "
@@ -88,6 +89,7 @@ def standing_pitch_deg():
 
 # --- the batch: jit / vmap, shapes, finiteness ------------------------------------------------
 
+@pytest.mark.slow
 def test_batch_shapes_and_time_axis(run):
     series, outcomes = run
     n = len(NAMES)
@@ -104,6 +106,7 @@ def test_batch_shapes_and_time_axis(run):
     np.testing.assert_allclose(series["t"], np.broadcast_to(expected_t, (n, N_TICKS)), atol=1e-4)
 
 
+@pytest.mark.slow
 def test_outputs_finite(run):
     series, outcomes = run
     for key, arr in series.items():
@@ -117,26 +120,26 @@ def test_outputs_finite(run):
             assert np.all(np.isfinite(arr)), key
 
 
-def test_vmap_rows_independent_and_jit_reused(run):
+@pytest.mark.slow
+def test_vmap_rows_independent_and_jit_reused(run, compiles):
     """Reversing the batch reverses the results (rows do not mix), with no recompilation."""
     _, outcomes = run
-    f = sim.batched_rollout(None, CONFIG)
-    size = getattr(f, "_cache_size", lambda: None)()
     rev = NAMES[::-1]
     pushes, enabled = _batch(rev)
+    compiles.reset()
     _, out_rev = sim.simulate(pushes, enabled, ControllerParams.paper(), config=CONFIG)
+    assert compiles.count == 0, f"the same batch shape compiled again: {compiles.names}"
     for key in ("fell", "step_length_m", "capture_point_m", "peak_incl_deg"):
         np.testing.assert_allclose(out_rev[key], outcomes[key][::-1], atol=1e-5, err_msg=key)
-    if size is not None:
-        assert f._cache_size() == size
 
 
 # --- behaviour --------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("name", ["no_push_on", "no_push_off"])
+@pytest.mark.slow
 def test_no_push_stands_whole_horizon(run, standing_pitch_deg, name):
     series, outcomes = run
-    i = I[name]
+    i = IDX[name]
     assert not outcomes["fell"][i]
     pitch = np.degrees(series["pitch"][i])
     assert np.max(np.abs(pitch - standing_pitch_deg)) < 1.0
@@ -160,54 +163,59 @@ def test_no_push_stands_3s_mujoco_backend(standing_pitch_deg):
     assert np.all(series["x_sup"] == 0.0)
 
 
+@pytest.mark.slow
 def test_baseball_from_back_control_off_recovers(run):
     series, outcomes = run
-    i = I["baseball_back_off"]
+    i = IDX["baseball_back_off"]
     assert not outcomes["fell"][i]
     assert np.isfinite(outcomes["recovery_time_s"][i])
     assert outcomes["peak_incl_deg"][i] > 0.2                   # it was actually pushed
 
 
+@pytest.mark.slow
 def test_strong_push_from_back_control_off_falls(run):
     """2.2 N s (not the paper's volleyball, see the module doc) topples the uncontrolled robot."""
     series, outcomes = run
-    i = I["strong_back_off"]
+    i = IDX["strong_back_off"]
     assert outcomes["fell"][i]
     assert np.isnan(outcomes["recovery_time_s"][i])
     # It falls forward, the way it was pushed.
     assert np.degrees(series["pitch"][i]).max() > 45.0
 
 
+@pytest.mark.slow
 def test_push_from_back_control_on_recovers_with_forward_step(run):
     series, outcomes = run
-    i = I["step_back_on"]
+    i = IDX["step_back_on"]
     assert np.degrees(series["pitch_est"][i]).max() > 12.0      # crossed epsilon_1
     assert not outcomes["fell"][i]
     assert outcomes["step_length_m"][i] > 0.01
     assert outcomes["capture_point_m"][i] > 0.0
     # The same push without control: no step (the step is the controller's), and it recovers.
-    assert abs(outcomes["step_length_m"][I["step_back_off"]]) < 0.005
-    assert np.isfinite(outcomes["recovery_time_s"][I["step_back_off"]])
+    assert abs(outcomes["step_length_m"][IDX["step_back_off"]]) < 0.005
+    assert np.isfinite(outcomes["recovery_time_s"][IDX["step_back_off"]])
 
 
+@pytest.mark.slow
 def test_push_from_front_control_on_steps_backward(run):
     series, outcomes = run
-    i = I["step_front_on"]
+    i = IDX["step_front_on"]
     assert np.degrees(series["pitch_est"][i]).min() < -2.0      # crossed -epsilon_2
     assert not outcomes["fell"][i]
     assert outcomes["step_length_m"][i] < -0.01
     assert outcomes["capture_point_m"][i] < 0.0
-    assert abs(outcomes["step_length_m"][I["step_front_off"]]) < 0.005
+    assert abs(outcomes["step_length_m"][IDX["step_front_off"]]) < 0.005
 
 
+@pytest.mark.slow
 def test_control_off_never_latches_a_step(run):
     series, outcomes = run
-    off = [I[n] for n in NAMES if CASES[n][1] == 0.0]
+    off = [IDX[n] for n in NAMES if CASES[n][1] == 0.0]
     for key in ("x_sup", "y_sup", "step_weight", "gate"):
         assert np.all(series[key][off] == 0.0), key
     assert np.all(outcomes["capture_point_m"][off] == 0.0)
     # ... while the same pushes with control on do latch one.
-    assert np.all(series["step_weight"][[I["step_back_on"], I["step_front_on"]], -1] == 1.0)
+    assert np.all(series["step_weight"][[IDX["step_back_on"], IDX["step_front_on"]], -1] == 1.0)
 
 
 # --- series sanity while standing ----------------------------------------------------------------
@@ -216,15 +224,16 @@ def _standing_ticks(series, i):
     return series["t"][i] <= ONSET_S
 
 
+@pytest.mark.slow
 def test_sole_forces_carry_the_weight_while_standing(run):
     series, _ = run
     mg = ROBOT_MASS_KG * G
     assert physics.host_model().body_subtreemass[0] == pytest.approx(ROBOT_MASS_KG, rel=1e-6)
     for name in ("no_push_on", "baseball_back_off", "step_back_on"):
-        i = I[name]
+        i = IDX[name]
         total = series["fsr_total"][i][_standing_ticks(series, i)]
         np.testing.assert_allclose(total, mg, rtol=0.03, err_msg=name)
-    total = series["fsr_total"][I["no_push_on"]]
+    total = series["fsr_total"][IDX["no_push_on"]]
     print(f"\nsum of the 8 sole forces standing: {total.min():.3f} .. {total.max():.3f} N "
           f"(m g = {mg:.3f} N)")
 
@@ -254,6 +263,7 @@ def _inside_margin(hull, p):
     return min(d)
 
 
+@pytest.mark.slow
 def test_zmp_inside_support_polygon_while_standing(run):
     """ZMP (sole sensors' centre of pressure) well inside the two feet, under the CoM."""
     series, _ = run
@@ -261,7 +271,7 @@ def test_zmp_inside_support_polygon_while_standing(run):
     data = physics.settled_stand_data(model, 1.0)
     hull = _convex_hull(data.site_xpos[sim.model_index().fsr_sites, :2])
     for name in ("no_push_on", "no_push_off", "step_back_on"):
-        i = I[name]
+        i = IDX[name]
         standing = _standing_ticks(series, i) if name == "step_back_on" else slice(None)
         zmp, com = series["zmp"][i][standing], series["com"][i][standing]
         margins = np.array([_inside_margin(hull, z) for z in zmp])

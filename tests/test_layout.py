@@ -41,8 +41,20 @@ def test_imports_only_go_down_the_layers(path):
 
 
 def test_public_api_resolves():
+    """Each public name is the object of the module the table names (no stand-in), and an
+    unknown name is an AttributeError naming it."""
+    import importlib
+    from importlib import metadata
+
     for name in tkujax.__all__:
-        assert getattr(tkujax, name) is not None
+        if name == "__version__":
+            continue
+        module = importlib.import_module(tkujax._API[name])
+        assert getattr(tkujax, name) is getattr(module, name)
+        assert callable(getattr(tkujax, name)), name          # classes and functions
+    assert tkujax.__version__ == metadata.version("tkujax")
+    with pytest.raises(AttributeError, match="no attribute 'simulat'"):
+        tkujax.simulat  # noqa: B018
 
 
 def test_records_are_typed_pytrees_with_columns():
@@ -57,3 +69,19 @@ def test_records_are_typed_pytrees_with_columns():
     assert isinstance(doubled, Outcomes) and doubled.columns()["step_length_m"][2] == 4.0
     with pytest.raises(KeyError, match="no column 'nope'"):
         o["nope"]
+
+
+def test_compile_counter_sees_compiles_and_cache_hits(compiles):
+    """The `compiles` fixture (conftest.py) that the no-recompile checks rely on: a new program
+    counts once, calling it again (a jit-cache hit) counts nothing."""
+    import jax
+    import numpy as np
+
+    f = jax.jit(lambda x: 3.0 * x + 1.0)
+    assert compiles.count == 0
+    f(np.arange(3.0))
+    assert compiles.count == 1
+    f(np.arange(3.0) + 1.0)
+    assert compiles.count == 1
+    f(np.arange(4.0))                                     # a new shape: a new program
+    assert compiles.count == 2

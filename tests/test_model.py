@@ -50,7 +50,8 @@ def test_mass_height_dof(model):
     assert all(model.jnt_type[i] == mujoco.mjtJoint.mjJNT_HINGE for i in range(1, model.njnt))
     assert sorted(hinges) == sorted(JOINT_NAMES) and len(hinges) == 23
     assert [model.actuator(i).name for i in range(model.nu)] == list(JOINT_NAMES)
-    assert len(LEG_ACTUATORS) == 12 and LEG_ACTUATORS[0] == "r_hip_yaw" and LEG_ACTUATORS[-1] == "l_ankle_roll"
+    assert len(LEG_ACTUATORS) == 12
+    assert LEG_ACTUATORS[0] == "r_hip_yaw" and LEG_ACTUATORS[-1] == "l_ankle_roll"
 
 
 def test_actuators_model_the_servos(model):
@@ -144,6 +145,7 @@ def mjx_stand_1s(model):
     return run
 
 
+@pytest.mark.slow
 def test_stands_5s_in_mjx_and_agrees_with_c(model, mjx_stand_1s):
     state = physics.stand_state(model)
     pitches, heights, traces = [], [], []
@@ -167,6 +169,7 @@ def test_stands_5s_in_mjx_and_agrees_with_c(model, mjx_stand_1s):
     np.testing.assert_allclose(fsr, c["sensordata"][-1, 6:], rtol=0.05, atol=0.1)
 
 
+@pytest.mark.slow
 def test_vmap_batch_of_standing_robots(model, mjx_stand_1s):
     states = physics.batch_state(physics.stand_state(model), 3)
     states = states.replace(qpos=states.qpos.at[:, 7:].add(

@@ -19,7 +19,6 @@ default; the video itself runs with TKUJAX_SLOW_TESTS=1.
 import csv
 import json
 import math
-import os
 
 import numpy as np
 import pytest
@@ -64,6 +63,7 @@ def rows(out):
         return list(reader)
 
 
+@pytest.mark.slow
 def test_csv_has_the_8_cases_and_only_the_issue_columns(rows):
     assert len(rows) == 8
     keys = {(r["direction"], r["ball"], r["control"]) for r in rows}
@@ -74,6 +74,7 @@ def test_csv_has_the_8_cases_and_only_the_issue_columns(rows):
         assert r["fell"] in ("true", "false")
 
 
+@pytest.mark.slow
 def test_csv_recovery_empty_iff_fell_and_steps(rows):
     for r in rows:
         fell = r["fell"] == "true"
@@ -94,6 +95,7 @@ def test_csv_recovery_empty_iff_fell_and_steps(rows):
                 assert (step > 0) == (r["direction"] == "back"), r
 
 
+@pytest.mark.slow
 def test_csv_is_the_simulation(rows):
     """The rows are the outcomes of the 8 pushes (re-simulated: shares the compiled batch)."""
     cases, _, outcomes, pushes = paper.run_cases()
@@ -132,6 +134,7 @@ def _md_rows(md):
     return table
 
 
+@pytest.mark.slow
 def test_markdown_puts_paper_numbers_beside_simulated(out, rows):
     path, summary = out
     md = (path / "table.md").read_text()
@@ -161,6 +164,7 @@ def test_markdown_puts_paper_numbers_beside_simulated(out, rows):
     assert f"Fall/no-fall outcomes as in the paper: {n_same}/8" in md
 
 
+@pytest.mark.slow
 def test_phase_table(out, rows):
     """phase.csv/phase.md: each case across the period; phase 0 is table.csv's run."""
     path, summary = out
@@ -182,6 +186,7 @@ def test_phase_table(out, rows):
     assert sum(line.startswith(("| back", "| front")) for line in md.splitlines()) == 8
 
 
+@pytest.mark.slow
 def test_series_saved(out):
     path, _ = out
     with np.load(path / "series.npz") as z:
@@ -190,6 +195,7 @@ def test_series_saved(out):
         assert np.all(np.isfinite(z["pitch"]))
 
 
+@pytest.mark.slow
 def test_four_figures_are_real_images(out):
     from PIL import Image
 
@@ -226,8 +232,7 @@ def test_render_case_rejects_unknown_case(tmp_path):
             paper.render_case(case, True, tmp_path / "x.gif")
 
 
-@pytest.mark.skipif(os.environ.get("TKUJAX_SLOW_TESTS") != "1",
-                    reason="compiles its own unbatched rollout (~40 s+); TKUJAX_SLOW_TESTS=1")
+@pytest.mark.slow          # compiles its own unbatched rollout (~40 s+ on a CPU)
 def test_render_case_writes_gif(tmp_path):
     from tkujax import render
 

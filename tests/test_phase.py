@@ -1,7 +1,8 @@
 """The push's phase in the 30 ms control period, and the robust detection option (issue 16).
 
-One push, 1.0 N·s from the front at 0.30 m (the issue's contact height), on the MuJoCo C backend (fast on a CPU; the
-controller tick it compiles is shared by the 4 runs, parameters being traced values):
+One push, 1.0 N·s from the front at 0.30 m (the issue's contact height), on the MuJoCo C backend
+(fast on a CPU; the controller tick it compiles is shared by the 4 runs, parameters being traced
+values):
 - mid-tick: onset on the 0.75 s controller tick (phase 0, as the paper): no IMU sample falls
   inside the 20 ms pulse;
 - on-tick: phase 0.6, the pulse's peak lands on the 0.78 s tick's IMU sample.
@@ -44,7 +45,8 @@ def test_phase_definition():
 
 @pytest.fixture(scope="module")
 def runs():
-    pushes = stack_pushes([make_push(1.0, 180.0, height_m=HEIGHT_M, onset_s=float(onset_from_phase(0.75, ph)))
+    pushes = stack_pushes([make_push(1.0, 180.0, height_m=HEIGHT_M,
+                                     onset_s=float(onset_from_phase(0.75, ph)))
                            for ph in PHASES])
     out = {}
     for name, gate in (("paper", 0.0), ("robust", 0.5)):

@@ -23,8 +23,8 @@ from tkujax.sim import metrics
 from tkujax.sim.records import Series
 from tkujax.studies import chunks
 from tkujax.studies.maps import max_recoverable_impulse
-from tkujax.studies.spec import SpecError
-from tkujax.studies.sweep import load, load_params_json, run_sweep
+from tkujax.control.io import load_controller_params_json as load_params_json
+from tkujax.studies.sweep import load, run_sweep
 
 ROOT = Path(__file__).resolve().parents[1]
 SPEC = """
@@ -69,7 +69,8 @@ def test_diverged_and_nan_never_survives():
 
 
 def test_maps_leave_diverged_records_out():
-    rec = dict(control=np.ones(3, bool), azimuth_deg=np.zeros(3), impulse_ns=np.array([1.0, 2.0, 3.0]),
+    rec = dict(control=np.ones(3, bool), azimuth_deg=np.zeros(3),
+               impulse_ns=np.array([1.0, 2.0, 3.0]),
                fell=np.array([False, True, True]), diverged=np.array([False, True, False]))
     azs, jmax = max_recoverable_impulse(rec, True)
     assert jmax[0] == 1.0 and len(azs) == 1               # 2.0 (diverged) is no cell at all
@@ -83,7 +84,7 @@ def test_maps_leave_diverged_records_out():
 ])
 def test_params_json_names_key_and_range(tmp_path, value, match):
     (tmp_path / "p.json").write_text(value)
-    with pytest.raises(SpecError, match=match):
+    with pytest.raises(ValueError, match=match):
         load_params_json(tmp_path / "p.json")
 
 
@@ -116,7 +117,8 @@ def _writer(spec, out, slow_s: float) -> subprocess.Popen:
     code = ("import json, sys; from tkujax.cli import configure_runtime; configure_runtime(); "
             "from tkujax.studies.sweep import run_sweep; "
             "m = run_sweep(sys.argv[1], sys.argv[2], quiet=True, backend='mujoco'); "
-            "print(json.dumps(dict(computed=m['chunks_computed_last_run'], complete=m['complete'])))")
+            "print(json.dumps(dict(computed=m['chunks_computed_last_run'], "
+            "complete=m['complete'])))")
     return subprocess.Popen([sys.executable, "-c", code, str(spec), str(out)],
                             env=_env(TKUJAX_TEST_SLOW_WRITE=str(slow_s)),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

@@ -15,7 +15,8 @@ MUJOCO_GL and XLA options first):
   tkujax.make_maps                           stability maps
   tkujax.compare_runs                        runs of one spec compared: difference maps, no harm
   tkujax.replay                              one sweep record re-simulated
-  tkujax.run_tune                            gradient tuning
+  tkujax.init                                the set-up of a model (tkujax.sim.setup)
+  tkujax.run_tune                            controller tuning (CMA-ES, gradients, ...)
   tkujax.run_calibrate                       fit the model to the paper's Tables 4-5
   tkujax.run_capture, tkujax.StepOverride    capture regions, commanded recovery steps
 """
@@ -33,6 +34,7 @@ _API = {
     "Series": "tkujax.sim.records", "Outcomes": "tkujax.sim.records",
     "simulate": "tkujax.sim.rollout_mjx", "RolloutConfig": "tkujax.sim.rollout_mjx",
     "simulate_mujoco": "tkujax.sim.rollout_mujoco",
+    "init": "tkujax.sim.setup", "SimSetup": "tkujax.sim.setup",
     "run_paper": "tkujax.studies.paper",
     "run_sweep": "tkujax.studies.sweep", "load": "tkujax.studies.sweep",
     "make_maps": "tkujax.studies.maps", "compare_runs": "tkujax.studies.compare", "replay": "tkujax.studies.replay",

@@ -17,7 +17,6 @@ import platform
 import statistics
 import tempfile
 import time
-from importlib import metadata
 from pathlib import Path
 
 import jax
@@ -25,7 +24,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from tkujax.sim import physics
+from tkujax.sim.setup import init
 from tkujax.control.params import ControllerParams
+from tkujax.studies.provenance import package_versions
 from tkujax.studies.sweep import make_chunk_fn, traced_params
 
 
@@ -51,9 +52,8 @@ def _push_batch(n: int, seed: int = 0) -> dict:
 
 
 def raw_stepping(batch: int, n_steps: int, repeats: int) -> dict:
-    host = physics.host_model()
-    model = physics.device_model()
-    state = physics.batch_state(physics.stand_state(host), batch)
+    host, model, _, stand = init(settle_s=0.0)         # the keyframe itself, unsettled
+    state = physics.batch_state(stand, batch)
     ctrl = jnp.asarray(host.key("stand").ctrl, jnp.float32)
     run = jax.jit(jax.vmap(lambda d: physics.step_holding(model, d, ctrl, n_steps)[0].qpos))
     sec = _timed(lambda: run(state), repeats)
@@ -104,7 +104,7 @@ def multi_device(batch: int, duration_s: float, repeats: int) -> list[dict]:
         sharding = NamedSharding(Mesh(np.array(devices[:n]), ("push",)), PartitionSpec("push"))
         recs = {k: jax.device_put(v, sharding) for k, v in _push_batch(batch).items()}
         keys = jax.device_put(jax.random.split(jax.random.PRNGKey(0), batch), sharding)
-        sec = _timed(lambda: fn(recs, keys, params), repeats)
+        sec = _timed(lambda recs=recs, keys=keys: fn(recs, keys, params), repeats)
         out.append(dict(n_devices=n, batch=batch, seconds=sec, pushes_per_s=batch / sec,
                         physics_steps_per_s=batch * steps / sec))
     return out
@@ -159,7 +159,7 @@ def run_bench(out: str | Path, batches=(1024, 4096, 16384, 65536), duration_s: f
     dev = jax.devices()[0]
     result = dict(device=str(dev), device_kind=getattr(dev, "device_kind", dev.platform),
                   n_devices=jax.device_count(), platform=platform.platform(),
-                  versions={p: _version(p) for p in ("jax", "jaxlib", "mujoco", "mujoco-mjx")},
+                  versions=package_versions(("jax", "jaxlib", "mujoco", "mujoco-mjx")),
                   repeats=repeats, duration_s=duration_s, raw=[], closed_loop=[])
     if compile_batch:
         result["compile"] = compile_times(compile_batch, duration_s)
@@ -180,13 +180,6 @@ def run_bench(out: str | Path, batches=(1024, 4096, 16384, 65536), duration_s: f
         result["gradient_compile"] = gradient_compile(grad_compile_batch, duration_s)
     _write(out, result)
     return result
-
-
-def _version(pkg: str):
-    try:
-        return metadata.version(pkg)
-    except metadata.PackageNotFoundError:
-        return None
 
 
 def _write(out: Path, result: dict) -> None:

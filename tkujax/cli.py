@@ -83,9 +83,9 @@ def _model_params(items: list[str], variant: str = "calibrated"):
 
 def _cmd_paper(args) -> int:
     from tkujax.studies.paper import run_paper
-    from tkujax.studies.sweep import load_params_json
+    from tkujax.control.io import load_controller_params_json
 
-    params = load_params_json(args.params) if args.params else None
+    params = load_controller_params_json(args.params) if args.params else None
     summary = run_paper(Path(args.out), figures=not args.no_figures, params=params,
                         impulse_scale=args.impulse_scale,
                         model_params=_model_params(args.model, args.variant),
@@ -95,9 +95,10 @@ def _cmd_paper(args) -> int:
 
 
 def _cmd_sweep(args) -> int:
-    from tkujax.studies.sweep import load_params_json, run_sweep
+    from tkujax.control.io import load_controller_params_json
+    from tkujax.studies.sweep import run_sweep
 
-    params = load_params_json(args.params) if args.params else None
+    params = load_controller_params_json(args.params) if args.params else None
     manifest = run_sweep(args.spec, args.out, params=params,
                          model_params=_model_params([args.model] if args.model else []),
                          max_chunks=args.max_chunks,
@@ -149,9 +150,9 @@ def _cmd_replay(args) -> int:
     return 0 if result["same_outcome"] else 1
 def _cmd_capture(args) -> int:
     from tkujax.studies.capture import run_capture
-    from tkujax.studies.sweep import load_params_json
+    from tkujax.control.io import load_controller_params_json
 
-    params = load_params_json(args.params) if args.params else None
+    params = load_controller_params_json(args.params) if args.params else None
     res = run_capture(args.spec, args.out, params=params, optimise=args.optimise,
                       iterations=args.iterations, max_chunks=args.max_chunks,
                       process_id=args.process_id, num_processes=args.num_processes,
@@ -195,8 +196,8 @@ def _cmd_compare(args) -> int:
 
 
 def _cmd_fpga(args) -> int:
+    from tkujax.control.io import load_controller_params_json
     from tkujax.studies.fpga import run_fpga, write_resources
-    from tkujax.studies.sweep import load_params_json
 
     if args.resources:   # the EP3C120 estimate of the spec's [fpga] config (default: defaults)
         md, files = write_resources(args.spec, args.out)
@@ -204,7 +205,7 @@ def _cmd_fpga(args) -> int:
         return 0
     if args.spec is None or args.out is None:
         raise ValueError("give SPEC and --out (or --resources)")
-    params = load_params_json(args.params) if args.params else None
+    params = load_controller_params_json(args.params) if args.params else None
     res = run_fpga(args.spec, args.out, params=params, backend=args.backend)
     print("\n".join(res["files"]))
     print(Path(res["summary"]).read_text())
@@ -234,8 +235,6 @@ def _cmd_calibrate(args) -> int:
     over = {k: v for k, v in (("budget_s", args.budget_s), ("max_evals", args.max_evals),
                               ("workers", args.workers)) if v is not None}
     if over:
-        import dataclasses
-
         from tkujax.studies.calibrate.spec import parse_calibrate_spec
         from tkujax.studies.spec import read_toml
 
@@ -293,10 +292,26 @@ def _cmd_islands(args) -> int:
     return islands.main(argv)
 
 
+def _add_parallel(p: argparse.ArgumentParser) -> None:
+    """--backend and the multi-process options of the sweep-running commands."""
+    p.add_argument("--backend", choices=["auto", "mjx", "mujoco"], default="auto",
+                   help="auto: MJX on a GPU, MuJoCo C on a CPU when the spec allows it")
+    p.add_argument("--process-id", type=int, default=None, help="multi-process: this process")
+    p.add_argument("--num-processes", type=int, default=None, help="multi-process: how many")
+    p.add_argument("--coordinator", default=None, help="multi-process: HOST:PORT of process 0")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="tkujax", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
+    _add_robot_commands(sub)
+    _add_sweep_commands(sub)
+    _add_study_commands(sub)
+    return parser
 
+
+def _add_robot_commands(sub) -> None:
+    """stand, render, paper."""
     p = sub.add_parser("stand", help="simulate the robot standing and print what was measured")
     p.add_argument("--seconds", type=float, default=5.0)
     p.add_argument("--batch", type=int, default=8, help="robots simulated at once")
@@ -309,7 +324,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("render", help="offscreen picture (stand) or video (--case) of TKU-X")
     p.add_argument("--out", required=True, help=".png for a still, .gif for a --case video")
     p.add_argument("--case", default=None,
-                   help="paper case, e.g. volleyball-back (ball-direction); omit for the stand pose")
+                   help="paper case, e.g. volleyball-back (ball-direction); omit for the stand "
+                        "pose")
     p.add_argument("--control", choices=["on", "off"], default="on")
     p.add_argument("--impulse-scale", type=float, default=1.0,
                    help="multiply the ball's momentum (1 = the paper's rig)")
@@ -336,6 +352,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "period (phase.csv, phase.md; 0 skips)")
     p.set_defaults(func=_cmd_paper)
 
+
+def _add_sweep_commands(sub) -> None:
+    """sweep, replay, capture, map, fpga."""
     p = sub.add_parser("sweep", help="run (or resume) a push sweep from a TOML spec")
     p.add_argument("spec", help="sweep spec, e.g. sweeps/stability_map_cpu.toml")
     p.add_argument("--out", required=True, help="output folder (npz chunks + manifest.json)")
@@ -343,11 +362,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", default=None, metavar="FILE.json",
                    help="model parameters JSON (tkujax calibrate's model_params.json)")
     p.add_argument("--max-chunks", type=int, default=None, help="stop after this many new chunks")
-    p.add_argument("--backend", choices=["auto", "mjx", "mujoco"], default="auto",
-                   help="auto: MJX on a GPU, MuJoCo C on a CPU when the spec allows it")
-    p.add_argument("--process-id", type=int, default=None, help="multi-process: this process")
-    p.add_argument("--num-processes", type=int, default=None, help="multi-process: how many")
-    p.add_argument("--coordinator", default=None, help="multi-process: HOST:PORT of process 0")
+    _add_parallel(p)
     p.set_defaults(func=_cmd_sweep)
 
     p = sub.add_parser("replay", help="re-simulate one record of a sweep, check its outcome "
@@ -358,6 +373,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--width", type=int, default=480)
     p.add_argument("--height", type=int, default=400)
     p.set_defaults(func=_cmd_replay)
+
     p = sub.add_parser("capture", help="one-step capture regions: a [step] sweep, its regions, "
                                        "theory overlays, J_1, gradient-optimal steps")
     p.add_argument("spec", help="spec with a [step.grid], e.g. sweeps/capture_region_cpu.toml")
@@ -367,11 +383,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="pushes given a gradient-optimal step through MJX (0 skips)")
     p.add_argument("--iterations", type=int, default=15, help="Adam iterations per optimisation")
     p.add_argument("--max-chunks", type=int, default=None, help="stop after this many new chunks")
-    p.add_argument("--backend", choices=["auto", "mjx", "mujoco"], default="auto",
-                   help="auto: MJX on a GPU, MuJoCo C on a CPU when the spec allows it")
-    p.add_argument("--process-id", type=int, default=None, help="multi-process: this process")
-    p.add_argument("--num-processes", type=int, default=None, help="multi-process: how many")
-    p.add_argument("--coordinator", default=None, help="multi-process: HOST:PORT of process 0")
+    _add_parallel(p)
     p.set_defaults(func=_cmd_capture)
 
     p = sub.add_parser("map", help="stability maps and capturability checks of a sweep folder")
@@ -425,6 +437,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="auto: MJX on a GPU, MuJoCo C on a CPU")
     p.set_defaults(func=_cmd_fpga)
 
+
+def _add_study_commands(sub) -> None:
+    """bench, tune, calibrate, refine."""
     p = sub.add_parser("bench", help="throughput: raw MJX vs closed loop vs MuJoCo C, compile")
     p.add_argument("--out", default="results/bench/bench.json")
     p.add_argument("--batches", default="1024,4096,16384,65536")
@@ -500,7 +515,6 @@ def build_parser() -> argparse.ArgumentParser:
                    help="fraction of each parameter's bounds a slice spans, centred on the "
                         "default (default 1: the whole bounds)")
     p.set_defaults(func=_cmd_islands)
-    return parser
 
 
 def main(argv: list[str] | None = None) -> int:

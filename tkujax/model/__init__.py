@@ -15,7 +15,8 @@ from tkujax.model.params import MODEL_VARIANTS, MX28, MX64, ModelParams, ServoPa
 
 __all__ = [
     "ARM_JOINTS", "FSR_SENSORS", "HEAD_JOINTS", "JOINT_NAMES", "LEG_ACTUATORS", "WAIST_JOINTS",
-    "MX28", "MX64", "ModelParams", "ServoParams", "LegGeometry", "build_mjcf", "leg_geometry",
+    "MODEL_VARIANTS", "MX28", "MX64", "ModelParams", "ServoParams", "LegGeometry", "build_mjcf",
+    "leg_geometry",
     "load_model", "model_xml", "pendulum_lengths", "stand_joint_angles",
 ]
 

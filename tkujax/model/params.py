@@ -74,11 +74,13 @@ class ModelParams:
     calf_length_m: float = 0.110         # [est] knee to ankle (Darwin 93, OP3 110 mm, scaled)
     thigh_length_m: float = 0.110        # [est] hip to knee
     pelvis_height_m: float = 0.040       # [est] hip axis to waist-yaw joint
-    chest_height_m: float = 0.160        # [est] waist-yaw joint to neck (FPGA board 112 mm + battery)
+    chest_height_m: float = 0.160        # [est] waist-yaw joint to neck (FPGA board 112 mm
+    #                                      + battery)
     neck_height_m: float = 0.020         # [est] neck to head bottom
     head_radius_m: float = 0.04475       # [est] head as a sphere; closes the 564.5 mm [paper]
     # --- widths and the foot
-    hip_offset_y_m: float = 0.045        # [est] d_y, waist centre to hip joint (OP3 35+19, Darwin 37)
+    hip_offset_y_m: float = 0.045        # [est] d_y, waist centre to hip joint (OP3 35+19,
+    #                                      Darwin 37)
     torso_half_width_m: float = 0.060    # [est]
     torso_half_depth_m: float = 0.045    # [est]
     shoulder_offset_y_m: float = 0.080   # [est]
@@ -116,11 +118,11 @@ class ModelParams:
     arm_servo: ServoParams = MX28
 
     @classmethod
-    def estimated(cls, **overrides) -> "ModelParams":
+    def estimated(cls, **overrides) -> ModelParams:
         """The model before calibration: every [fit] field at its earlier [est] value."""
         return dataclasses.replace(cls(**overrides), **{**ESTIMATED, **overrides}).validate()
 
-    def validate(self) -> "ModelParams":
+    def validate(self) -> ModelParams:
         """Raise ValueError naming the first bad field; return self."""
         signed = {"foot_forward_offset_m"}   # a signed offset, checked below
         for f in dataclasses.fields(self):
@@ -167,7 +169,7 @@ class ModelParams:
         return self
 
     @classmethod
-    def from_overrides(cls, items: list[str] | dict, variant: str = "calibrated") -> "ModelParams":
+    def from_overrides(cls, items: list[str] | dict, variant: str = "calibrated") -> ModelParams:
         """ModelParams with `KEY=VALUE` overrides (CLI) or a {key: value} dict; validated.
         variant: the base, "calibrated" (ModelParams()) or "estimated" (ModelParams.estimated()).
 

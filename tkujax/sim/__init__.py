@@ -2,9 +2,12 @@
 MJX and MuJoCo C rollouts, per-push metrics and the typed records they produce.
 
   physics.py         host/device models, the stand state, stepping helpers
+  setup.py           init(model_params) -> SimSetup: the one set-up every simulation starts from
+  randomize.py       the differentiable model randomisation (mass, CoM, friction, servos)
   push.py            the Push pytree (half-sine force at a chest height) and the paper's balls
   ball_rig.py        the paper's pendulum rig simulated with a real ball (impulse calibration)
   tick.py            the control half of a tick, shared by both backends
+  recording.py       the per-tick recording shared by both backends (ZMP, lowest point, Series)
   rollout_mjx.py     rollout / batched_rollout / simulate on MJX (jit, vmap, grad)
   rollout_mujoco.py  simulate_mujoco: the same loop on MuJoCo C (CPU)
   metrics.py         outcomes of one rollout (fell, recovery time, step, ...)

@@ -1,4 +1,4 @@
-"""The paper's ball rig as a physical model, to check the impulse model `tkujax.push.ball_push`.
+"""The paper's ball rig as a physical model, to check the impulse model `tkujax.sim.push.ball_push`.
 
 Liu et al. 2020, Sec. 4 / Table 3 / Fig. 12: a baseball (160 g) or a volleyball (320 g) hangs on
 a pendulum, is raised to 45 deg and released; it falls for 0.34 s and hits the robot's chest at
@@ -24,12 +24,12 @@ pulse carrying the ball's momentum J = m v (`ball_momentum_ns`). Here the rig it
   hinge's qpos0: the ball hanging at the bottom, 1.5 mm off the chest.)
 * `ball_rig_impulse(ball, direction, model_params=None, solref=None)`: MuJoCo C, float64, the
   model's own options (2 ms, Newton, 1 iteration). The robot holds its stand targets (control
-  off). Same clock as `tkujax.sim.rollout_mjx`: the rig first settles for 1 s with the ball held at 45 deg
-  (its hinge qpos/qvel reset every step; the ball touches nothing, so this does not disturb the
-  robot), the clock is reset to 0, the ball stays held until t = 0.75 - 0.34 s = 0.41 s and is
-  then released. Returned: arrival speed and time, the momentum the ball delivered
-  m (v_before - v_after), restitution, contact duration, the robot's momentum change over the
-  contact window, ...
+  off). Same clock as `tkujax.sim.rollout_mjx`: the rig first settles for 1 s with the ball
+  held at 45 deg (its hinge qpos/qvel reset every step; the ball touches nothing, so this does
+  not disturb the robot), the clock is reset to 0, the ball stays held until t = 0.75 - 0.34 s
+  = 0.41 s and is then released. Returned (a `RigImpulse`): arrival speed and time, the
+  momentum the ball delivered m (v_before - v_after), restitution, contact duration, the
+  robot's momentum change over the contact window, ...
 
 Measured (default ModelParams, default contact; tests/test_ball_rig.py prints the table):
   case               v_in   t_hit  gap   v_out  delivered  /J     /(m v_in)  e     contact  robot dp
@@ -76,17 +76,19 @@ import numpy as np
 
 from tkujax.model import ModelParams, model_xml
 from tkujax.sim.push import (BALLS, DEFAULT_HEIGHT_M, FALLING_TIME_S, PAPER_ONSET_S,
-                         RELEASE_ANGLE_RAD, ball_momentum_ns, ball_speed_m_s, pendulum_length_m)
+                             RELEASE_ANGLE_RAD, ball_momentum_ns, ball_speed_m_s,
+                             pendulum_length_m)
+from tkujax.sim.records import Columns
 
-__all__ = ["RIG_GAP_M", "RIG_DIRECTIONS", "BALL_INERTIA_FACTOR", "RigGeometry", "rig_geometry",
-           "ball_rig_xml", "ball_rig_model", "ball_rig_impulse"]
+__all__ = ["RIG_GAP_M", "RIG_DIRECTIONS", "BALL_INERTIA_FACTOR", "RigGeometry", "RigImpulse",
+           "rig_geometry", "ball_rig_xml", "ball_rig_model", "ball_rig_impulse"]
 
 RIG_GAP_M = 0.0015              # ball surface to chest box at the bottom of the swing
 RIG_DIRECTIONS = {"back": 1.0, "front": -1.0}   # sign of the push along world x
 # Moment of inertia about the ball's centre, in units of m r^2: a baseball is a solid sphere
 # (cork/rubber core wound in yarn), a volleyball an inflated thin shell.
 BALL_INERTIA_FACTOR = {"baseball": 2.0 / 5.0, "volleyball": 2.0 / 3.0}
-SETTLE_S = 1.0                  # as `tkujax.sim.batched_rollout`: robot settled 1 s, clock reset
+SETTLE_S = 1.0                  # as `tkujax.sim.setup.init`: robot settled 1 s, clock reset
 RELEASE_S = PAPER_ONSET_S - FALLING_TIME_S   # 0.41 s: the ball is let go then, hits at ~0.75 s
 AFTER_S = 0.4                   # simulated after the first contact (to catch a second hit)
 
@@ -199,17 +201,11 @@ def _ball_in_contact(model: mujoco.MjModel, data: mujoco.MjData, ball: int, ches
     return False
 
 
-def ball_rig_impulse(ball: str, direction: str, model_params: ModelParams | None = None,
-                     solref: tuple[float, float] | None = None) -> dict:
-    """Swing the ball into the standing robot (MuJoCo C, float64, control off) and measure.
+@dataclasses.dataclass(frozen=True)
+class RigImpulse(Columns):
+    """What `ball_rig_impulse` measured (SI units); rec["name"] reads a field too.
 
-    Time t: the `tkujax.sim.rollout_mjx` clock (0 after 1 s of settling); the ball is released at
-    t = 0.41 s. Each step is split (mj_step1 / mj_step2) so that the contact flag, the ball's
-    velocity and the robot's momentum are read at one state, before that step's contact force
-    acts. `solref` overrides the ball-chest pair's (default MuJoCo's (0.02, 1)).
     Velocities and momenta are along the push direction s (+1 "back": +x, -1 "front": -x).
-
-    Returns a dict (SI units):
       ball, direction, sign (s), ball_mass_kg, robot_mass_kg,
       gap_m: ball-chest distance with the ball at the bottom of its swing, settled robot;
       expected_speed_m_s (`ball_speed_m_s()`), expected_time_s (0.75);
@@ -232,38 +228,58 @@ def ball_rig_impulse(ball: str, direction: str, model_params: ModelParams | None
         friction impulse over that window (negative: the feet resist the push);
       peak_force_n: largest ball-chest normal force.
     """
-    _check(ball, direction)
-    model = ball_rig_model(ball, direction, model_params)
-    if solref is not None:
-        model = copy.deepcopy(model)
-        model.pair_solref[model.pair("ball_chest").id] = solref
-    data = mujoco.MjData(model)
-    key = model.key("rig")
-    mujoco.mj_resetDataKeyframe(model, data, key.id)
-    data.ctrl[:] = key.ctrl
-    hinge = model.joint("ball_swing")
-    qadr, vadr = int(hinge.qposadr[0]), int(hinge.dofadr[0])
-    angle0 = float(key.qpos[qadr])
+
+    ball: str
+    direction: str
+    sign: float
+    ball_mass_kg: float
+    robot_mass_kg: float
+    gap_m: float
+    expected_speed_m_s: float
+    expected_time_s: float
+    arrival_speed_m_s: float
+    contact_time_s: float
+    v_before_m_s: float
+    v_after_m_s: float
+    delivered_ns: float
+    delivered_x_ns: float
+    contact_impulse_ns: float
+    impulse_model_ns: float
+    ratio: float
+    ratio_to_arrival: float
+    v_ratio: float
+    restitution: float
+    contact_duration_s: float
+    n_contacts: int
+    first_contact_duration_s: float
+    robot_dp_ns: float
+    floor_impulse_ns: float
+    peak_force_n: float
+
+
+@dataclasses.dataclass(frozen=True)
+class _Trace:
+    """Per-step records of the swing (read before each step's contact force acts)."""
+
+    t: np.ndarray
+    ball_v: np.ndarray       # ball velocity along world x
+    chest_v: np.ndarray      # velocity of the chest point facing the ball, along world x
+    robot_p: np.ndarray      # robot's horizontal momentum along world x
+    contact: list            # ball-chest contacts of each step
+    force_s: list            # ball-chest contact force on the robot along s
+    force_n: list            # its normal force
+    first: int               # first step in contact
+
+
+def _swing(model: mujoco.MjModel, data: mujoco.MjData, hold, s: float, normal: np.ndarray,
+           radius: float, m_robot: float, ball: str, direction: str) -> _Trace:
+    """Release the ball at RELEASE_S and step until AFTER_S after the first contact. Each step
+    is split (mj_step1 / mj_step2) so that the contact flag, the ball's velocity and the
+    robot's momentum are read at one state, before that step's contact force acts."""
     ball_body, chest_body = model.body("ball").id, model.body("chest").id
     pelvis = model.body("pelvis").id
     ball_geom, chest_geom = model.geom("ball").id, model.geom("chest").id
-    m_ball, m_robot = float(model.body_mass[ball_body]), float(model.body_subtreemass[pelvis])
-    s = RIG_DIRECTIONS[direction]
-    geo = rig_geometry(ball, direction, model_params)
-    normal, radius = np.asarray(geo.face_normal), geo.radius_m
     dt = float(model.opt.timestep)
-
-    def hold():
-        data.qpos[qadr], data.qvel[vadr] = angle0, 0.0
-
-    for _ in range(int(round(SETTLE_S / dt))):
-        hold()
-        mujoco.mj_step(model, data)
-    data.time = 0.0
-    hold()
-    mujoco.mj_forward(model, data)
-    gap = _gap_at_bottom(model, data, qadr, ball_geom, chest_geom)
-
     vel6 = np.zeros(6)
     t, ball_v, chest_v, robot_p, contact, force_s, force_n = [], [], [], [], [], [], []
     first = None
@@ -294,32 +310,73 @@ def ball_rig_impulse(ball: str, direction: str, model_params: ModelParams | None
     if first is None:
         raise RuntimeError(f"{ball} from the {direction}: the ball never touched the chest")
     t, ball_v, chest_v, robot_p = map(np.asarray, (t, ball_v, chest_v, robot_p))
-    on = np.flatnonzero([bool(c) for c in contact])
+    return _Trace(t, ball_v, chest_v, robot_p, contact, force_s, force_n, first)
+
+
+def ball_rig_impulse(ball: str, direction: str, model_params: ModelParams | None = None,
+                     solref: tuple[float, float] | None = None) -> RigImpulse:
+    """Swing the ball into the standing robot (MuJoCo C, float64, control off) and measure.
+
+    Time t: the `tkujax.sim.rollout_mjx` clock (0 after 1 s of settling); the ball is released at
+    t = 0.41 s. `solref` overrides the ball-chest pair's (default MuJoCo's (0.02, 1)).
+    Returns a RigImpulse (its docstring defines every field).
+    """
+    _check(ball, direction)
+    model = ball_rig_model(ball, direction, model_params)
+    if solref is not None:
+        model = copy.deepcopy(model)
+        model.pair_solref[model.pair("ball_chest").id] = solref
+    data = mujoco.MjData(model)
+    key = model.key("rig")
+    mujoco.mj_resetDataKeyframe(model, data, key.id)
+    data.ctrl[:] = key.ctrl
+    hinge = model.joint("ball_swing")
+    qadr, vadr = int(hinge.qposadr[0]), int(hinge.dofadr[0])
+    angle0 = float(key.qpos[qadr])
+    ball_body, pelvis = model.body("ball").id, model.body("pelvis").id
+    m_ball, m_robot = float(model.body_mass[ball_body]), float(model.body_subtreemass[pelvis])
+    s = RIG_DIRECTIONS[direction]
+    geo = rig_geometry(ball, direction, model_params)
+    dt = float(model.opt.timestep)
+
+    def hold():
+        data.qpos[qadr], data.qvel[vadr] = angle0, 0.0
+
+    for _ in range(int(round(SETTLE_S / dt))):
+        hold()
+        mujoco.mj_step(model, data)
+    data.time = 0.0
+    hold()
+    mujoco.mj_forward(model, data)
+    gap = _gap_at_bottom(model, data, qadr, model.geom("ball").id, model.geom("chest").id)
+    tr = _swing(model, data, hold, s, np.asarray(geo.face_normal), geo.radius_m, m_robot, ball,
+                direction)
+    first = tr.first
+    on = np.flatnonzero([bool(c) for c in tr.contact])
     breaks = np.flatnonzero(np.diff(on) > 1)
     first_end = int(on[breaks[0]] + 1) if breaks.size else int(on[-1] + 1)
     last = int(on[-1] + 1)                   # first record after the last contact
-    if last >= len(t):
+    if last >= len(tr.t):
         raise RuntimeError(f"{ball} from the {direction}: the ball still touches the chest "
                            f"{AFTER_S} s after the first contact")
-    v_before, v_after = s * ball_v[first], s * ball_v[last]
+    v_before, v_after = s * tr.ball_v[first], s * tr.ball_v[last]
     delivered = m_ball * (v_before - v_after)
-    impulse = dt * float(np.sum(force_s[first:last]))
-    robot_dp = s * (robot_p[last] - robot_p[first])
+    robot_dp = s * (tr.robot_p[last] - tr.robot_p[first])
     j = ball_momentum_ns(ball)
-    return dict(
+    return RigImpulse(
         ball=ball, direction=direction, sign=s, ball_mass_kg=m_ball, robot_mass_kg=m_robot,
         gap_m=gap, expected_speed_m_s=ball_speed_m_s(), expected_time_s=PAPER_ONSET_S,
-        arrival_speed_m_s=abs(float(ball_v[first])), contact_time_s=float(t[first]),
+        arrival_speed_m_s=abs(float(tr.ball_v[first])), contact_time_s=float(tr.t[first]),
         v_before_m_s=float(v_before), v_after_m_s=float(v_after),
         delivered_ns=float(delivered), delivered_x_ns=float(s * delivered),
-        contact_impulse_ns=impulse, impulse_model_ns=j, ratio=float(delivered / j),
-        ratio_to_arrival=float(delivered / (m_ball * v_before)),
+        contact_impulse_ns=dt * float(np.sum(tr.force_s[first:last])), impulse_model_ns=j,
+        ratio=float(delivered / j), ratio_to_arrival=float(delivered / (m_ball * v_before)),
         v_ratio=float(v_after / v_before),
-        restitution=float((s * chest_v[last] - v_after) / (v_before - s * chest_v[first])),
-        contact_duration_s=float(t[last] - t[first]), n_contacts=int(breaks.size + 1),
-        first_contact_duration_s=float(t[first_end] - t[first]),
+        restitution=float((s * tr.chest_v[last] - v_after) / (v_before - s * tr.chest_v[first])),
+        contact_duration_s=float(tr.t[last] - tr.t[first]), n_contacts=int(breaks.size + 1),
+        first_contact_duration_s=float(tr.t[first_end] - tr.t[first]),
         robot_dp_ns=float(robot_dp), floor_impulse_ns=float(robot_dp - delivered),
-        peak_force_n=float(max(force_n)))
+        peak_force_n=float(max(tr.force_n)))
 
 
 def _ball_contacts(model: mujoco.MjModel, data: mujoco.MjData, ball: int, chest: int) -> list:

@@ -116,7 +116,8 @@ class Ball:
         return self.mass_kg * G * (1.0 - math.cos(RELEASE_ANGLE_RAD))
 
 
-BALLS = {"baseball": Ball("baseball", 0.160, 179.0), "volleyball": Ball("volleyball", 0.320, 2799.0)}
+BALLS = {"baseball": Ball("baseball", 0.160, 179.0),
+         "volleyball": Ball("volleyball", 0.320, 2799.0)}
 PAPER_FORCE_N = {"baseball": 0.47, "volleyball": 0.93}   # as reported in Table 3
 
 
@@ -163,13 +164,14 @@ class BallContact:
     impulse_factor: float = 1.365
 
     @classmethod
-    def estimated(cls) -> "BallContact":
+    def estimated(cls) -> BallContact:
         """Before calibration: mid-chest, the ball's momentum exactly."""
         return cls(DEFAULT_HEIGHT_M, 1.0)
 
-    def validate(self) -> "BallContact":
+    def validate(self) -> BallContact:
         if not (0.28 <= self.height_m <= 0.43):
-            raise ValueError(f"BallContact.height_m must be in [0.28, 0.43] m, got {self.height_m!r}")
+            raise ValueError(f"BallContact.height_m must be in [0.28, 0.43] m, "
+                             f"got {self.height_m!r}")
         if not (0.9 <= self.impulse_factor <= 1.5):
             raise ValueError(f"BallContact.impulse_factor must be in [0.9, 1.5], "
                              f"got {self.impulse_factor!r}")

@@ -9,12 +9,13 @@ column, so code that treats a record as a table keeps working.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Iterator
+from collections.abc import Iterator
+from typing import Any
 
 import jax
 
 
-class _Columns:
+class Columns:
     """Column access shared by the records: rec["name"], iteration over the column names,
     keys(), items(), columns() (a read-only mapping view; attributes are the typed access)."""
 
@@ -44,7 +45,7 @@ class _Columns:
 
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
-class Series(_Columns):
+class Series(Columns):
     """One rollout sampled at the end of every control period (leading axes: [batch,] tick).
 
     t: time (s). pitch, roll: true pelvis inclination (rad). pitch_est, roll_est: the Kalman
@@ -83,7 +84,7 @@ SERIES_FIELDS = tuple(f.name for f in dataclasses.fields(Series))
 
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
-class Outcomes(_Columns):
+class Outcomes(Columns):
     """Per-push outcomes (definitions: tkujax.sim.metrics)."""
 
     fell: jax.Array

@@ -20,18 +20,19 @@ import functools
 
 import jax
 import jax.numpy as jnp
-import mujoco
 import numpy as np
-from tkujax.sim.mjx_import import mjx
 
 from tkujax.sim import physics
 from tkujax.control.controller import StepOverride, controller_init
 from tkujax.control.fixed import (FixedPointConfig, check_supported, controller_init_fx,
                                   servo_switch_substep)
 from tkujax.control.params import ControllerParams
-from tkujax.model import FSR_SENSORS, LEG_ACTUATORS, ModelParams
+from tkujax.sim.mjx_import import mjx
+from tkujax.model import ModelParams
+from tkujax.sim import recording
 from tkujax.sim.push import CONTROL_PERIOD_S, Push, force_at
 from tkujax.sim.records import Outcomes, Series
+from tkujax.sim.setup import ModelIndex, init, model_index
 from tkujax.sim.tick import (SERVO_RESOLUTION_RAD, control_tick, control_tick_fx,  # noqa: F401
                              quantise_targets)
 
@@ -48,53 +49,6 @@ class RolloutConfig:
     # The FPGA twin of the controller (issue 15); None: the float controller (its program is
     # unchanged by this field: the choice is a Python branch on None at trace time).
     fixed: FixedPointConfig | None = None
-
-
-@dataclasses.dataclass(frozen=True)
-class ModelIndex:
-    """Static indices into the compiled model (plain numpy, never traced)."""
-
-    leg_actuators: np.ndarray
-    chest_body: int
-    chest_stand_z: float          # chest body origin height in the stand keyframe, m
-    chest_stand_cos: float        # cos of its tilt there (the chest axis leans by the stand lean)
-    gyro_adr: int
-    accel_adr: int
-    fsr_adr: np.ndarray
-    fsr_sites: np.ndarray
-    sphere_geoms: np.ndarray      # non-foot collision spheres (knees, hands, head, pelvis)
-    sphere_radii: np.ndarray
-    box_geoms: np.ndarray         # non-foot collision boxes (chest)
-    box_half_sizes: np.ndarray    # (nb, 3)
-    ankle_sites: tuple[int, int]  # r_ankle, l_ankle
-    stand_ctrl: np.ndarray
-    timestep_s: float
-
-    @staticmethod
-    def of(model: mujoco.MjModel) -> "ModelIndex":
-        data = physics.stand_data(model)
-        chest = model.body("chest").id
-        foot_names = set(FSR_SENSORS)
-        pair_geoms = [int(g) for g in model.pair_geom2 if model.geom(int(g)).name not in foot_names]
-        spheres = [g for g in pair_geoms if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_SPHERE]
-        boxes = [g for g in pair_geoms if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_BOX]
-        sensor_adr = lambda n: int(model.sensor_adr[model.sensor(n).id])  # noqa: E731
-        return ModelIndex(
-            leg_actuators=np.array([model.actuator(n).id for n in LEG_ACTUATORS]),
-            chest_body=chest, chest_stand_z=float(data.xpos[chest][2]),
-            chest_stand_cos=float(data.xmat[chest][8]),
-            gyro_adr=sensor_adr("gyro"), accel_adr=sensor_adr("accel"),
-            fsr_adr=np.array([sensor_adr(n) for n in FSR_SENSORS]),
-            fsr_sites=np.array([model.site(n).id for n in FSR_SENSORS]),
-            sphere_geoms=np.array(spheres, dtype=int), sphere_radii=model.geom_size[spheres, 0],
-            box_geoms=np.array(boxes, dtype=int), box_half_sizes=model.geom_size[boxes],
-            ankle_sites=(model.site("r_ankle").id, model.site("l_ankle").id),
-            stand_ctrl=np.array(model.key("stand").ctrl), timestep_s=float(model.opt.timestep))
-
-
-@functools.lru_cache(maxsize=8)
-def model_index(params: ModelParams | None = None) -> ModelIndex:
-    return ModelIndex.of(physics.host_model(params))
 
 
 _quantise = quantise_targets   # the name the C backend and older code use
@@ -120,23 +74,19 @@ def _lowest_body_point(idx: ModelIndex, d: mjx.Data) -> jax.Array:
     """Height of the lowest point of any non-foot collision geom, m."""
     # Model constants cast to the state's dtype explicitly (never left to the x64 mode).
     dtype = d.geom_xpos.dtype
-    lows = [_rows(d.geom_xpos, idx.sphere_geoms)[:, 2] - jnp.asarray(idx.sphere_radii, dtype)]
+    boxes = {}
     if idx.box_geoms.size:
-        zrow = _rows(d.geom_xmat, idx.box_geoms)[:, 2, :]   # world z row: vertical half-extent
-        lows.append(_rows(d.geom_xpos, idx.box_geoms)[:, 2]
-                    - jnp.sum(jnp.abs(zrow) * jnp.asarray(idx.box_half_sizes, dtype), -1))
-    return jnp.min(jnp.concatenate(lows))
+        boxes = dict(box_z=_rows(d.geom_xpos, idx.box_geoms)[:, 2],
+                     box_zrow=_rows(d.geom_xmat, idx.box_geoms)[:, 2, :],  # world z row
+                     box_half_sizes=jnp.asarray(idx.box_half_sizes, dtype))
+    return recording.lowest_point(jnp, _rows(d.geom_xpos, idx.sphere_geoms)[:, 2],
+                                  jnp.asarray(idx.sphere_radii, dtype), **boxes)
 
 
 def _zmp(idx: ModelIndex, d: mjx.Data) -> tuple[jax.Array, jax.Array]:
     """Centre of pressure of the eight sole sensors (world x, y), and their total force (N)."""
-    f = _rows(d.sensordata, idx.fsr_adr)
-    total = jnp.sum(f)
-    pos = _rows(d.site_xpos, idx.fsr_sites)[:, :2]
-    # With no foot on the ground there is no ZMP: report the feet's centre instead of 0/0.
-    safe = jnp.where(total > 1e-3, total, 1.0)
-    zmp = jnp.where(total > 1e-3, (f @ pos) / safe, jnp.mean(pos, 0))
-    return zmp, total
+    return recording.zmp(jnp, _rows(d.sensordata, idx.fsr_adr),
+                         _rows(d.site_xpos, idx.fsr_sites)[:, :2])
 
 
 def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerParams,
@@ -146,7 +96,8 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
     """Simulate one robot under one push with the controller in the loop.
 
     Args:
-      model, state: MJX model and initial state (the `stand` keyframe: `physics.stand_state`).
+      model, state: MJX model and initial state (the settled `stand` keyframe:
+        `tkujax.sim.setup.init`).
       push: the Push (scalars). params: ControllerParams. enabled: 1 = balance control on.
       key: PRNG key for sensor noise. gyro_noise_std (rad/s), accel_noise_std (m/s^2).
       config: static settings. index: static model indices (default model when None).
@@ -201,14 +152,11 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
         d, _ = jax.lax.scan(physics_step, d, None, length=substeps - switch)
         pitch, roll = physics.pitch_roll_from_quat(d.qpos[3:7])
         zmp, fsr_total = _zmp(idx, d)
-        series = Series(
-            t=d.time, pitch=pitch, roll=roll, pitch_est=out.phi, roll_est=out.roll, zmp=zmp,
-            fsr_total=fsr_total, com=d.subtree_com[1], r_ankle=d.site_xpos[r_ankle],
-            l_ankle=d.site_xpos[l_ankle], pelvis_z=d.qpos[2],
-            lowest_body_z=_lowest_body_point(idx, d), gate=out.gate, x_sup=ctrl_state.x_sup_m,
-            y_sup=ctrl_state.y_sup_m, step_weight=ctrl_state.step_weight,
-            reachable=out.reachable, qpos=d.qpos if config.record_qpos else None,
-            touchdown_s=out.touchdown_s)
+        series = recording.tick_series(
+            t=d.time, pitch=pitch, roll=roll, zmp_xy=zmp, fsr_total=fsr_total,
+            com=d.subtree_com[1], r_ankle=d.site_xpos[r_ankle], l_ankle=d.site_xpos[l_ankle],
+            pelvis_z=d.qpos[2], lowest_body_z=_lowest_body_point(idx, d), out=out,
+            ctrl_state=ctrl_state, qpos=d.qpos if config.record_qpos else None)
         return (d, ctrl_state), series
 
     carry = (state, controller_init(params, dtype) if fixed is None else
@@ -229,9 +177,7 @@ def batched_rollout(model_params: ModelParams | None = None,
     """
     from tkujax.sim.metrics import outcomes
 
-    host = physics.host_model(model_params)
-    model, index = physics.device_model(model_params), model_index(model_params)
-    state = physics.stand_state(host, settle_s)
+    _, model, index, state = init(model_params, settle_s)
 
     def one(push, enabled, key, params, gyro_std, accel_std):
         series = rollout(model, state, push, params, enabled, key, gyro_std, accel_std,

@@ -1,12 +1,13 @@
 """CPU backend: MuJoCo C physics, the JAX controller vectorised over all pushes.
 
-`simulate_mujoco` has the semantics and outputs of `tkujax.sim.rollout_mjx.simulate` (MJX), so callers can
-switch backends. Per control period:
+`simulate_mujoco` has the semantics and outputs of `tkujax.sim.rollout_mjx.simulate` (MJX), so
+callers can switch backends. Per control period:
 
   1. read every robot's IMU (gyro, accelerometer) from the sensordata of the previous physics
      step, add Gaussian noise (numpy RNG: same law as MJX, not the same realisation);
   2. run ONE jitted, vmapped `controller_step` over the whole batch (compiled once per batch
-     shape), quantise the leg targets to the servo resolution exactly as the MJX loop (`tkujax.sim.tick.control_tick`, shared);
+     shape), quantise the leg targets to the servo resolution exactly as the MJX loop
+     (`tkujax.sim.tick.control_tick`, shared);
   3. set ctrl = the stand ctrl with the leg actuators replaced, and advance every robot
      `substeps` physics steps with `mujoco.rollout` (a persistent `Rollout(nthread=...)` thread
      pool: the physics runs across all cores, the GIL released).
@@ -16,7 +17,7 @@ tick per FixedPointConfig); for a fractional latency each robot's per-substep ct
 previous command until the switch substep, exactly as in the MJX loop.
 
 The push (`push.force_at`, a half-sine force at a point of the chest axis, with its moment
-about the chest CoM, as `sim._push_wrench`) goes in through `xfrc_applied`, given to
+about the chest CoM, as `rollout_mjx._push_wrench`) goes in through `xfrc_applied`, given to
 `mujoco.rollout` per step as part of the control (control_spec = mjSTATE_CTRL |
 mjSTATE_XFRC_APPLIED). The moment depends on the chest orientation, which rollout cannot feed
 back inside a chunk of steps, so two modes:
@@ -64,16 +65,17 @@ import mujoco
 import mujoco.rollout
 import numpy as np
 
-from tkujax.sim import physics
 from tkujax.control.controller import StepOverride, controller_init
 from tkujax.control.fixed import (FixedPointConfig, check_supported, controller_init_fx,
                                   servo_switch_substep)
 from tkujax.control.params import ControllerParams
-from tkujax.sim.metrics import outcomes as _outcomes
 from tkujax.model import ModelParams
+from tkujax.sim import physics, recording
+from tkujax.sim.metrics import outcomes as _outcomes
 from tkujax.sim.push import Push
-from tkujax.sim.records import Outcomes, Series
-from tkujax.sim.rollout_mjx import ModelIndex, RolloutConfig, model_index
+from tkujax.sim.records import SERIES_FIELDS, Outcomes, Series
+from tkujax.sim.rollout_mjx import RolloutConfig
+from tkujax.sim.setup import SETTLE_S, ModelIndex, model_index
 from tkujax.sim.tick import control_tick, control_tick_fx
 
 PUSH_WRENCH_MODES = ("exact", "period_start")
@@ -102,10 +104,12 @@ def _setup(model_params: ModelParams | None) -> _Setup:
     nq = mujoco.mj_stateSize(model, int(mujoco.mjtState.mjSTATE_QPOS))
     nv = mujoco.mj_stateSize(model, int(mujoco.mjtState.mjSTATE_QVEL))
     if model.opt.integrator != mujoco.mjtIntegrator.mjINT_EULER:
-        raise ValueError("backend_mujoco recovers the warm start assuming the Euler integrator")
+        raise ValueError("tkujax.sim.rollout_mujoco recovers the warm start assuming the Euler "
+                         "integrator")
     if not model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_EULERDAMP:
-        raise ValueError("backend_mujoco recovers the warm start assuming eulerdamp is disabled")
-    data = physics.settled_stand_data(model, 1.0)   # the state sim.batched_rollout starts from
+        raise ValueError("tkujax.sim.rollout_mujoco recovers the warm start assuming eulerdamp "
+                         "is disabled")
+    data = physics.settled_stand_data(model, SETTLE_S)   # the state setup.init starts MJX from
     state0 = np.empty(mujoco.mj_stateSize(model, _FULL))
     mujoco.mj_getState(model, data, state0, _FULL)
     state0.setflags(write=False)
@@ -174,7 +178,7 @@ class _Kinematics:
         """Kinematic quantities recorded per period (see module doc for which state)."""
         m, d, idx = self.m, self.d, self.idx
         n = states.shape[0]
-        r, l = idx.ankle_sites
+        right, left = idx.ankle_sites
         out = dict(com=np.empty((n, 3)), r_ankle=np.empty((n, 3)), l_ankle=np.empty((n, 3)),
                    fsr_xy=np.empty((n, len(idx.fsr_sites), 2)),
                    sphere_z=np.empty((n, len(idx.sphere_geoms))),
@@ -185,7 +189,7 @@ class _Kinematics:
             mujoco.mj_kinematics(m, d)
             mujoco.mj_comPos(m, d)
             out["com"][i] = d.subtree_com[1]
-            out["r_ankle"][i], out["l_ankle"][i] = d.site_xpos[r], d.site_xpos[l]
+            out["r_ankle"][i], out["l_ankle"][i] = d.site_xpos[right], d.site_xpos[left]
             out["fsr_xy"][i] = d.site_xpos[idx.fsr_sites, :2]
             out["sphere_z"][i] = d.geom_xpos[idx.sphere_geoms, 2]
             if idx.box_geoms.size:
@@ -195,7 +199,7 @@ class _Kinematics:
 
 
 def _wrench(idx: ModelIndex, pose, height: np.ndarray, force: np.ndarray) -> np.ndarray:
-    """Numpy twin of sim._push_wrench: (n, k, 6) [force, moment about the chest CoM].
+    """Numpy twin of rollout_mjx._push_wrench: (n, k, 6) [force, moment about the chest CoM].
 
     pose: chest (xpos, xmat, xipos) per robot; force (n, k, 3) for k steps sharing that pose.
     """
@@ -205,6 +209,103 @@ def _wrench(idx: ModelIndex, pose, height: np.ndarray, force: np.ndarray) -> np.
     point = xpos + np.einsum("nij,nj->ni", xmat, local)
     arm = (point - xipos)[:, None, :]
     return np.concatenate([force, np.cross(np.broadcast_to(arm, force.shape), force)], -1)
+
+
+class _Physics:
+    """Advances a batch of robots one control period with `mujoco.rollout`, chaining the warm
+    start (module doc); holds the static pieces (model, thread pool, scratch data)."""
+
+    def __init__(self, setup: _Setup, n: int, n_threads: int | None):
+        if n_threads is None:
+            n_threads = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (
+                os.cpu_count() or 1)
+        nthread = int(n_threads) if (n_threads > 1 and n > 1) else 0
+        self.setup, self.m, self.idx = setup, setup.model, setup.index
+        self.pool = _rollout_pool(nthread)
+        self.datas = [mujoco.MjData(self.m) for _ in range(max(nthread, 1))]
+        self.kin = _Kinematics(setup)
+        self.dt = float(self.m.opt.timestep)
+        self.ctrl_spec_size = mujoco.mj_stateSize(self.m, _CTRL_XFRC)
+        nu, chest = self.m.nu, self.idx.chest_body
+        self.xfrc_cols = slice(nu + 6 * chest, nu + 6 * chest + 6)
+
+    def _run(self, s0, w0, control, spec, nstep):
+        states, sens = self.pool.rollout(self.m, self.datas, s0, control, control_spec=spec,
+                                         initial_warmstart=w0, nstep=nstep)
+        qv = self.setup.qvel_slice
+        prev_qvel = s0[:, qv] if nstep == 1 else states[:, -2, qv]
+        return states, sens, (states[:, -1, qv] - prev_qvel) / self.dt
+
+    def period(self, state, pose_state, warm, ctrl_steps, held, force, height, push_wrench):
+        """One period of `substeps` physics steps. ctrl_steps (n, substeps, nu) per-step
+        controls; held: they are all equal (one row serves); force (n, substeps, 3) the push;
+        height (n,). Returns (state, pose_state, sensordata, warm) after the period, pose_state
+        the state whose kinematics MJX's d.xpos holds (before the last step)."""
+        substeps, nu = ctrl_steps.shape[1], self.m.nu
+        if not np.any(force != 0.0):
+            control = np.ascontiguousarray(ctrl_steps[:, :1]) if held else ctrl_steps
+            states, sens, warm = self._run(state, warm, control, _CTRL, substeps)
+            pose_state = states[:, -2] if substeps > 1 else state
+            return states[:, -1], pose_state, sens[:, -1], warm
+        if push_wrench == "period_start":
+            control = np.zeros((state.shape[0], substeps, self.ctrl_spec_size))
+            control[:, :, :nu] = ctrl_steps
+            control[:, :, self.xfrc_cols] = _wrench(self.idx, self.kin.chest(pose_state), height,
+                                                    force)
+            states, sens, warm = self._run(state, warm, control, _CTRL_XFRC, substeps)
+            pose_state = states[:, -2] if substeps > 1 else state
+            return states[:, -1], pose_state, sens[:, -1], warm
+        # exact: one step per call, the wrench from the pose MJX would use
+        control = np.zeros((state.shape[0], 1, self.ctrl_spec_size))
+        for j in range(substeps):
+            control[:, 0, :nu] = ctrl_steps[:, j]
+            control[:, :, self.xfrc_cols] = _wrench(self.idx, self.kin.chest(pose_state), height,
+                                                    force[:, j:j + 1])
+            states, sens, warm = self._run(state, warm, control, _CTRL_XFRC, 1)
+            pose_state = state
+            state, sensordata = states[:, -1], sens[:, -1]
+        return state, pose_state, sensordata, warm
+
+    def record(self, state, pose_state, sensordata, out, ctrl_state, record_qpos: bool) -> Series:
+        """The Series row of the period just run (numpy; the controller's fields as given)."""
+        idx = self.idx
+        k = self.kin.series(pose_state)
+        qpos = state[:, self.setup.qpos_slice]
+        pitch, roll = physics.pitch_roll_from_quat(qpos[:, 3:7])
+        zmp_xy, total = recording.zmp(np, sensordata[:, idx.fsr_adr], k["fsr_xy"])
+        boxes = (dict(box_z=k["box_z"], box_zrow=k["box_zrow"],
+                      box_half_sizes=idx.box_half_sizes) if idx.box_geoms.size else {})
+        lowest = recording.lowest_point(np, k["sphere_z"], idx.sphere_radii, **boxes)
+        return recording.tick_series(
+            t=state[:, 0], pitch=pitch, roll=roll, zmp_xy=zmp_xy, fsr_total=total, com=k["com"],
+            r_ankle=k["r_ankle"], l_ankle=k["l_ankle"], pelvis_z=qpos[:, 2],
+            lowest_body_z=lowest, out=out, ctrl_state=ctrl_state,
+            qpos=qpos if record_qpos else None)
+
+
+def _stack_ticks(rows: list[Series]) -> Series:
+    """(n_ticks of (n, ...)) -> Series of (n, n_ticks, ...); physical fields in MJX's float32,
+    the controller's fields in the dtype the controller gives them."""
+    series = {}
+    for key in SERIES_FIELDS:
+        if getattr(rows[0], key) is None:
+            continue
+        arr = np.stack([np.asarray(getattr(r, key)) for r in rows], 1)
+        if arr.dtype == np.float64:
+            arr = arr.astype(np.float32)
+        series[key] = arr
+    return Series(**series)
+
+
+def _check_overrides(overrides, pushes: Push, n: int, fixed):
+    """The overrides broadcast to the batch, their onset_s taken from the pushes (float32)."""
+    if overrides is None:
+        return None
+    if fixed is not None:
+        raise ValueError("commanded steps (overrides) have no fixed-point controller twin; "
+                         "use RolloutConfig(fixed=None)")
+    return jax.tree_util.tree_map(lambda v: jnp.broadcast_to(jnp.asarray(v, jnp.float32), (n,)),
+                                  dataclasses.replace(overrides, onset_s=pushes.onset_s))
 
 
 def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int = 0,
@@ -223,17 +324,9 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
     if push_wrench not in PUSH_WRENCH_MODES:
         raise ValueError(f"push_wrench must be one of {PUSH_WRENCH_MODES}, got {push_wrench!r}")
     setup = _setup(model_params)
-    m, idx = setup.model, setup.index
+    idx = setup.index
     n = int(np.shape(pushes.impulse_ns)[0])
-    if n_threads is None:
-        n_threads = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (
-            os.cpu_count() or 1)
-    nthread = int(n_threads) if (n_threads > 1 and n > 1) else 0
-    pool = _rollout_pool(nthread)
-    datas = [mujoco.MjData(m) for _ in range(max(nthread, 1))]
-    kin = _Kinematics(setup)
-
-    dt = float(m.opt.timestep)
+    phys = _Physics(setup, n, n_threads)
     substeps = int(round(config.control_period_s / idx.timestep_s))
     n_ticks = int(round(config.duration_s / config.control_period_s))
     params = dataclasses.replace(params, control_period=config.control_period_s)
@@ -241,17 +334,10 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
     p = {k: np.asarray(getattr(pushes, k), np.float64)
          for k in ("impulse_ns", "azimuth_rad", "height_m", "duration_s", "onset_s")}
     rng = np.random.default_rng(seed)
-    if overrides is not None:
-        overrides = jax.tree_util.tree_map(
-            lambda v: jnp.broadcast_to(jnp.asarray(v, jnp.float32), (n,)),
-            dataclasses.replace(overrides, onset_s=pushes.onset_s))
-    qv = setup.qvel_slice
     fixed = config.fixed
     if fixed is not None:   # options the fixed-point twin lacks: refused, not ignored
         check_supported(params)
-    if fixed is not None and overrides is not None:
-        raise ValueError("commanded steps (overrides) have no fixed-point controller twin; "
-                         "use RolloutConfig(fixed=None)")
+    overrides = _check_overrides(overrides, pushes, n, fixed)
     switch = 0 if fixed is None else servo_switch_substep(fixed, substeps)
 
     init = (controller_init(params, jnp.float32) if fixed is None else
@@ -262,22 +348,7 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
     warm = np.tile(setup.warmstart0, (n, 1))
     sensordata = np.tile(setup.sensordata0, (n, 1))
     stand_ctrl = np.asarray(idx.stand_ctrl, np.float64)
-    ctrl_spec_size = mujoco.mj_stateSize(m, _CTRL_XFRC)
-    nu = m.nu
-    xfrc_cols = slice(nu + 6 * idx.chest_body, nu + 6 * idx.chest_body + 6)
-
-    rec = {k: [] for k in ("t", "pitch", "roll", "pitch_est", "roll_est", "zmp", "fsr_total",
-                           "com", "r_ankle", "l_ankle", "pelvis_z", "lowest_body_z", "gate",
-                           "x_sup", "y_sup", "step_weight", "reachable", "touchdown_s")}
-    if config.record_qpos:
-        rec["qpos"] = []
-
-    def run(s0, w0, control, spec, nstep):
-        states, sens = pool.rollout(m, datas, s0, control, control_spec=spec,
-                                    initial_warmstart=w0, nstep=nstep)
-        prev_qvel = s0[:, qv] if nstep == 1 else states[:, -2, qv]
-        return states, sens, (states[:, -1, qv] - prev_qvel) / dt
-
+    rows = []
     for _ in range(n_ticks):
         gyro = sensordata[:, idx.gyro_adr:idx.gyro_adr + 3]
         accel = sensordata[:, idx.accel_adr:idx.accel_adr + 3]
@@ -298,73 +369,13 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
         ctrl_steps = np.repeat(ctrl[:, None, :], substeps, 1)
         if switch > 0:
             ctrl_steps[:, :switch, idx.leg_actuators] = np.asarray(prev, np.float64)[:, None, :]
+        force = _force(p, state[:, :1] + phys.dt * np.arange(substeps)[None, :])
+        state, pose_state, sensordata, warm = phys.period(
+            state, pose_state, warm, ctrl_steps, switch == 0, force, p["height_m"], push_wrench)
+        rows.append(phys.record(state, pose_state, sensordata, out, ctrl_state,
+                                config.record_qpos))
 
-        t_steps = state[:, :1] + dt * np.arange(substeps)[None, :]      # (n, substeps)
-        force = _force(p, t_steps)
-        pushed = bool(np.any(force != 0.0))
-        if not pushed:
-            states, sens, warm = run(state, warm, ctrl_steps if switch > 0 else ctrl[:, None, :],
-                                     _CTRL, substeps)
-            pose_state = states[:, -2] if substeps > 1 else state
-            state, sensordata = states[:, -1], sens[:, -1]
-        elif push_wrench == "period_start":
-            control = np.zeros((n, substeps, ctrl_spec_size))
-            control[:, :, :nu] = ctrl_steps
-            control[:, :, xfrc_cols] = _wrench(idx, kin.chest(pose_state), p["height_m"], force)
-            states, sens, warm = run(state, warm, control, _CTRL_XFRC, substeps)
-            pose_state = states[:, -2] if substeps > 1 else state
-            state, sensordata = states[:, -1], sens[:, -1]
-        else:   # exact: one step per call, the wrench from the pose MJX would use
-            control = np.zeros((n, 1, ctrl_spec_size))
-            for j in range(substeps):
-                control[:, 0, :nu] = ctrl_steps[:, j]
-                f = force[:, j:j + 1]
-                control[:, :, xfrc_cols] = _wrench(idx, kin.chest(pose_state), p["height_m"], f)
-                states, sens, warm = run(state, warm, control, _CTRL_XFRC, 1)
-                pose_state = state
-                state, sensordata = states[:, -1], sens[:, -1]
-
-        k = kin.series(pose_state)
-        qpos = state[:, setup.qpos_slice]
-        pitch, roll = physics.pitch_roll_from_quat(qpos[:, 3:7])
-        fsr = sensordata[:, idx.fsr_adr]
-        total = fsr.sum(-1)
-        safe = np.where(total > 1e-3, total, 1.0)
-        zmp = np.where((total > 1e-3)[:, None], np.einsum("nf,nfk->nk", fsr, k["fsr_xy"])
-                       / safe[:, None], k["fsr_xy"].mean(1))
-        lows = [k["sphere_z"] - idx.sphere_radii]
-        if idx.box_geoms.size:
-            lows.append(k["box_z"] - np.sum(np.abs(k["box_zrow"]) * idx.box_half_sizes, -1))
-        rec["t"].append(state[:, 0])
-        rec["pitch"].append(pitch)
-        rec["roll"].append(roll)
-        rec["pitch_est"].append(out.phi)
-        rec["roll_est"].append(out.roll)
-        rec["zmp"].append(zmp)
-        rec["fsr_total"].append(total)
-        rec["com"].append(k["com"])
-        rec["r_ankle"].append(k["r_ankle"])
-        rec["l_ankle"].append(k["l_ankle"])
-        rec["pelvis_z"].append(qpos[:, 2])
-        rec["lowest_body_z"].append(np.min(np.concatenate(lows, -1), -1))
-        rec["gate"].append(out.gate)
-        rec["x_sup"].append(ctrl_state.x_sup_m)
-        rec["y_sup"].append(ctrl_state.y_sup_m)
-        rec["step_weight"].append(ctrl_state.step_weight)
-        rec["reachable"].append(out.reachable)
-        rec["touchdown_s"].append(out.touchdown_s)
-        if config.record_qpos:
-            rec["qpos"].append(qpos)
-
-    # (n_ticks, n, ...) -> (n, n_ticks, ...); physical fields in MJX's float32, the controller's
-    # fields in the dtype the controller gives them.
-    series = {}
-    for key, vals in rec.items():
-        arr = np.stack([np.asarray(v) for v in vals], 1)
-        if arr.dtype == np.float64:
-            arr = arr.astype(np.float32)
-        series[key] = arr
-    series = Series(**series)
+    series = _stack_ticks(rows)
     out = _batched_outcomes(jax.tree_util.tree_map(jnp.asarray, series),
                             jnp.asarray(pushes.onset_s, jnp.float32))
     return series, jax.tree_util.tree_map(np.asarray, out)

@@ -3,7 +3,8 @@
 Linear inverted pendulum at the stand pose: mass m, CoM height z0, omega = sqrt(g / z0). An
 impulse J at rest shifts the instantaneous capture point by J / (m omega). The robot can stop
   with 0 steps if that shift stays inside the support polygon:  d_0 = r_max(azimuth)
-  with N steps of max length l_max and min step time dt_s:      d_N = r_max + l_max sum_k e^{-k omega dt_s}
+  with N steps of max length l_max and min step time dt_s:
+                                        d_N = r_max + l_max sum_k e^{-k omega dt_s}
 so the largest recoverable impulse is J_N = m omega d_N. r_max is measured from the stand
 pose's CoM ground projection to the edge of the two feet's convex hull along the push
 direction; l_max is the CPG/IK reach (both ankles move by half the step relative to the waist,

@@ -144,7 +144,8 @@ def check_chunk(out: Path, i: int, entry: dict | None) -> str | None:
     if not entry:
         return f"{path} is not recorded in the manifest (its writer was interrupted)"
     if path.stat().st_size != entry.get("bytes", path.stat().st_size):
-        return f"{path} is truncated or padded ({path.stat().st_size} bytes, expected {entry['bytes']})"
+        return (f"{path} is truncated or padded ({path.stat().st_size} bytes, "
+                f"expected {entry['bytes']})")
     if sha256(path) != entry["sha256"]:
         return f"{path} is corrupted (sha256 differs from the manifest)"
     return None

@@ -17,8 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from tkujax.studies import capturability
+from tkujax.control.io import controller_params_from_dict
 from tkujax.control.params import ControllerParams
+from tkujax.studies import capturability
 from tkujax.sim.push import onset_phase, peak_on_sample_phase
 from tkujax.studies.spec import PHASE_KEY, parse_spec
 from tkujax.studies.sweep import load
@@ -140,7 +141,8 @@ def _polar_mesh(azs, js):
     da = np.diff(np.append(a, a[0] + 2 * np.pi)) if len(a) > 1 else np.array([2 * np.pi])
     a_edges = np.append(a - da / 2, a[-1] + da[-1] / 2)
     dj = np.diff(js) if len(js) > 1 else np.array([max(js[0], 0.1)])
-    j_edges = np.concatenate([[max(js[0] - dj[0] / 2, 0.0)], js[:-1] + dj / 2, [js[-1] + dj[-1] / 2]])
+    j_edges = np.concatenate([[max(js[0] - dj[0] / 2, 0.0)], js[:-1] + dj / 2,
+                              [js[-1] + dj[-1] / 2]])
     return np.meshgrid(a_edges, j_edges, indexing="ij")
 
 
@@ -154,67 +156,67 @@ def _polar_panel(ax, rec, key, control, title, cmap, vmin=None, vmax=None, label
     return mesh
 
 
-def make_maps(out_dir: str | Path, params: ControllerParams | None = None) -> dict:
-    """Write maps/*.png and maps/summary.md (+ .json) for the sweep in `out_dir`."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+def _name(control: bool) -> str:
+    return "control on" if control else "control off"
 
-    out_dir = Path(out_dir)
+
+def _records(out_dir: Path, manifest: dict) -> tuple[dict, dict, np.ndarray, int]:
+    """(every non-diverged record, the records the maps use, the from_grid mask of the first,
+    the number diverged). Maps and the boundary table use the grid's exact cells when the sweep
+    has a grid; random samples (binned) are used only when there is no grid, and summarised
+    separately."""
     everything = load(out_dir)
-    # Maps and the boundary table use the grid's exact cells when the sweep has a grid; random
-    # samples (binned) are used only when there is no grid, and summarised separately.
-    manifest = json.loads((out_dir / "manifest.json").read_text())
     if "from_grid" not in everything:   # sweeps written before the column existed
         everything["from_grid"] = parse_spec(manifest["spec"]).records()["from_grid"][
             everything["push_id"]]
     diverged = everything.get("diverged", np.zeros(len(everything["fell"]), bool)).astype(bool)
-    n_diverged = int(diverged.sum())
     everything = {k: v[~diverged] for k, v in everything.items()}
     grid = everything["from_grid"].astype(bool)
     rec = {k: v[grid] for k, v in everything.items()} if grid.any() else everything
-    params = params or ControllerParams(**manifest.get("controller_params", {}))
-    maps = out_dir / "maps"
-    maps.mkdir(exist_ok=True)
-    controls = [c for c in (False, True) if (rec["control"].astype(bool) == c).any()]
-    name = lambda c: "control on" if c else "control off"  # noqa: E731
-    files = []
+    return everything, rec, grid, int(diverged.sum())
 
-    # 1. Polar stability map: fall fraction, with the boundary of each setting overlaid.
+
+def _save(fig, path: Path, plt) -> Path:
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def _stability_figure(rec: dict, controls: list[bool], maps: Path, plt) -> Path:
+    """Polar stability map: fall fraction, with the boundary of each setting overlaid."""
     fig, axes = plt.subplots(1, len(controls), subplot_kw=dict(projection="polar"),
                              figsize=(5 * len(controls), 4.6), squeeze=False)
     for ax, c in zip(axes[0], controls):
-        mesh = _polar_panel(ax, rec, "fell", c, f"fall fraction, {name(c)}", "RdYlGn_r", 0, 1)
+        mesh = _polar_panel(ax, rec, "fell", c, f"fall fraction, {_name(c)}", "RdYlGn_r", 0, 1)
         for c2, style in zip(controls, ("k--", "b-")):
             azs, jmax = max_recoverable_impulse(rec, c2)
             a = np.radians(np.append(azs, azs[0] + 360))
-            ax.plot(a, np.append(jmax, jmax[0]), style, lw=1.2, label=f"boundary, {name(c2)}")
+            ax.plot(a, np.append(jmax, jmax[0]), style, lw=1.2, label=f"boundary, {_name(c2)}")
     axes[0, -1].legend(loc="lower left", bbox_to_anchor=(0.75, -0.12), fontsize=7)
     fig.suptitle("radius: impulse (N·s); angle: push azimuth (0° = pushed from behind, "
                  "90° = from the right)", fontsize=8, y=0.02)
     fig.colorbar(mesh, ax=axes[0].tolist(), shrink=0.7)
-    files.append(maps / "stability_polar.png")
-    fig.savefig(files[-1], dpi=90)
-    plt.close(fig)
+    return _save(fig, maps / "stability_polar.png", plt)
 
-    # 2. Recovery time and step length maps (per control setting).
+
+def _recovery_figure(rec: dict, controls: list[bool], maps: Path, plt) -> Path:
+    """Recovery time and step length maps (per control setting)."""
     fig, axes = plt.subplots(2, len(controls), subplot_kw=dict(projection="polar"),
                              figsize=(5 * len(controls), 8.6), squeeze=False)
     for k, c in enumerate(controls):
-        m = _polar_panel(axes[0, k], rec, "recovery_time_s", c, f"recovery time (s), {name(c)}",
+        m = _polar_panel(axes[0, k], rec, "recovery_time_s", c, f"recovery time (s), {_name(c)}",
                          "viridis")
         fig.colorbar(m, ax=axes[0, k], shrink=0.7)
         rec_abs = dict(rec, step_abs_cm=100 * np.hypot(rec["step_length_m"], rec["step_width_m"]))
-        m = _polar_panel(axes[1, k], rec_abs, "step_abs_cm", c, f"step length (cm), {name(c)}",
+        m = _polar_panel(axes[1, k], rec_abs, "step_abs_cm", c, f"step length (cm), {_name(c)}",
                          "magma")
         fig.colorbar(m, ax=axes[1, k], shrink=0.7)
     fig.tight_layout()
-    files.append(maps / "recovery_and_step.png")
-    fig.savefig(files[-1], dpi=90)
-    plt.close(fig)
+    return _save(fig, maps / "recovery_and_step.png", plt)
 
-    # 3. Capture region: where the swing foot landed vs where the LIP capture point said.
-    lip = capturability.lip_model()
+
+def _capture_figure(rec: dict, lip, maps: Path, plt) -> Path:
+    """Capture region: where the swing foot landed vs where the LIP capture point said."""
     sel = rec["control"].astype(bool) & ~rec["fell"].astype(bool) & (
         np.hypot(rec["step_length_m"], rec["step_width_m"]) > 0.005)
     az = np.radians(rec["azimuth_deg"][sel])
@@ -233,11 +235,13 @@ def make_maps(out_dir: str | Path, params: ControllerParams | None = None) -> di
     ax.set_aspect("equal")
     ax.legend(fontsize=7)
     ax.set_title(f"capture region: {int(sel.sum())} recovered pushes with a step", fontsize=9)
-    files.append(maps / "capture_region.png")
-    fig.savefig(files[-1], dpi=90)
-    plt.close(fig)
+    return _save(fig, maps / "capture_region.png", plt)
 
-    # 4. Max recoverable impulse per direction vs capturability theory.
+
+def _theory_figure(rec: dict, controls: list[bool], lip, params: ControllerParams, maps: Path,
+                   plt) -> tuple[Path, list[tuple[float, bool, float]]]:
+    """Max recoverable impulse per direction vs capturability theory; also returns the table
+    (azimuth, control, sim max) it plots."""
     fine = np.radians(np.arange(0, 361, 2.0))
     fig, ax = plt.subplots(figsize=(7.5, 4))
     theory = {n: capturability.max_impulse_ns(lip, fine, n, params) for n in (0, 1)}
@@ -246,24 +250,19 @@ def make_maps(out_dir: str | Path, params: ControllerParams | None = None) -> di
     table = []
     for c, mk in zip(controls, ("s", "o")):
         azs, jmax = max_recoverable_impulse(rec, c)
-        ax.plot(azs, jmax, mk + "-", ms=4, label=f"sim max recoverable, {name(c)}")
+        ax.plot(azs, jmax, mk + "-", ms=4, label=f"sim max recoverable, {_name(c)}")
         for a, j in zip(azs, jmax):
             table.append((float(a), c, float(j)))
     ax.set_xlabel("push azimuth (deg; 0 = from behind, 90 = from the right)")
     ax.set_ylabel("impulse (N·s)")
     ax.legend(fontsize=7)
     ax.grid(alpha=0.3)
-    files.append(maps / "max_impulse_vs_theory.png")
     fig.tight_layout()
-    fig.savefig(files[-1], dpi=90)
-    plt.close(fig)
+    return _save(fig, maps / "max_impulse_vs_theory.png", plt), table
 
-    # 5. Fall rate against the push's phase in the control period.
-    variant_keys = tuple(sorted(parse_spec(manifest["spec"]).controller_grid))
-    phase_png, phase_md = _phase_outputs(rec, variant_keys, maps, plt)
-    files.append(phase_png)
 
-    # Summary table.
+def _theory_table(table, lip, params: ControllerParams) -> tuple[list[str], list[dict]]:
+    """The summary's markdown rows and JSON records: theory vs sim max per azimuth."""
     azs_all = sorted({a for a, _, _ in table})
     lookup = {(a, c): j for a, c, j in table}
     rows = ["| azimuth (deg) | r_max (cm) | J_0 theory | sim max, off | J_1 theory | sim max, on |",
@@ -275,25 +274,31 @@ def make_maps(out_dir: str | Path, params: ControllerParams | None = None) -> di
         j1 = float(capturability.max_impulse_ns(lip, ar, 1, params)[0])
         off, on = lookup.get((a, False)), lookup.get((a, True))
         fmt = lambda v: "-" if v is None else f"{v:.2f}"  # noqa: E731
-        rows.append(f"| {a:.0f} | {100 * float(capturability.r_max(lip, ar)[0]):.1f} | {j0:.2f} | "
-                    f"{fmt(off)} | {j1:.2f} | {fmt(on)} |")
+        rows.append(f"| {a:.0f} | {100 * float(capturability.r_max(lip, ar)[0]):.1f} | "
+                    f"{j0:.2f} | {fmt(off)} | {j1:.2f} | {fmt(on)} |")
         summary.append(dict(azimuth_deg=a, J0_theory=j0, J1_theory=j1, sim_max_off=off,
                             sim_max_on=on))
+    return rows, summary
+
+
+def _summary_text(manifest: dict, everything: dict, rec: dict, grid: np.ndarray,
+                  n_diverged: int, controls: list[bool], lip, params: ControllerParams,
+                  rows: list[str], phase_md: str) -> str:
     n = len(everything["fell"])
     random_note = ""
     if grid.any() and not grid.all():
         r = {k: v[~grid] for k, v in everything.items()}
         random_note = (f" Random samples ({int((~grid).sum())} records, randomised model and "
                        "pushes): fall fraction " + ", ".join(
-                           f"{name(c)} {r['fell'][r['control'].astype(bool) == c].mean():.3f}"
+                           f"{_name(c)} {r['fell'][r['control'].astype(bool) == c].mean():.3f}"
                            for c in controls) + "; the maps and table below use the grid.")
     diverged_note = (f" {n_diverged} diverged (numerical blow-up; left out of every figure "
                      "and fraction, neither fell nor survived)." if n_diverged else
                      " None diverged.")
-    text = (f"# Sweep `{manifest['name']}`: {n + n_diverged} pushes\n\n"
+    return (f"# Sweep `{manifest['name']}`: {n + n_diverged} pushes\n\n"
             f"Devices: {', '.join(manifest.get('devices', []))}; wall {manifest.get('wall_s')} s "
             f"(compile included); fall fraction: "
-            + ", ".join(f"{name(c)} {rec['fell'][rec['control'].astype(bool) == c].mean():.3f}"
+            + ", ".join(f"{_name(c)} {rec['fell'][rec['control'].astype(bool) == c].mean():.3f}"
                         for c in controls)
             + f".{diverged_note}{random_note}\n\n"
             f"LIP: m = {lip.mass_kg:.2f} kg, z0 = {lip.com_height_m:.3f} m, "
@@ -301,6 +306,35 @@ def make_maps(out_dir: str | Path, params: ControllerParams | None = None) -> di
             f"Δt_s = {capturability.step_time_s(params):.3f} s. Sim max = largest tested impulse "
             "below which every impulse was survived (grid resolution applies).\n\n"
             + "\n".join(rows) + "\n\n" + phase_md)
+
+
+def make_maps(out_dir: str | Path, params: ControllerParams | None = None) -> dict:
+    """Write maps/*.png and maps/summary.md (+ .json) for the sweep in `out_dir`."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out_dir = Path(out_dir)
+    manifest = json.loads((out_dir / "manifest.json").read_text())
+    everything, rec, grid, n_diverged = _records(out_dir, manifest)
+    params = params or controller_params_from_dict(
+        manifest.get("controller_params", {}), f"{out_dir / 'manifest.json'}: controller_params",
+        base=ControllerParams())
+    maps = out_dir / "maps"
+    maps.mkdir(exist_ok=True)
+    controls = [c for c in (False, True) if (rec["control"].astype(bool) == c).any()]
+    lip = capturability.lip_model()
+    files = [_stability_figure(rec, controls, maps, plt),
+             _recovery_figure(rec, controls, maps, plt), _capture_figure(rec, lip, maps, plt)]
+    theory_png, table = _theory_figure(rec, controls, lip, params, maps, plt)
+    files.append(theory_png)
+    # Fall rate against the push's phase in the control period.
+    variant_keys = tuple(sorted(parse_spec(manifest["spec"]).controller_grid))
+    phase_png, phase_md = _phase_outputs(rec, variant_keys, maps, plt)
+    files.append(phase_png)
+    rows, summary = _theory_table(table, lip, params)
+    text = _summary_text(manifest, everything, rec, grid, n_diverged, controls, lip, params,
+                         rows, phase_md)
     (maps / "summary.md").write_text(text)
     (maps / "summary.json").write_text(json.dumps(summary, indent=1))
     return dict(files=[str(f) for f in files], summary=str(maps / "summary.md"),

@@ -162,7 +162,8 @@ def _markdown(rows: list[dict], title: str) -> str:
         ss = f"{r['step_length_cm']} cm" if r["step_length_cm"] else "X"
         same = "yes" if sim_fell == (p_rec is None) else "**no**"
         lines.append(f"| {r['direction']} | {r['ball']} ({r['force_N']} N, {r['impulse_Ns']} N·s)"
-                     f" | {r['control']} | {pr} | {sr} | {srp} | {ps} | {ss} | {r['peak_incl_deg']}° | {same} |")
+                     f" | {r['control']} | {pr} | {sr} | {srp} | {ps} | {ss} | "
+                     f"{r['peak_incl_deg']}° | {same} |")
     return "\n".join(lines) + "\n"
 
 
@@ -209,8 +210,9 @@ def run_paper(out: Path, figures: bool = True, params: ControllerParams | None =
 
     impulse_scale multiplies both balls' impulses (1 = the paper's rig); other values are
     labelled as such in table.md. variant: "calibrated" (default) or "estimated" (the model,
-    ball contact and Kalman noises before calibration; see `variant_setup`). phases: onsets 0.75 s + k / phases * 30 ms, k < phases
-    (each a batch of the 8 cases with the table's compiled rollout); 0 skips them.
+    ball contact and Kalman noises before calibration; see `variant_setup`). phases: onsets
+    0.75 s + k / phases * 30 ms, k < phases (each a batch of the 8 cases with the table's
+    compiled rollout); 0 skips them.
     """
     if not (0.0 < impulse_scale <= 10.0):
         raise ValueError(f"impulse_scale must be in (0, 10], got {impulse_scale!r}")
@@ -283,13 +285,12 @@ def render_case(case: str, control_on: bool, out: str | Path, width: int = 480,
     import jax
 
     from tkujax import render
-    from tkujax.sim import physics
     from tkujax.sim import rollout_mjx as sim
+    from tkujax.sim.setup import init
 
     config = RolloutConfig(duration_s=2.1, record_qpos=True)
-    host = physics.host_model()
-    series = sim.rollout(physics.device_model(), physics.stand_state(host, 1.0), push,
-                         ControllerParams.paper(), 1.0 if control_on else 0.0,
-                         jax.random.PRNGKey(0), config=config)
+    host, model, index, state = init()
+    series = sim.rollout(model, state, push, ControllerParams.paper(), 1.0 if control_on else 0.0,
+                         jax.random.PRNGKey(0), config=config, index=index)
     frames = render.render_frames(host, np.asarray(series["qpos"]), width, height)
     return render.save_gif(frames, out, fps=1.0 / config.control_period_s)

@@ -1,4 +1,4 @@
-"""`tkujax replay RUN_DIR --index N`: re-simulate one record of a sweep, exactly as the sweep ran it.
+"""`tkujax replay RUN_DIR --index N`: re-simulate one record of a sweep, exactly as it ran.
 
 Everything comes from the run folder: the spec (the push, the per-record controller-grid values
 and model randomisation, all re-expanded from it), the controller and model parameters, and the
@@ -17,39 +17,29 @@ layer does not draw).
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import numpy as np
 
+from tkujax.control.io import controller_params_from, controller_params_from_dict
 from tkujax.control.params import ControllerParams
 from tkujax.model import ModelParams
-from tkujax.model.params import ServoParams
+from tkujax.model.io import model_params_from_dict
 from tkujax.sim.rollout_mjx import RolloutConfig
 from tkujax.studies import chunks
 from tkujax.studies.spec import parse_spec
-from tkujax.studies.sweep import (OUTCOME_KEYS, chunk_keys, controller_params_from, make_chunk_fn,
-                                  mujoco_chunk, record_inputs, traced_params)
+from tkujax.studies.sweep import (OUTCOME_KEYS, chunk_keys, make_chunk_fn, mujoco_chunk,
+                                  record_inputs, traced_params)
 
 RTOL, ATOL = 1e-4, 1e-5     # "identical" numbers; fell and diverged must be equal exactly
 
 
 def model_params_from(d: dict | None) -> ModelParams | None:
-    """ModelParams from its manifest form (dataclasses.asdict), or None for the default."""
+    """ModelParams from its manifest form (dataclasses.asdict), validated by the model's JSON
+    loader (tkujax.model.io), or None for the default."""
     if not d:
         return None
-    fields = {f.name: f for f in dataclasses.fields(ModelParams)}
-    values = {}
-    for k, v in d.items():
-        if isinstance(v, dict):
-            v = ServoParams(**v)
-        elif isinstance(v, list):
-            v = tuple(v)
-        values[k] = v
-    unknown = sorted(set(values) - set(fields))
-    if unknown:
-        raise ValueError(f"manifest model_params: unknown field(s) {unknown}")
-    return ModelParams(**values).validate()
+    return model_params_from_dict(d, "manifest model_params")
 
 
 def _stored_record(run_dir: Path, manifest: dict, chunk: int, pos: int) -> dict:
@@ -78,7 +68,9 @@ def replay(run_dir: str | Path, index: int) -> dict:
     size = int(manifest["chunk_size"])
     chunk, pos = divmod(index, size)
     stored = _stored_record(run_dir, manifest, chunk, pos)
-    params = ControllerParams(**manifest["controller_params"])
+    params = controller_params_from_dict(manifest["controller_params"],
+                                         f"{run_dir / chunks.MANIFEST}: controller_params",
+                                         base=ControllerParams())
     model_params = model_params_from(manifest.get("model_params"))
     base = controller_params_from(params, spec.controller)
     recs = record_inputs(spec)

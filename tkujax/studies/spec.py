@@ -33,7 +33,8 @@ record carries an onset_phase column (derived from onset_s when not given).
     [controller]               # fixed ControllerParams overrides (angles in degrees)
     step_period = 0.3
     [controller.grid]          # ControllerParams varied as a grid (crossed with the pushes)
-    [randomize]                # per-push model/sensor randomisation ({uniform = [lo, hi]} or a value)
+    [randomize]                # per-push model/sensor randomisation ({uniform = [lo, hi]} or
+                               # a value)
 
 FPGA fixed-point controller (issue 15; `tkujax.control.fixed`):
 
@@ -49,7 +50,8 @@ FPGA fixed-point controller (issue 15; `tkujax.control.fixed`):
     [controller.grid]
     fpga.cordic_iterations = [6, 8, 12]   # any [fpga] key gridded: one record column fpga_<key>
 
-    [step]                     # capture regions: commanded recovery steps (tkujax.control.StepOverride)
+    [step]                     # capture regions: commanded recovery steps
+                               # (tkujax.control.StepOverride)
     reference = true           # also run each push with the controller's own step
     [step.grid]                # crossed with every push record; x_m, y_m: swing ankle vs its stand
     x_m = {start = -0.1, stop = 0.2, num = 21}
@@ -69,6 +71,7 @@ from typing import Any
 
 import numpy as np
 
+from tkujax.control.io import checked_value
 from tkujax.control.fixed.config import GROUP_INT_BITS, MAX_GROUP_WORD_BITS, FixedPointConfig
 from tkujax.control.fixed.qformat import ROUNDING_MODES, QFormat
 from tkujax.sim.push import onset_from_phase, onset_phase
@@ -90,37 +93,18 @@ PUSH_FIELDS = {
 # (the tune specs share PUSH_FIELDS and have no phase).
 PHASE_KEY = "onset_phase"
 PHASE_UNIT = "(fraction of the 30 ms control period; 1 excluded)"
-# ControllerParams fields a spec may set; *_deg fields are converted to radians.
-CONTROLLER_FIELDS = {
-    "step_period": (0.05, 2.0, "s"),
-    "double_support_ratio": (0.0, 0.89, ""),
-    "lift_height": (0.0, 0.1, "m"),
-    "eps_forward_deg": (0.0, 60.0, "deg"),
-    "eps_backward_deg": (0.0, 60.0, "deg"),
-    "cp_angle_offset_deg": (-30.0, 30.0, "deg"),
-    "cp_gain": (0.0, 10.0, ""),
-    "gate_temperature_deg": (0.0, 30.0, "deg"),
-    "lateral_steps": (0.0, 1.0, "(0 = paper, 1 = sideways steps too)"),
-    "eps_lateral_deg": (0.0, 60.0, "deg"),
-    "kalman_q": (0.0, 1.0, "rad^2"),
-    "kalman_r": (1e-9, 1.0, "rad^2"),
-    "accel_gate": (0.0, 100.0, "m/s^2 (0 = off: the paper; robust detection, see README)"),
-    # Recovery extensions (ControllerParams docstring); 0 / 1 step = the paper.
-    "cp_rate_blend": (0.0, 1.0, "(0 = energy-balance rate, 1 = gyro rate)"),
-    "cp_lookahead_s": (0.0, 0.5, "s"),
-    "cp_trigger": (0.0, 1.0, "(0 = angle thresholds, 1 = capture point leaves the support)"),
-    "cp_trigger_forward_m": (0.0, 0.5, "m"),
-    "cp_trigger_backward_m": (0.0, 0.5, "m"),
-    "cp_trigger_lateral_m": (0.0, 0.5, "m"),
-    "stance_ankle_kp": (-5.0, 5.0, "rad/rad"),
-    "stance_ankle_kd": (-1.0, 1.0, "rad/(rad/s)"),
-    "stance_hip_kp": (-5.0, 5.0, "rad/rad"),
-    "stance_hip_kd": (-1.0, 1.0, "rad/(rad/s)"),
-    "stance_roll_kp": (-5.0, 5.0, "rad/rad"),
-    "stance_roll_kd": (-1.0, 1.0, "rad/(rad/s)"),
-    "stance_limit": (0.01, 1.0, "rad"),
-    "max_steps": (1.0, 3.0, "(1 = paper; 2 or 3 steps)"),
-}
+# ControllerParams fields a spec may set; *_deg fields are given in degrees. Their ranges are
+# ControllerParams.validate's (tkujax.control.io.checked_value), stated there once.
+CONTROLLER_FIELDS = (
+    "step_period", "double_support_ratio", "lift_height", "eps_forward_deg", "eps_backward_deg",
+    "cp_angle_offset_deg", "cp_gain", "gate_temperature_deg", "lateral_steps", "eps_lateral_deg",
+    "kalman_q", "kalman_r", "accel_gate",
+    # Recovery extensions (ControllerParams docstring); their "off" values are the paper.
+    "cp_rate_blend", "cp_lookahead_s", "cp_trigger", "cp_trigger_forward_m",
+    "cp_trigger_backward_m", "cp_trigger_lateral_m", "stance_ankle_kp", "stance_ankle_kd",
+    "stance_hip_kp", "stance_hip_kd", "stance_roll_kp", "stance_roll_kd", "stance_limit",
+    "max_steps",
+)
 # Randomisation: multiplicative scales and additive values applied per push.
 RANDOMIZE_FIELDS = {
     "link_mass_scale": (0.5, 1.5, "x (all bodies)"),
@@ -224,6 +208,30 @@ def _values(key: str, value, lo: float, hi: float, unit: str = "") -> np.ndarray
     return np.array([_number(f"{key}[{i}]", v, lo, hi, unit) for i, v in enumerate(items)])
 
 
+def controller_value(where: str, key: str, value) -> float:
+    """A spec-style ControllerParams value (key a field, or FIELD_deg in degrees), in the range
+    ControllerParams.validate allows; SpecError names `where` and the range."""
+    try:
+        return checked_value(where, key, value)
+    except ValueError as err:
+        raise SpecError(str(err)) from err
+
+
+def controller_values(where: str, key: str, value) -> np.ndarray:
+    """A list, a scalar or a {start, stop, num, endpoint} range of a controller key (as
+    `_values`), every value checked by `controller_value`."""
+    if isinstance(value, dict):
+        for end in ("start", "stop"):
+            if end in value:
+                controller_value(f"{where}.{end}", key, value[end])
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            controller_value(f"{where}[{i}]", key, v)
+    else:
+        controller_value(where, key, value)
+    return _values(where, value, -math.inf, math.inf)
+
+
 def _uniform(key: str, value, lo: float, hi: float, unit: str = "") -> tuple[float, float]:
     if not (isinstance(value, dict) and set(value) == {"uniform"}
             and isinstance(value["uniform"], list) and len(value["uniform"]) == 2):
@@ -280,8 +288,10 @@ def parse_spec(data: dict) -> SweepSpec:
         raise SpecError(f"sweep.chunk_size: {chunk} is out of range [1, 1048576]")
     duration = _number("sweep.duration_s", sweep.get("duration_s", 2.4), 0.1, 30.0, "s")
     control = tuple(sweep.get("control", ["off", "on"]))
-    if not control or any(c not in ("on", "off") for c in control) or len(set(control)) != len(control):
-        raise SpecError(f"sweep.control: expected a list of distinct 'on'/'off', got {list(control)!r}")
+    if (not control or any(c not in ("on", "off") for c in control)
+            or len(set(control)) != len(control)):
+        raise SpecError(f"sweep.control: expected a list of distinct 'on'/'off', "
+                        f"got {list(control)!r}")
 
     push = _table("push", data.get("push", {}), {"grid", "random"})
     grid = _table("push.grid", push.get("grid", {}), set(PUSH_FIELDS) | {PHASE_KEY})
@@ -290,7 +300,8 @@ def parse_spec(data: dict) -> SweepSpec:
                  for k, v in grid.items()}
     rnd = _table("push.random", push.get("random", {}), set(PUSH_FIELDS) | {PHASE_KEY, "n"})
     n_random = rnd.get("n", 0)
-    if isinstance(n_random, bool) or not isinstance(n_random, int) or not 0 <= n_random <= 10_000_000:
+    if (isinstance(n_random, bool) or not isinstance(n_random, int)
+            or not 0 <= n_random <= 10_000_000):
         raise SpecError(f"push.random.n: expected an integer in [0, 10000000], got {n_random!r}")
     push_random = {k: _uniform(f"push.random.{k}", v, *PUSH_FIELDS[k][:2], PUSH_FIELDS[k][3])
                    for k, v in rnd.items() if k not in ("n", PHASE_KEY)}
@@ -312,11 +323,12 @@ def parse_spec(data: dict) -> SweepSpec:
 
     ctrl = _table("controller", data.get("controller", {}),
                   set(CONTROLLER_FIELDS) | {"grid", "arithmetic"})
-    controller = {k: _number(f"controller.{k}", v, *CONTROLLER_FIELDS[k])
+    controller = {k: controller_value(f"controller.{k}", k, v)
                   for k, v in ctrl.items() if k not in ("grid", "arithmetic")}
-    cgrid = dict(_table("controller.grid", ctrl.get("grid", {}), set(CONTROLLER_FIELDS) | {"fpga"}))
+    cgrid = dict(_table("controller.grid", ctrl.get("grid", {}),
+                        set(CONTROLLER_FIELDS) | {"fpga"}))
     arithmetic, fpga, fpga_grid = _parse_fpga(data, ctrl, cgrid.pop("fpga", {}))
-    controller_grid = {k: _values(f"controller.grid.{k}", v, *CONTROLLER_FIELDS[k])
+    controller_grid = {k: controller_values(f"controller.grid.{k}", k, v)
                        for k, v in cgrid.items()}
     both = sorted(set(controller) & set(controller_grid))
     if both:

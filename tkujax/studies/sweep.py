@@ -22,11 +22,8 @@ import hashlib
 import json
 import math
 import os
-import platform
-import subprocess
 import sys
 import time
-from importlib import metadata
 from pathlib import Path
 
 import jax
@@ -34,16 +31,23 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from tkujax.sim import physics
-from tkujax.control.params import ControllerParams
 from tkujax.control.controller import StepOverride
+from tkujax.control.fixed import FixedPointConfig, check_supported
+# The ControllerParams JSON loader and the spec-style overrides live in tkujax.control.io;
+# re-exported here under the names sweeps have used.
+from tkujax.control.io import controller_params_from
+from tkujax.control.io import load_controller_params_json as load_params_json  # noqa: F401
+from tkujax.control.params import ControllerParams
+from tkujax.model import ModelParams
 from tkujax.sim.metrics import CAPTURE_KEYS, capture_outcomes
 from tkujax.sim.metrics import outcomes as rollout_outcomes
-from tkujax.model import ModelParams
 from tkujax.sim.push import Push
-from tkujax.sim.rollout_mjx import RolloutConfig, model_index, rollout
+from tkujax.sim.randomize import randomize_model
+from tkujax.sim.rollout_mjx import RolloutConfig, rollout
+from tkujax.sim.setup import init
 from tkujax.studies import chunks
-from tkujax.control.fixed import FixedPointConfig, check_supported
+from tkujax.studies.progress import Progress
+from tkujax.studies.provenance import git_commit, versions
 from tkujax.studies.spec import FPGA_COLUMN, SpecError, SweepSpec, fixed_point_config, load_spec
 
 OUTCOME_KEYS = ("fell", "diverged", "recovery_time_s", "step_length_m", "step_width_m",
@@ -51,65 +55,6 @@ OUTCOME_KEYS = ("fell", "diverged", "recovery_time_s", "step_length_m", "step_wi
 MANIFEST = chunks.MANIFEST
 # ControllerParams fields added after sweeps were published (left out of the hash at default).
 _LATER_FIELDS = {"accel_gate": 0.0, "cp_excess": 0.0, "cp_update_window": 0.0}
-
-
-def controller_params_from(base: ControllerParams, overrides: dict) -> ControllerParams:
-    """Apply spec-style overrides (`*_deg` keys in degrees) to `base`."""
-    values = {}
-    for k, v in overrides.items():
-        if k.endswith("_deg"):
-            values[k[:-4]] = v * (math.pi / 180.0)   # v may be traced: no math.radians
-        else:
-            values[k] = v
-    return dataclasses.replace(base, **values)
-
-
-# String notes a parameter file may carry besides the fields ("recommended_from": which set
-# `tkujax tune` recommends, see tkujax.studies.tune.run).
-PARAMS_NOTE_KEYS = ("recommended_from",)
-
-
-def load_params_json(path: str | Path) -> ControllerParams:
-    """ControllerParams from a JSON object {field: value} (SI units, radians), as tune writes;
-    string notes of PARAMS_NOTE_KEYS are ignored."""
-    path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as err:
-        raise SpecError(f"--params {path}: cannot read JSON: {err}") from err
-    if not isinstance(data, dict):
-        raise SpecError(f"--params {path}: expected a JSON object {{field: value}}, "
-                        f"got {type(data).__name__}")
-    fields = {f.name for f in dataclasses.fields(ControllerParams)}
-    for k in PARAMS_NOTE_KEYS:                  # a note, not a parameter (tkujax tune writes it)
-        if isinstance(data.get(k), str):
-            data = {key: v for key, v in data.items() if key != k}
-    unknown = sorted(set(data) - fields)
-    if unknown:
-        raise SpecError(f"--params {path}: unknown field(s) {unknown}; allowed: {sorted(fields)}")
-    paper = ControllerParams.paper()
-    values = {}
-    for k, v in data.items():
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            raise SpecError(f"--params {path}: {k} must be a number in {_allowed(paper, k)}, "
-                            f"got {v!r}")
-        values[k] = float(v)
-    try:
-        return dataclasses.replace(paper, **values).validate()
-    except ValueError as err:
-        raise SpecError(f"--params {path}: {err}") from err
-
-
-def _allowed(params: ControllerParams, field: str) -> str:
-    """The range ControllerParams.validate allows for `field` (one source of truth): the
-    message validate gives for NaN there, which no range admits."""
-    try:
-        dataclasses.replace(params, **{field: math.nan}).validate()
-    except ValueError as err:
-        text = str(err)
-        if " must be in " in text:
-            return text.split(" must be in ", 1)[1].rsplit(", got", 1)[0]
-    return "(a finite number)"
 
 
 def step_override(rec: dict) -> StepOverride:
@@ -123,19 +68,6 @@ def step_override(rec: dict) -> StepOverride:
 def outcome_keys(steps: bool) -> tuple[str, ...]:
     """Columns a chunk writes: the outcomes, plus the capture-region ones for [step] sweeps."""
     return OUTCOME_KEYS + (CAPTURE_KEYS if steps else ())
-
-
-def randomize_model(model, mass_scale, torso_com_dx, friction, kp_scale, chest_body: int):
-    """The MJX model with per-push randomisation applied (all traced jax-array fields)."""
-    gain = model.actuator_gainprm.at[:, 0].multiply(kp_scale)
-    bias = model.actuator_biasprm.at[:, 1].multiply(kp_scale)
-    pair_friction = jnp.where(friction > 0, model.pair_friction.at[:, :2].set(friction),
-                              model.pair_friction)
-    return model.replace(
-        body_mass=model.body_mass * mass_scale,
-        body_inertia=model.body_inertia * mass_scale,
-        body_ipos=model.body_ipos.at[chest_body, 0].add(torso_com_dx),
-        actuator_gainprm=gain, actuator_biasprm=bias, pair_friction=pair_friction)
 
 
 def traced_params(params: ControllerParams) -> ControllerParams:
@@ -165,18 +97,16 @@ def make_chunk_fn(varied: tuple[str, ...], duration_s: float,
 
 @functools.lru_cache(maxsize=16)
 def _make_chunk_fn(varied, duration_s, model_params, with_qpos, steps, fixed):
-    host = physics.host_model(model_params)
-    model, index = physics.device_model(model_params), model_index(model_params)
-    state = physics.stand_state(host, 1.0)
+    _, model, index, state = init(model_params)
     config = RolloutConfig(duration_s=duration_s, record_qpos=with_qpos, fixed=fixed)
-    chest = index.chest_body
 
     def one(rec, key, base_params):
         push = Push(rec["impulse_ns"], jnp.radians(rec["azimuth_deg"]), rec["height_m"],
                     rec["duration_s"], rec["onset_s"])
         params = controller_params_from(base_params, {k: rec[k] for k in varied})
-        m = randomize_model(model, rec["link_mass_scale"], rec["torso_com_offset_x_m"],
-                            rec["floor_friction"], rec["servo_kp_scale"], chest)
+        m = randomize_model(model, index.chest_body, mass_scale=rec["link_mass_scale"],
+                            torso_com_dx_m=rec["torso_com_offset_x_m"],
+                            friction=rec["floor_friction"], kp_scale=rec["servo_kp_scale"])
         series = rollout(m, state, push, params, rec["control"], key, rec["gyro_noise_std"],
                          rec["accel_noise_std"], config, index,
                          step_override(rec) if steps else None)
@@ -270,24 +200,6 @@ def _spec_hash(spec: SweepSpec, params: ControllerParams, model_params: ModelPar
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
-def _versions() -> dict:
-    out = {"python": platform.python_version()}
-    for pkg in ("tkujax", "jax", "jaxlib", "mujoco", "mujoco-mjx", "numpy"):
-        try:
-            out[pkg] = metadata.version(pkg)
-        except metadata.PackageNotFoundError:
-            out[pkg] = None
-    return out
-
-
-def _git_commit() -> str | None:
-    try:
-        return subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
-                              cwd=Path(__file__).parent, timeout=5).stdout.strip() or None
-    except (OSError, subprocess.SubprocessError):
-        return None
-
-
 def record_inputs(spec: SweepSpec) -> dict[str, np.ndarray]:
     recs = spec.records()
     from tkujax.studies.spec import RANDOMIZE_DEFAULTS
@@ -298,30 +210,118 @@ def record_inputs(spec: SweepSpec) -> dict[str, np.ndarray]:
     return recs
 
 
-class Progress:
-    """A one-line progress report on stderr: pushes done, pushes/s, ETA."""
+def _processes(process_id, num_processes, coordinator) -> tuple[int, int]:
+    """(process_id, num_processes) from the arguments or the TKUJAX_* environment variables;
+    several processes: jax.distributed is initialised here."""
+    process_id = int(os.environ.get("TKUJAX_PROCESS_ID", 0)) if process_id is None else process_id
+    num_processes = (int(os.environ.get("TKUJAX_NUM_PROCESSES", 1)) if num_processes is None
+                     else num_processes)
+    coordinator = coordinator or os.environ.get("TKUJAX_COORDINATOR")
+    if num_processes > 1:
+        if not coordinator:
+            raise SpecError("num_processes > 1 needs a coordinator address HOST:PORT")
+        jax.distributed.initialize(coordinator_address=coordinator, num_processes=num_processes,
+                                   process_id=process_id)
+    return process_id, num_processes
 
-    def __init__(self, total: int, done: int, stream=sys.stderr):
-        self.total, self.done, self.stream = total, done, stream
-        self.t0, self.done0 = time.perf_counter(), done
 
-    def restart(self) -> None:
-        self.t0, self.done0 = time.perf_counter(), self.done
+@dataclasses.dataclass(frozen=True)
+class _ChunkJob:
+    """Everything a chunk's computation needs (the same for every chunk of a sweep)."""
 
-    def note(self, text: str) -> None:
-        print(f"\r{text}", end="", file=self.stream, flush=True)
+    spec: SweepSpec
+    recs: dict
+    base: ControllerParams
+    model_params: ModelParams | None
+    backend: str
+    padded: int
+    sharding: NamedSharding
 
-    def update(self, n: int) -> None:
-        self.done += n
-        dt = time.perf_counter() - self.t0
-        rate = (self.done - self.done0) / dt if dt > 0 and self.done > self.done0 else 0.0
-        eta = (self.total - self.done) / rate if rate > 0 else float("nan")
-        pct = 100.0 * self.done / max(self.total, 1)
-        print(f"\rpushes {self.done}/{self.total} ({pct:5.1f}%)  {rate:8.1f} pushes/s  "
-              f"ETA {eta:6.0f} s   ", end="", file=self.stream, flush=True)
+    @property
+    def input_keys(self) -> list[str]:
+        return [k for k in self.recs if k not in ("push_id", "from_grid", "case_id")]
 
-    def close(self) -> None:
-        print(file=self.stream, flush=True)
+    def compute(self, i: int) -> dict:
+        """The records of chunk i with their outcome columns."""
+        spec, recs, n = self.spec, self.recs, len(self.recs["push_id"])
+        lo, hi = i * spec.chunk_size, min((i + 1) * spec.chunk_size, n)
+        varied = tuple(sorted(spec.controller_grid))
+        steps = bool(spec.step_grid)
+        if self.backend == "mujoco":
+            res = mujoco_chunk({k: recs[k][lo:hi] for k in self.input_keys}, spec.seed + i,
+                               self.base, spec.duration_s, self.model_params, varied=varied,
+                               steps=steps, fpga=spec.fpga if spec.arithmetic == "fixed" else None,
+                               fpga_varied=tuple(sorted(spec.fpga_grid)))
+            return {k: recs[k][lo:hi] for k in recs} | res
+        keys = chunk_keys(spec.seed, i, self.padded)
+        res = {}
+        for fixed, sel in fpga_groups(spec, {k: recs[k][lo:hi] for k in recs}):
+            # Each FixedPointConfig is its own program, compiled once for the padded chunk
+            # shape; a chunk straddling configs runs once per config present (specs whose
+            # chunk_size divides the pushes per config avoid that). Each record keeps its own
+            # noise key.
+            rows = np.resize(sel, self.padded)
+            batch = {k: jax.device_put(recs[k][lo:hi][rows].astype(np.float32), self.sharding)
+                     for k in self.input_keys}
+            fn = make_chunk_fn(varied, spec.duration_s, self.model_params, steps=steps,
+                               fixed=fixed)
+            part = fn(batch, jax.device_put(keys[rows], self.sharding), traced_params(self.base))
+            for k, v in part.items():
+                v = np.asarray(v)[:len(sel)]
+                res.setdefault(k, np.empty((hi - lo,) + v.shape[1:], v.dtype))[sel] = v
+        return {k: recs[k][lo:hi] for k in recs} | res
+
+
+def _compute_pending(out: Path, job: _ChunkJob, pending: list[int], n_chunks: int,
+                     progress: Progress, max_chunks: int | None, deadline: float) -> int:
+    """Claim and compute the pending chunks (another writer may hold some); once only chunks
+    claimed by others remain, poll until they are done or their claims go stale (bounded by
+    `deadline`, time.monotonic). Returns the number of chunks computed here."""
+    n = len(job.recs["push_id"])
+    computed = 0
+    while pending and (max_chunks is None or computed < max_chunks):
+        waiting = []
+        for i in pending:
+            if (max_chunks is not None and computed >= max_chunks) or not chunks.try_claim(out, i):
+                waiting.append(i)
+                continue
+            try:
+                entries = chunks.read_manifest(out).get("chunks", {})
+                if chunks.check_chunk(out, i, entries.get(chunks.chunk_name(i))) is None:
+                    continue                      # another writer finished it meanwhile
+                if computed == 0:
+                    progress.note("compiling the rollout (first chunk; minutes on a CPU) ...")
+                chunks.write_chunk(out, i, job.compute(i))
+            finally:
+                chunks.release(out, i)
+            computed += 1
+            progress.update(min((i + 1) * job.spec.chunk_size, n) - i * job.spec.chunk_size)
+            if computed == 1:
+                progress.restart()   # later rates and ETAs exclude the compile
+        if max_chunks is not None and computed >= max_chunks:
+            break
+        pending = [i for i in waiting if i not in chunks.done_chunks(out, n_chunks)]
+        if pending:
+            if time.monotonic() > deadline:
+                break
+            time.sleep(0.5)
+    return computed
+
+
+def _describe(spec: SweepSpec, digest: str, n: int, n_chunks: int, padded: int,
+              params: ControllerParams, model_params: ModelParams | None, num_processes: int,
+              backend: str) -> dict:
+    """The manifest's description of the sweep (every writer restates it)."""
+    manifest = dict(name=spec.name, spec=spec.raw, spec_hash=digest, n_pushes=n,
+                    chunk_size=spec.chunk_size, n_chunks=n_chunks, padded_chunk=padded,
+                    controller_params=dataclasses.asdict(params),
+                    model_params=dataclasses.asdict(model_params or ModelParams()),
+                    versions=versions(), git_commit=git_commit(),
+                    devices=[str(d) for d in jax.devices()], num_processes=num_processes,
+                    backend=backend, format="npz chunks, one record per push")
+    if spec.arithmetic == "fixed":
+        manifest["fixed_point_defaults"] = dataclasses.asdict(FixedPointConfig())
+    return manifest
 
 
 def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerParams | None = None,
@@ -342,16 +342,7 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
     params = params or ControllerParams.paper()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-
-    process_id = int(os.environ.get("TKUJAX_PROCESS_ID", 0)) if process_id is None else process_id
-    num_processes = (int(os.environ.get("TKUJAX_NUM_PROCESSES", 1)) if num_processes is None
-                     else num_processes)
-    coordinator = coordinator or os.environ.get("TKUJAX_COORDINATOR")
-    if num_processes > 1:
-        if not coordinator:
-            raise SpecError("num_processes > 1 needs a coordinator address HOST:PORT")
-        jax.distributed.initialize(coordinator_address=coordinator, num_processes=num_processes,
-                                   process_id=process_id)
+    process_id, num_processes = _processes(process_id, num_processes, coordinator)
 
     backend = choose_backend(backend, spec)
     digest = _spec_hash(spec, params, model_params or ModelParams())
@@ -366,15 +357,8 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
     devices = jax.local_devices()
     # Pad every chunk to one shape (a multiple of the device count): one compile for all.
     padded = math.ceil(spec.chunk_size / len(devices)) * len(devices)
-    manifest = dict(name=spec.name, spec=spec.raw, spec_hash=digest, n_pushes=n,
-                    chunk_size=spec.chunk_size, n_chunks=n_chunks, padded_chunk=padded,
-                    controller_params=dataclasses.asdict(params),
-                    model_params=dataclasses.asdict(model_params or ModelParams()),
-                    versions=_versions(), git_commit=_git_commit(),
-                    devices=[str(d) for d in jax.devices()], num_processes=num_processes,
-                    backend=backend, format="npz chunks, one record per push")
-    if spec.arithmetic == "fixed":
-        manifest["fixed_point_defaults"] = dataclasses.asdict(FixedPointConfig())
+    manifest = _describe(spec, digest, n, n_chunks, padded, params, model_params,
+                         num_processes, backend)
     chunks.clean_temporaries(out)
     # Every writer (re)states the description; the chunk entries are kept (see chunks.py).
     chunks.update_manifest(out, lambda m: {**manifest, "complete": False,
@@ -384,76 +368,18 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
     done = chunks.done_chunks(out, n_chunks)
     pending = [i for i in mine if i not in done]
 
-    mesh = Mesh(np.array(devices), ("push",))
-    sharding = NamedSharding(mesh, PartitionSpec("push"))
-    varied = tuple(sorted(spec.controller_grid))
     base = controller_params_from(params, spec.controller)
     if spec.arithmetic == "fixed":   # the twin lacks some float options: refuse, do not ignore
         check_supported(base)
-    steps = bool(spec.step_grid)
-    fpga = spec.fpga if spec.arithmetic == "fixed" else None
-    fpga_varied = tuple(sorted(spec.fpga_grid))
-    base_traced = traced_params(base)
-    input_keys = [k for k in recs if k not in ("push_id", "from_grid", "case_id")]
-
+    job = _ChunkJob(spec=spec, recs=recs, base=base,
+                    model_params=model_params, backend=backend, padded=padded,
+                    sharding=NamedSharding(Mesh(np.array(devices), ("push",)),
+                                           PartitionSpec("push")))
     progress = Progress(len(mine) * spec.chunk_size, (len(mine) - len(pending)) * spec.chunk_size,
                         open(os.devnull, "w") if quiet else sys.stderr)
     t_start = time.perf_counter()
     deadline = time.monotonic() + wait_for_others_s
-    computed = 0
-    # Claim each pending chunk (another writer may hold it); once only chunks claimed by
-    # others remain, poll until they are done or their claims go stale (bounded).
-    while pending and (max_chunks is None or computed < max_chunks):
-        waiting = []
-        for i in pending:
-            if max_chunks is not None and computed >= max_chunks:
-                waiting.append(i)
-                continue
-            if not chunks.try_claim(out, i):
-                waiting.append(i)
-                continue
-            try:
-                entries = chunks.read_manifest(out).get("chunks", {})
-                if chunks.check_chunk(out, i, entries.get(chunks.chunk_name(i))) is None:
-                    continue                      # another writer finished it meanwhile
-                lo, hi = i * spec.chunk_size, min((i + 1) * spec.chunk_size, n)
-                if computed == 0:
-                    progress.note("compiling the rollout (first chunk; minutes on a CPU) ...")
-                if backend == "mujoco":
-                    res = mujoco_chunk({k: recs[k][lo:hi] for k in input_keys}, spec.seed + i,
-                                       base, spec.duration_s, model_params, varied=varied,
-                                       steps=steps, fpga=fpga, fpga_varied=fpga_varied)
-                else:
-                    keys = chunk_keys(spec.seed, i, padded)
-                    res = {}
-                    for fixed, sel in fpga_groups(spec, {k: recs[k][lo:hi] for k in recs}):
-                        # Each FixedPointConfig is its own program, compiled once for the
-                        # padded chunk shape; a chunk straddling configs runs once per config
-                        # present (specs whose chunk_size divides the pushes per config avoid
-                        # that). Each record keeps its own noise key.
-                        rows = np.resize(sel, padded)
-                        batch = {k: jax.device_put(recs[k][lo:hi][rows].astype(np.float32),
-                                                   sharding) for k in input_keys}
-                        fn = make_chunk_fn(varied, spec.duration_s, model_params, steps=steps,
-                                           fixed=fixed)
-                        part = fn(batch, jax.device_put(keys[rows], sharding), base_traced)
-                        for k, v in part.items():
-                            v = np.asarray(v)[:len(sel)]
-                            res.setdefault(k, np.empty((hi - lo,) + v.shape[1:], v.dtype))[sel] = v
-                chunks.write_chunk(out, i, {k: recs[k][lo:hi] for k in recs} | res)
-            finally:
-                chunks.release(out, i)
-            computed += 1
-            progress.update(hi - lo)
-            if computed == 1:
-                progress.restart()   # later rates and ETAs exclude the compile
-        if max_chunks is not None and computed >= max_chunks:
-            break
-        pending = [i for i in waiting if i not in chunks.done_chunks(out, n_chunks)]
-        if pending:
-            if time.monotonic() > deadline:
-                break
-            time.sleep(0.5)
+    computed = _compute_pending(out, job, pending, n_chunks, progress, max_chunks, deadline)
     progress.close()
     wall = time.perf_counter() - t_start
 

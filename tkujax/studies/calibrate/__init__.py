@@ -1,13 +1,16 @@
-"""Calibration of the TKU-X model to the paper's Tables 4-5 (issue 11).
+"""Calibration of the TKU-X model to the paper's Tables 4-5.
 
 targets.py   the paper's measured rows and the per-row loss
 params.py    the fitted parameter vector: names, physically plausible bounds, mapping to
              ModelParams / ControllerParams / the push
 evaluate.py  one candidate -> the 8 rows for every reading of Algorithm 1 (MuJoCo C backend)
-search.py    the research CMA-ES loop (python -m; superseded by run.py for users)
 report.py    JSON / markdown / PNG of a fit, finite-difference sensitivities (identifiability)
 spec.py      the TOML spec of `tkujax calibrate`: validation, errors naming key and range
 run.py       run_calibrate(spec, out): the resumable search and its report (`tkujax calibrate`)
+refine.py    gradient refinement of a fit through MJX (`tkujax refine`)
+
+The research tools around a fit (slices, sampling probes, phase robustness, one-at-a-time
+sensitivities, the MJX cross-check, the many-core run) live in scripts/ at the repository root.
 """
 
 from tkujax.studies.calibrate.run import run_calibrate

@@ -1,7 +1,7 @@
 """One candidate parameter vector -> the paper's 8 rows, for every reading of Algorithm 1, at
 one or several hit phases.
 
-MuJoCo C physics (tkujax.backend_mujoco), noise-free, the JAX controller. The 4 control-off
+MuJoCo C physics (tkujax.sim.rollout_mujoco), noise-free, the JAX controller. The 4 control-off
 rows do not depend on the reading and run once; the 4 control-on rows run once per reading.
 A hit phase (ms) moves the push onset that far after the controller tick at the paper's 0.75 s:
 the paper does not give it, and the Kalman trigger depends on it (results/calibration/FINDINGS.md),
@@ -16,7 +16,6 @@ import numpy as np
 
 from tkujax.sim import push as push_lib
 from tkujax.studies.calibrate import params as P
-from tkujax.studies.calibrate.targets import PAPER_TABLE, ROWS
 
 CASES = [(d, b) for d in ("back", "front") for b in ("baseball", "volleyball")]
 

@@ -52,7 +52,7 @@ PARAMS = (
           "ball contact height: anywhere on the chest (0.275-0.435 m in the stand pose)"),
     Param("impulse_factor", 0.9, 1.5, 1.0, why=
           "impulse delivered / ball momentum m·v = (1+e)/(1+m/M_eff), restitution e 0.2-0.6, "
-          "effective robot mass at the chest 1-4.5 kg; tkujax.ball_rig's rig gives 1.02-1.12"),
+          "effective robot mass at the chest 1-4.5 kg; tkujax.sim.ball_rig's rig gives 1.02-1.12"),
     Param("kalman_q", -5.0, -3.0, -4.0, log=True, why=
           "Kalman process noise rad^2 per 30 ms (log10): gyro noise and drift, (0.18-1.8 deg)^2"),
     Param("kalman_r", -3.5, -1.5, math.log10(3e-3), log=True, why=

@@ -1,8 +1,8 @@
-"""Gradient refinement of the calibration through MJX (issue 11, "use the differentiable simulator").
+"""Gradient refinement of the calibration through MJX ("use the differentiable simulator").
 
-CMA-ES (`search.py`, over MuJoCo C) finds the basin of the paper's 8 fall outcomes; this module
-polishes the continuous parameters inside it with `jax.grad` through the MJX closed loop. What
-it can reach is limited by what in Tables 4-5 is differentiable:
+CMA-ES (`run.py`, `tkujax calibrate`, over MuJoCo C) finds the basin of the paper's 8 fall
+outcomes; this module polishes the continuous parameters inside it with `jax.grad` through the
+MJX closed loop. What it can reach is limited by what in Tables 4-5 is differentiable:
 
 - step lengths are (the swing ankle's displacement, through the Kalman angle at detection and
   the capture point): they are the loss's targets, relative error per "on" row;
@@ -33,11 +33,12 @@ import optax
 
 from tkujax.control.params import ControllerParams
 from tkujax.model import ModelParams
-from tkujax.sim import physics
 from tkujax.sim import push as push_lib
 from tkujax.sim.metrics import outcomes as rollout_outcomes
 from tkujax.sim.push import Push
-from tkujax.sim.rollout_mjx import RolloutConfig, model_index, rollout
+from tkujax.sim.randomize import randomize_model
+from tkujax.sim.rollout_mjx import RolloutConfig, rollout
+from tkujax.sim.setup import init
 from tkujax.studies.calibrate import params as P
 from tkujax.studies.paper import PAPER_TABLE, paper_cases
 
@@ -80,7 +81,7 @@ class Refiner:
         self.model_params = model or ModelParams()
         self.contact = contact or push_lib.BallContact()
         self.params = params or ControllerParams.paper(self.model_params)
-        host = physics.host_model(self.model_params)
+        host, model, index, state = init(self.model_params)
         self.cases = list(range(8)) if cases is None else list(cases)
         all_cases = paper_cases()
         self.names = [all_cases[i] for i in self.cases]
@@ -91,25 +92,15 @@ class Refiner:
         self.azimuth = np.radians([push_lib.DIRECTIONS[d] for d, _, _ in self.names]).astype(
             np.float32)
         self.lo, self.hi = bounds(self.model_params, self.contact)
-        index = model_index(self.model_params)
         legs = np.asarray(index.leg_actuators)
         dofs = host.jnt_dofadr[host.actuator_trnid[legs, 0]]
         leg_mask = np.isin(np.arange(host.nu), legs)
         dof_mask = np.isin(np.arange(host.nv), dofs)
-        model, state = physics.device_model(self.model_params), physics.stand_state(host, 1.0)
 
         def rows(theta):
             kp, damp, imp, dx = theta[0], theta[1], theta[2], theta[3] / 100.0
-            # Masks, not scatter-multiplies (whose gradient JAX lacks for repeated indices).
-            k = jnp.where(leg_mask, kp, 1.0)
-            m = model.replace(
-                actuator_gainprm=model.actuator_gainprm.at[:, 0].set(
-                    model.actuator_gainprm[:, 0] * k),
-                actuator_biasprm=model.actuator_biasprm.at[:, 1].set(
-                    model.actuator_biasprm[:, 1] * k),
-                dof_damping=model.dof_damping * jnp.where(dof_mask, damp, 1.0),
-                body_ipos=model.body_ipos.at[index.chest_body, 0].set(
-                    model.body_ipos[index.chest_body, 0] + dx))
+            m = randomize_model(model, index.chest_body, torso_com_dx_m=dx, kp_scale=kp,
+                                damping_scale=damp, actuator_mask=leg_mask, dof_mask=dof_mask)
 
             def one(j, az, en):
                 push = Push(j * imp, az, jnp.float32(self.contact.height_m),
@@ -227,7 +218,3 @@ def apply(model: ModelParams, contact: push_lib.BallContact, user: dict
     return (dataclasses.replace(model, leg_servo=servo).validate(),
             dataclasses.replace(contact, impulse_factor=user["impulse_factor"]).validate())
 
-
-if __name__ == "__main__":      # python -m tkujax.studies.calibrate.refine OUT [ITERATIONS]
-    import sys
-    refine(sys.argv[1], int(sys.argv[2]) if len(sys.argv) > 2 else 10)

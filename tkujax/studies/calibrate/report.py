@@ -48,22 +48,25 @@ def rows_of(rec, reading) -> dict:
 
 def table_md(res: dict, rows=T.ROWS, title="") -> str:
     lines = [f"### {title}", "", "| direction | ball | control | paper: recovery | sim: recovery | "
-             "paper: step | sim: step | sim x_Sup | Kalman φ max/min | fall as paper? | step ±30%? | "
-             "recovery ±50%? |", "|" + "---|" * 12]
+             "paper: step | sim: step | sim x_Sup | Kalman φ max/min | fall as paper? | "
+             "step ±30%? | recovery ±50%? |", "|" + "---|" * 12]
     for k in rows:
         s = res[k]
         rec_p, step_p = T.PAPER_TABLE[k]
         pr = "falls" if rec_p is None else f"{rec_p:.2f} s"
-        sr = "falls" if s["fell"] else (f"{s['rec']:.2f} s" if math.isfinite(s["rec"]) else "not settled")
+        sr = "falls" if s["fell"] else (f"{s['rec']:.2f} s" if math.isfinite(s["rec"])
+                                        else "not settled")
         ps = "X" if step_p is None else f"{step_p:.2f} cm"
         ss = f"{s['step_cm']:.2f} cm" if abs(s["step_cm"]) >= 0.5 else "X"
         same = "yes" if s["fell"] == (rec_p is None) else "**no**"
         st = "" if step_p is None else ("yes" if (not s["fell"] and abs(abs(s["step_cm"]) - step_p)
                                                   <= T.STEP_TOL * step_p) else "**no**")
         rc = "" if (rec_p is None or k[2] == "on") else (
-            "yes" if (not s["fell"] and math.isfinite(s["rec"]) and abs(s["rec"] - rec_p) <= T.REC_TOL * rec_p)
+            "yes" if (not s["fell"] and math.isfinite(s["rec"])
+                      and abs(s["rec"] - rec_p) <= T.REC_TOL * rec_p)
             else "**no**")
-        lines.append(f"| {k[0]} | {k[1]} | {k[2]} | {pr} | {sr} | {ps} | {ss} | {s['x_sup_cm']:.2f} cm | "
+        lines.append(f"| {k[0]} | {k[1]} | {k[2]} | {pr} | {sr} | {ps} | {ss} | "
+                     f"{s['x_sup_cm']:.2f} cm | "
                      f"{s['phi_max_deg']:.1f}° / {s['phi_min_deg']:.1f}° | {same} | {st} | {rc} |")
     lines.append("")
     lines.append(f"Score: {T.score(res, rows)}; stand lean {res[rows[0]]['stand_deg']:.2f}°")
@@ -71,11 +74,13 @@ def table_md(res: dict, rows=T.ROWS, title="") -> str:
 
 
 def params_md(x: dict) -> str:
-    lines = ["| parameter | value | bound | today's estimate | why this bound |", "|---|---|---|---|---|"]
+    lines = ["| parameter | value | bound | today's estimate | why this bound |",
+             "|---|---|---|---|---|"]
     for p in P.PARAMS:
         v = x[p.name]
         fmt = (lambda z: f"{10 ** z:.3g} (log10 {z:.2f})") if p.log else (lambda z: f"{z:.4g}")
-        lines.append(f"| {p.name} | {fmt(v)} | [{fmt(p.lo)}, {fmt(p.hi)}] | {fmt(p.default)} | {p.why} |")
+        lines.append(f"| {p.name} | {fmt(v)} | [{fmt(p.lo)}, {fmt(p.hi)}] | {fmt(p.default)} | "
+                     f"{p.why} |")
     return "\n".join(lines) + "\n"
 
 
@@ -141,7 +146,8 @@ def main(argv=None):
           f"rows and all {len(P.READINGS)} readings of Algorithm 1.", ""]
     summary = {"n_candidates": len(recs)}
     md += ["## Model selection: best loss per reading of Algorithm 1", "",
-           "| reading | best loss, Table 4 only | best loss, all 8 rows | score (all rows) |", "|---|---|---|---|"]
+           "| reading | best loss, Table 4 only | best loss, all 8 rows | score (all rows) |",
+           "|---|---|---|---|"]
     sel = {}
     for rd in P.READINGS:
         f4, r4, _ = best_of(recs, "T4", rd)
@@ -150,7 +156,8 @@ def main(argv=None):
         md.append(f"| {rd} | {f4:.3f} | {fa:.3f} | {sel[rd]['score_all']} |")
     summary["model_selection"] = sel
     md.append("")
-    for obj, title in (("ALL", "Fit on all 8 rows"), ("T4", "Fit on Table 4 (from behind) only; Table 5 predicted")):
+    for obj, title in (("ALL", "Fit on all 8 rows"),
+                       ("T4", "Fit on Table 4 (from behind) only; Table 5 predicted")):
         f, rec, rd = best_of(recs, obj)
         res = rows_of(rec, rd)
         md += [f"## {title}", "", f"Loss {f:.3f}, reading **{rd}**.", "", params_md(rec["x"])]
@@ -172,7 +179,8 @@ def main(argv=None):
                "Central differences with a step of 5 % of each bound's range. curvature: second "
                "derivative of the loss per (range)²; a flat, zero-slope parameter is not pinned by "
                "the data. 'flips' lists rows whose fall outcome changes within ±5 %.", "",
-               "| parameter | loss −5% | loss | loss +5% | slope /range | curvature /range² | flips |",
+               "| parameter | loss −5% | loss | loss +5% | slope /range | curvature /range² "
+               "| flips |",
                "|---|---|---|---|---|---|---|"]
         for s in sens:
             flips = [k for k, d in s["per_row"].items() if d.get("fall_flips")]

@@ -20,10 +20,11 @@ import os
 import sys
 import time
 from pathlib import Path
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
+from tkujax.control.io import save_controller_params_json
 from tkujax.studies.calibrate import evaluate as E
 from tkujax.studies.calibrate import params as P
 from tkujax.studies.calibrate import report as R
@@ -192,7 +193,7 @@ def run_calibrate(spec: CalibrateSpec | str | Path, out: str | Path, *,
     def run_many(xs: list[dict], runner: Runner | None) -> list[dict]:
         new = [x for x in xs if _key(x) not in archive.cache]
         recs = pool.map(scorer, new) if (pool is not None and len(new) > 1) else map(scorer, new)
-        for x, rec in zip(new, recs):
+        for _x, rec in zip(new, recs):
             rec.update(objective=runner.objective if runner else "start",
                        restart=runner.restarts if runner else 0,
                        gen=runner.gen if runner else -1, t=round(time.time() - t0, 3))
@@ -319,6 +320,65 @@ def _plot(recs, objectives, readings, out: Path) -> Path:
     return path
 
 
+def _objective_section(spec: CalibrateSpec, ok: list[dict], obj: str, phases: list[str]
+                       ) -> tuple[dict, list[str]]:
+    """The best fit of one objective: its best.json entry and its calibration.md section."""
+    f, rec, rd = _best(ok, obj, spec.readings)
+    entry = dict(loss=f, reading=rd, x=rec["x"],
+                 fitted={n: rec["x"][n] for n in spec.params},
+                 score={ph: T.score(_rows(rec, ph, rd), OBJECTIVE_ROWS[obj]) for ph in phases},
+                 rows={ph: rec["rows"][ph][rd] for ph in phases})
+    title = ("Fit on all 8 rows" if obj == "ALL"
+             else "Fit on Table 4 (pushes from behind) only; Table 5 predicted")
+    md = [f"## {title}", "", f"Loss {f:.3f} (mean over hit phases), reading **{rd}**.", "",
+          _params_md(rec["x"], spec)]
+    for ph in phases:
+        res = _rows(rec, ph, rd)
+        if obj == "ALL":
+            md.append(R.table_md(res, T.ROWS, f"All 8 rows, hit phase {ph} ms"))
+        else:
+            md.append(R.table_md(res, T.TABLE4, f"Table 4 (fitted), hit phase {ph} ms"))
+            md.append(R.table_md(res, T.TABLE5, f"Table 5 (held out: predicted, not fitted), "
+                                                f"hit phase {ph} ms"))
+    if obj == "T4":
+        entry["heldout_T5"] = {ph: dict(score=T.score(_rows(rec, ph, rd), T.TABLE5),
+                                        loss=T.table_loss(_rows(rec, ph, rd), T.TABLE5)[0])
+                               for ph in phases}
+    return entry, md
+
+
+def _selection_section(spec: CalibrateSpec, ok: list[dict], phases: list[str]
+                       ) -> tuple[dict, list[str]]:
+    """Model selection: the best loss per reading of Algorithm 1 (best.json and markdown)."""
+    md = ["## Model selection: best loss per reading of Algorithm 1", "",
+          "Every candidate is simulated at every reading, so each reading's best is over the "
+          "whole archive (lower is better).", "",
+          "| reading | best loss, Table 4 only | best loss, all 8 rows | score of the all-rows "
+          f"best (hit phase {phases[0]} ms) |", "|---|---|---|---|"]
+    sel = {}
+    for rd in spec.readings:
+        f4 = _best(ok, "T4", spec.readings, rd)[0]
+        fa, ra, _ = _best(ok, "ALL", spec.readings, rd)
+        sel[rd] = dict(T4=f4, ALL=fa, score_all=T.score(_rows(ra, phases[0], rd)))
+        md.append(f"| {rd} | {f4:.3f} | {fa:.3f} | {sel[rd]['score_all']} |")
+    md.append("")
+    return sel, md
+
+
+def _sensitivity_md(sens: list[dict], primary: str) -> list[str]:
+    md = [f"## Identifiability: finite-difference sensitivities at the {primary} best", "",
+          "Central differences, step 5 % of each fitted bound's range, phase-averaged loss. "
+          "A large curvature: the data pin the parameter; slope and curvature near 0: the "
+          "data leave it free. 'fall flips': the fall-outcome count changes within ±5 %.", "",
+          "| parameter | loss −5% | loss | loss +5% | slope /range | curvature /range² | "
+          "fall flips |", "|---|---|---|---|---|---|---|"]
+    for s in sens:
+        md.append(f"| {s['name']} | {s['f_minus']:.3f} | {s['f0']:.3f} | {s['f_plus']:.3f} | "
+                  f"{s['slope']:.2f} | {s['curvature']:.1f} | {'; '.join(s['fall_flips'])} |")
+    md.append("")
+    return md
+
+
 def write_report(spec: CalibrateSpec, out: Path, recs: list[dict], start_rec: dict,
                  search: dict, evaluator: Evaluator | None = None) -> dict:
     """best.json, calibration.md, search_trace.png, model_params.json, controller_params.json."""
@@ -351,64 +411,23 @@ def write_report(spec: CalibrateSpec, out: Path, recs: list[dict], start_rec: di
                                                  summary["start"]["loss"].items()) + ".", ""]
 
     for obj in spec.objectives:
-        f, rec, rd = _best(ok, obj, spec.readings)
-        entry = dict(loss=f, reading=rd, x=rec["x"],
-                     fitted={n: rec["x"][n] for n in spec.params},
-                     score={ph: T.score(_rows(rec, ph, rd), OBJECTIVE_ROWS[obj]) for ph in phases},
-                     rows={ph: rec["rows"][ph][rd] for ph in phases})
-        title = ("Fit on all 8 rows" if obj == "ALL"
-                 else "Fit on Table 4 (pushes from behind) only; Table 5 predicted")
-        md += [f"## {title}", "", f"Loss {f:.3f} (mean over hit phases), reading **{rd}**.", "",
-               _params_md(rec["x"], spec)]
-        for ph in phases:
-            res = _rows(rec, ph, rd)
-            if obj == "ALL":
-                md.append(R.table_md(res, T.ROWS, f"All 8 rows, hit phase {ph} ms"))
-            else:
-                md.append(R.table_md(res, T.TABLE4, f"Table 4 (fitted), hit phase {ph} ms"))
-                md.append(R.table_md(res, T.TABLE5, f"Table 5 (held out: predicted, not fitted), "
-                                                    f"hit phase {ph} ms"))
-        if obj == "T4":
-            entry["heldout_T5"] = {ph: dict(score=T.score(_rows(rec, ph, rd), T.TABLE5),
-                                            loss=T.table_loss(_rows(rec, ph, rd), T.TABLE5)[0])
-                                   for ph in phases}
-        summary[obj] = entry
-
-    md += ["## Model selection: best loss per reading of Algorithm 1", "",
-           "Every candidate is simulated at every reading, so each reading's best is over the "
-           "whole archive (lower is better).", "",
-           "| reading | best loss, Table 4 only | best loss, all 8 rows | score of the all-rows "
-           f"best (hit phase {phases[0]} ms) |", "|---|---|---|---|"]
-    sel = {}
-    for rd in spec.readings:
-        f4 = _best(ok, "T4", spec.readings, rd)[0]
-        fa, ra, _ = _best(ok, "ALL", spec.readings, rd)
-        sel[rd] = dict(T4=f4, ALL=fa, score_all=T.score(_rows(ra, phases[0], rd)))
-        md.append(f"| {rd} | {f4:.3f} | {fa:.3f} | {sel[rd]['score_all']} |")
-    summary["model_selection"] = sel
-    md.append("")
+        summary[obj], lines = _objective_section(spec, ok, obj, phases)
+        md += lines
+    summary["model_selection"], lines = _selection_section(spec, ok, phases)
+    md += lines
 
     primary = spec.objectives[0]
     best = summary[primary]
     if spec.sensitivity:
         sens = _sensitivities(spec, best["x"], best["reading"], primary, evaluator)
         summary["sensitivity"] = sens
-        md += [f"## Identifiability: finite-difference sensitivities at the {primary} best", "",
-               "Central differences, step 5 % of each fitted bound's range, phase-averaged loss. "
-               "A large curvature: the data pin the parameter; slope and curvature near 0: the "
-               "data leave it free. 'fall flips': the fall-outcome count changes within ±5 %.", "",
-               "| parameter | loss −5% | loss | loss +5% | slope /range | curvature /range² | "
-               "fall flips |", "|---|---|---|---|---|---|---|"]
-        for s in sens:
-            md.append(f"| {s['name']} | {s['f_minus']:.3f} | {s['f0']:.3f} | {s['f_plus']:.3f} | "
-                      f"{s['slope']:.2f} | {s['curvature']:.1f} | {'; '.join(s['fall_flips'])} |")
-        md.append("")
+        md += _sensitivity_md(sens, primary)
 
     x = best["x"]
     mp = P.model_params(x)
     save_model_params_json(mp, out / "model_params.json")
     cp = P.controller_params(x, best["reading"], mp)
-    (out / "controller_params.json").write_text(json.dumps(dataclasses.asdict(cp), indent=1) + "\n")
+    save_controller_params_json(cp, out / "controller_params.json")
     md += ["## Using the fit", "",
            f"`model_params.json` and `controller_params.json` hold the {primary} best "
            f"(reading {best['reading']}); other commands load them:", "",

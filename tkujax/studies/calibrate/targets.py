@@ -36,7 +36,8 @@ def row_loss(key, sim: dict) -> tuple[float, dict]:
     terms = {}
     if rec_p is None:                                   # the paper's robot fell
         # graded: the nearer to falling (peak tilt toward 45 deg) the smaller the penalty
-        terms["fall"] = 0.0 if sim["fell"] else W_FALL * (0.5 + 0.5 * max(0.0, 1 - sim["peak_deg"] / 45.0))
+        terms["fall"] = 0.0 if sim["fell"] else W_FALL * (
+            0.5 + 0.5 * max(0.0, 1 - sim["peak_deg"] / 45.0))
         return sum(terms.values()), terms
     if sim["fell"]:
         terms["fall"] = W_FALL
@@ -63,9 +64,9 @@ def table_loss(results: dict, rows=ROWS) -> tuple[float, dict]:
     """Sum of row losses over `rows` plus the on-faster-than-off ordering term."""
     total, per = 0.0, {}
     for key in rows:
-        l, terms = row_loss(key, results[key])
-        per[key] = (l, terms)
-        total += l
+        loss, terms = row_loss(key, results[key])
+        per[key] = (loss, terms)
+        total += loss
     for d, b, c in rows:
         if c != "on" or (d, b, "off") not in rows:
             continue
@@ -90,11 +91,13 @@ def score(results: dict, rows=ROWS) -> dict:
                 and (s["step_cm"] > 0) == (k[0] == "back")
         if rec_p is not None and k[2] == "off":
             recs_n += 1
-            recs_ok += (not s["fell"]) and math.isfinite(s["rec"]) and abs(s["rec"] - rec_p) <= REC_TOL * rec_p
+            recs_ok += ((not s["fell"]) and math.isfinite(s["rec"])
+                        and abs(s["rec"] - rec_p) <= REC_TOL * rec_p)
         if k[2] == "on" and (k[0], k[1], "off") in rows:
             off = results[(k[0], k[1], "off")]
             if not s["fell"] and not off["fell"]:
                 order_n += 1
-                order_ok += math.isfinite(s["rec"]) and (not math.isfinite(off["rec"]) or s["rec"] < off["rec"])
+                order_ok += math.isfinite(s["rec"]) and (not math.isfinite(off["rec"])
+                                                         or s["rec"] < off["rec"])
     return dict(falls=f"{falls}/{len(rows)}", steps=f"{steps_ok}/{steps_n}",
                 recoveries=f"{recs_ok}/{recs_n}", on_faster=f"{order_ok}/{order_n}")

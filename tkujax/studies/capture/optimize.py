@@ -20,11 +20,10 @@ import optax
 from tkujax.control.controller import StepOverride
 from tkujax.control.params import ControllerParams
 from tkujax.model import ModelParams
-from tkujax.sim import physics
 from tkujax.sim.metrics import capture_outcomes, outcomes
-from tkujax.sim.mjx_import import mjx
 from tkujax.sim.push import Push
-from tkujax.sim.rollout_mjx import RolloutConfig, model_index, rollout
+from tkujax.sim.rollout_mjx import RolloutConfig, rollout
+from tkujax.sim.setup import init
 from tkujax.studies.tune.reparam import CPU_COMPILER_OPTIONS
 
 
@@ -42,20 +41,10 @@ class MarginProblem:
     model_params: ModelParams | None = None
 
     def __post_init__(self):
-        host = physics.host_model(self.model_params)
-        self.index = model_index(self.model_params)
+        _, self.model, self.index, self.state = init(self.model_params, float64=self.float64)
         self.config = RolloutConfig(duration_s=self.duration_s, quantise_targets=self.quantise,
                                     remat=True)
-        with self._ctx():
-            self.dtype = jnp.float64 if self.float64 else jnp.float32
-            self.model = (mjx.put_model(host) if self.float64
-                          else physics.device_model(self.model_params))
-            state = physics.stand_state(host, 1.0)
-            if self.float64:   # as tune.problem: match mjx.step's integer output types
-                shapes = jax.eval_shape(mjx.step, self.model, state)
-                state = jax.tree_util.tree_map(lambda x, s: jnp.asarray(x, s.dtype), state,
-                                               shapes)
-            self.state = state
+        self.dtype = jnp.float64 if self.float64 else jnp.float32
         opts = CPU_COMPILER_OPTIONS if jax.default_backend() == "cpu" else None
         self._vg = jax.jit(jax.vmap(jax.value_and_grad(self._one, has_aux=True)),
                            compiler_options=opts)

@@ -1,5 +1,9 @@
-"""`tkujax tune SPEC --out DIR`: tune the recovery step and the push detection with gradients
-through the MJX rollout, then evaluate honestly against a gradient-free baseline.
+"""`tkujax tune SPEC --out DIR`: tune the recovery step and the push detection through the MJX
+rollout with one of four methods (`tune.method`, `search.py`): CMA-ES (the default), Adam on
+gradients through the rollout, their hybrid (the alpha-order mix of first-order and
+zeroth-order gradients), or the (1+1)-ES baseline; a spec's [compare] runs several of them
+over seeds at one wall-clock budget. The result is evaluated with the hard controller on
+held-out (and shifted) pushes.
 
 Tuned (the spec's `tune.params` chooses; ControllerParams field names):
   step_period (T, s), double_support_ratio (gamma), lift_height (H_Sup, m), eps_forward and
@@ -9,22 +13,23 @@ Reparameterisation (never clipped after a step): optax updates an unconstrained 
 parameter; the value is lo + (hi - lo) sigmoid(z) for linear parameters and
 10^(log10 lo + (log10 hi - log10 lo) sigmoid(z)) for the Kalman variances. Default ranges
 (`DEFAULT_RANGES`, user units; a spec's [tune.ranges] may narrow or move them within the
-ControllerParams limits of tkujax.spec.CONTROLLER_FIELDS):
+ranges ControllerParams.validate allows, tkujax.control.io):
   step_period [0.15, 0.6] s, double_support_ratio [0, 0.6], lift_height [0.005, 0.06] m,
   eps_forward [8, 24] deg (absolute pitch; the robot stands at ~7 deg), eps_backward [0, 12] deg,
   cp_gain [0.3, 2.5], kalman_q [1e-6, 1e-2] rad^2 (log), kalman_r [1e-4, 3e-2] rad^2 (log).
 
 Loss (mean over a fixed batch of pushes, all terms dimensionless; `LossConfig`):
   fall      softplus((fall_margin_m - m) / fall_width_m), m = soft minimum over time of the
-            clearance above the fall thresholds of tkujax.metrics (lowest non-foot body point
+            clearance above the fall thresholds of tkujax.sim.metrics (lowest non-foot body point
             above 5 mm, pelvis above 0.12 m): ~0 while standing (m ~ 0.1 m), ~10 when fallen.
   recovery  time average after onset of log(1 + (deviation / incl_ref)^2), deviation = the true
             pelvis inclination (pitch and roll) from its pre-push value: the squared deviation
             integrated over time, saturating so a fallen push does not drown the batch.
   step      sqrt(x_Sup^2 + y_Sup^2 + 1 mm^2) / step_ref: a small cost on the step length.
   loss = w_fall fall + w_recovery recovery + w_step step.
-The detection gate is soft during tuning: gate_temperature follows the spec's annealing
-schedule (geometric or linear from start_deg to end_deg), so gradients reach eps_1/eps_2. The
+For the gradient methods the detection gate is soft: gate_temperature follows the spec's
+annealing schedule (geometric or linear from start_deg to end_deg), so gradients reach
+eps_1/eps_2; CMA-ES and the (1+1)-ES search the hard-gate loss. The
 step's start is still the discrete instant at which the step weight crosses 1/2 (see
 tkujax.control.controller), so the gradient sees the step's length and shape, not its timing.
 
@@ -38,19 +43,19 @@ Gradient notes (checked against central finite differences in float64, tests/tes
   - jax.checkpoint (remat) on each control tick gives the same gradient (1e-14 relative) and is
     what makes 1,024 pushes x 1.5 s fit on one GPU (2.7 GiB peak vs 125 GiB requested without).
 
-Optimiser: optax chain(clip_by_global_norm, adam) on the latents. A non-finite loss or gradient
-is counted, logged in history.json and skipped: neither the latents nor Adam's moments change.
+Gradient optimiser: optax chain(clip_by_global_norm, adam) on the latents. A non-finite loss or
+gradient is counted, logged in history.json and skipped: neither the latents nor Adam's moments
+change.
 
 Evaluation (after tuning, always with the HARD controller, gate_temperature = 0): held-out
 pushes drawn from the same distribution with another seed (never used for tuning), and a grid
 of impulses x azimuths: fall rate, mean recovery time, max recoverable impulse per direction
-(tkujax.maps.max_recoverable_impulse), hard loss, for the parameters before tuning, after
-gradient tuning, and after the gradient-free baseline: a (1+1) evolution strategy with the 1/5
-success rule over the same latents, evaluated with the same loss on the same training batch and
-given the same number of simulated pushes (iterations x batch).
+(tkujax.studies.maps.max_recoverable_impulse), hard loss, for the parameters before and after
+tuning.
 
-Writes history.json, params_before.json, params_after.json (and params_baseline.json) in the
-format tkujax.sweep.load_params_json reads, loss_curve.png, evaluation.png, summary.md.
+Writes history.json, params_before.json and params_after.json (in the format
+tkujax.control.io.load_controller_params_json reads), loss_curve.png, evaluation.png,
+summary.md.
 """
 
 from __future__ import annotations

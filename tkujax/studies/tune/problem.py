@@ -8,15 +8,14 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 import numpy as np
-from tkujax.sim.mjx_import import mjx
 
 from tkujax.control.params import ControllerParams
-from tkujax.sim import physics
 from tkujax.sim.metrics import outcomes
 from tkujax.sim.push import Push
-from tkujax.sim.rollout_mjx import RolloutConfig, model_index, rollout
+from tkujax.sim.randomize import randomize_model
+from tkujax.sim.rollout_mjx import RolloutConfig, rollout
+from tkujax.sim.setup import init
 from tkujax.studies.spec import RANDOMIZE_FIELDS
-from tkujax.studies.sweep import randomize_model
 from tkujax.studies.tune.loss import LossConfig, push_loss
 from tkujax.studies.tune.reparam import CPU_COMPILER_OPTIONS, DEG, EVAL_KEYS, Reparam
 
@@ -38,7 +37,8 @@ class TuneProblem:
     jitted gradient and forward-only versions (one compile each per batch size).
     """
 
-    def __init__(self, reparam: Reparam, base: ControllerParams, loss_cfg: LossConfig = LossConfig(),
+    def __init__(self, reparam: Reparam, base: ControllerParams,
+                 loss_cfg: LossConfig = LossConfig(),
                  duration_s: float = 1.2, remat: bool = True, float64: bool = False,
                  model_params=None, compiler_options: dict | None = None,
                  quantise_targets: bool = True):
@@ -46,19 +46,8 @@ class TuneProblem:
         self.float64 = float64
         self.config = RolloutConfig(duration_s=duration_s, remat=remat,
                                     quantise_targets=quantise_targets)
-        host = physics.host_model(model_params)
-        self.index = model_index(model_params)
-        with _x64(float64):
-            self.dtype = jnp.float64 if float64 else jnp.float32
-            self.model = mjx.put_model(host) if float64 else physics.device_model(model_params)
-            state = physics.stand_state(host, 1.0)
-            if float64:
-                # mjx.step returns some integer fields (contact geom ids) as int64 under x64
-                # while put_data makes int32: match the step's output types for lax.scan.
-                shapes = jax.eval_shape(mjx.step, self.model, state)
-                state = jax.tree_util.tree_map(lambda x, s: jnp.asarray(x, s.dtype), state,
-                                               shapes)
-            self.state = state
+        host, self.model, self.index, self.state = init(model_params, float64=float64)
+        self.dtype = jnp.float64 if float64 else jnp.float32
         self.n_ticks = int(round(duration_s / self.config.control_period_s))
         self.steps_per_push = int(round(duration_s / host.opt.timestep))
         if compiler_options is None and jax.default_backend() == "cpu":
@@ -84,9 +73,11 @@ class TuneProblem:
         def one(rec, key):
             push = Push(rec["impulse_ns"], rec["azimuth_deg"] * DEG, rec["height_m"],
                         rec["duration_s"], rec["onset_s"])
-            model = randomize_model(self.model, rec["link_mass_scale"],
-                                    rec["torso_com_offset_x_m"], rec["floor_friction"],
-                                    rec["servo_kp_scale"], idx.chest_body)
+            model = randomize_model(self.model, idx.chest_body,
+                                    mass_scale=rec["link_mass_scale"],
+                                    torso_com_dx_m=rec["torso_com_offset_x_m"],
+                                    friction=rec["floor_friction"],
+                                    kp_scale=rec["servo_kp_scale"])
             series = rollout(model, self.state, push, params, 1.0, key, rec["gyro_noise_std"],
                              rec["accel_noise_std"], self.config, idx)
             out = outcomes(series, push.onset_s)
@@ -142,7 +133,8 @@ class TuneProblem:
             sel = np.resize(np.arange(lo, min(lo + batch, n)), batch)
             chunk = {k: records[k][sel] for k in RECORD_KEYS}
             _, aux = self.forward(z, temperature, chunk, keys[sel])
-            parts.append(jax.tree_util.tree_map(lambda x: x[:min(batch, n - lo)], aux))
+            m = min(batch, n - lo)
+            parts.append(jax.tree_util.tree_map(lambda x, m=m: x[:m], aux))
         return jax.tree_util.tree_map(lambda *xs: np.concatenate(xs), *parts)
 
 

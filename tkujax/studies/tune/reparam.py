@@ -47,7 +47,8 @@ DEFAULT_TUNED = ("step_period", "double_support_ratio", "lift_height", "eps_forw
 # gradient (minutes on a 2-core CPU) by about a third here, and ran no slower. Not used on GPUs.
 CPU_COMPILER_OPTIONS = {"xla_llvm_disable_expensive_passes": True}
 # Outcome fields kept per push in evaluations.
-EVAL_KEYS = ("fell", "diverged", "recovery_time_s", "peak_incl_deg", "capture_point_m", "step_length_m")
+EVAL_KEYS = ("fell", "diverged", "recovery_time_s", "peak_incl_deg", "capture_point_m",
+             "step_length_m")
 
 
 def _user_factor(field: str) -> float:
@@ -71,7 +72,7 @@ class Reparam:
 
     @staticmethod
     def make(fields=DEFAULT_TUNED, ranges: dict[str, tuple[float, float]] | None = None
-             ) -> "Reparam":
+             ) -> Reparam:
         """From field names and ranges in user units (degrees for eps_*), default ranges."""
         ranges = {**DEFAULT_RANGES, **(ranges or {})}
         lo, hi, log = [], [], []

@@ -9,9 +9,10 @@ from typing import Any
 import numpy as np
 
 from tkujax.control.params import ControllerParams
-from tkujax.studies.spec import (CONTROLLER_FIELDS, PUSH_FIELDS, RANDOMIZE_DEFAULTS, SpecError, _number,
-                                 _table, _uniform, _values, parse_randomize, read_toml)
-from tkujax.studies.sweep import controller_params_from
+from tkujax.control.io import allowed_range, controller_params_from
+from tkujax.studies.spec import (CONTROLLER_FIELDS, PUSH_FIELDS, RANDOMIZE_DEFAULTS, SpecError,
+                                 _number, _table, _uniform, _values, controller_value,
+                                 parse_randomize, read_toml)
 from tkujax.studies.tune.loss import LOSS_FIELDS, LossConfig
 from tkujax.studies.tune.problem import RECORD_KEYS
 from tkujax.studies.tune.reparam import DEFAULT_TUNED, TUNABLE, Reparam, _user_factor
@@ -47,7 +48,7 @@ class TuneSpec:
     eval_azimuth_deg: np.ndarray
     eval_duration_s: float
     raw: dict
-    method: str = "cma"                              # what `tkujax tune` runs (see search.py)
+    method: str = "cma"                              # what `tkujax tune` runs (search.py)
     popsize: int = 9                                 # CMA-ES population (odd)
     compare: dict | None = None                      # [compare]: methods x seeds, one budget
     shift: dict | None = None                        # [evaluate.shift]: model/push shift
@@ -80,57 +81,74 @@ def _bool(key: str, value) -> bool:
     return value
 
 
-def parse_tune_spec(data: dict) -> TuneSpec:
-    """Validate a parsed tune TOML document (SpecError names the key and the allowed range)."""
-    _table("top level", data, {"tune", "push", "controller", "randomize", "baseline", "evaluate",
-                               "compare"})
+def _parse_tune(data: dict) -> dict:
+    """The [tune] table (without ranges, anneal and loss): TuneSpec fields by name."""
     tune = _table("tune", data.get("tune", {}), TUNE_FIELDS)
     for k in ("name", "description"):
         if k in tune and not isinstance(tune[k], str):
             raise SpecError(f"tune.{k}: expected a string, got {tune[k]!r}")
-    seed = _int("tune.seed", tune.get("seed", 0), 0, 2**31 - 1)
-    iterations = _int("tune.iterations", tune.get("iterations", 50), 1, 100_000)
-    batch = _int("tune.batch", tune.get("batch", 64), 1, 1_048_576)
-    duration = _number("tune.duration_s", tune.get("duration_s", 1.5), 0.1, 30.0, "s")
-    lr = _number("tune.learning_rate", tune.get("learning_rate", 0.05), 1e-6, 10.0)
-    clip = _number("tune.clip_norm", tune.get("clip_norm", 1.0), 1e-6, 1e6)
-    float64 = _bool("tune.float64", tune.get("float64", False))
-    remat = _bool("tune.remat", tune.get("remat", True))
-    quantise = _bool("tune.quantise_targets", tune.get("quantise_targets", True))
+    out = dict(
+        name=tune.get("name", "tune"),
+        seed=_int("tune.seed", tune.get("seed", 0), 0, 2**31 - 1),
+        iterations=_int("tune.iterations", tune.get("iterations", 50), 1, 100_000),
+        batch=_int("tune.batch", tune.get("batch", 64), 1, 1_048_576),
+        duration_s=_number("tune.duration_s", tune.get("duration_s", 1.5), 0.1, 30.0, "s"),
+        learning_rate=_number("tune.learning_rate", tune.get("learning_rate", 0.05), 1e-6, 10.0),
+        clip_norm=_number("tune.clip_norm", tune.get("clip_norm", 1.0), 1e-6, 1e6),
+        float64=_bool("tune.float64", tune.get("float64", False)),
+        remat=_bool("tune.remat", tune.get("remat", True)),
+        quantise_targets=_bool("tune.quantise_targets", tune.get("quantise_targets", True)))
     params = tune.get("params", list(DEFAULT_TUNED))
     if (not isinstance(params, list) or not params or len(set(params)) != len(params)
             or any(p not in TUNABLE for p in params)):
         raise SpecError(f"tune.params: expected a non-empty list of distinct names from "
                         f"{sorted(TUNABLE)}, got {params!r}")
-
-    ranges_raw = _table("tune.ranges", tune.get("ranges", {}), {TUNABLE[f][0] for f in TUNABLE})
-    by_key = {TUNABLE[f][0]: f for f in TUNABLE}
-    ranges = {}
-    for key, value in ranges_raw.items():
-        f = by_key[key]
-        lo, hi, unit = CONTROLLER_FIELDS[key]
-        if TUNABLE[f][2]:
-            lo = max(lo, 1e-12)                       # log scale: strictly positive
-        if not (isinstance(value, list) and len(value) == 2):
-            raise SpecError(f"tune.ranges.{key}: expected [lo, hi] within [{lo}, {hi}] {unit}, "
-                            f"got {value!r}")
-        a = _number(f"tune.ranges.{key}[0]", value[0], lo, hi, unit)
-        b = _number(f"tune.ranges.{key}[1]", value[1], lo, hi, unit)
-        if not a < b:
-            raise SpecError(f"tune.ranges.{key}: lower bound {a} must be below upper bound {b}")
-        ranges[f] = (a, b)
-
+    out["params"] = tuple(params)
+    out["ranges"] = _parse_ranges(tune)
     anneal = _table("tune.anneal", tune.get("anneal", {}), {"start_deg", "end_deg", "schedule"})
     start = _number("tune.anneal.start_deg", anneal.get("start_deg", 3.0), 1e-3, 30.0, "deg")
     end = _number("tune.anneal.end_deg", anneal.get("end_deg", 0.5), 1e-3, start, "deg")
     schedule = anneal.get("schedule", "geometric")
     if schedule not in ("geometric", "linear"):
         raise SpecError(f"tune.anneal.schedule: expected 'geometric' or 'linear', got {schedule!r}")
-
+    out["anneal"] = (start, end, schedule)
     loss_raw = _table("tune.loss", tune.get("loss", {}), LOSS_FIELDS)
-    loss = LossConfig(**{k: _number(f"tune.loss.{k}", v, *LOSS_FIELDS[k])
-                         for k, v in loss_raw.items()})
+    out["loss"] = LossConfig(**{k: _number(f"tune.loss.{k}", v, *LOSS_FIELDS[k])
+                                for k, v in loss_raw.items()})
+    out["method"] = tune.get("method", "cma")
+    if out["method"] not in METHODS:
+        raise SpecError(f"tune.method: expected one of {list(METHODS)}, got {out['method']!r}")
+    out["popsize"] = _int("tune.popsize", tune.get("popsize", 9), 3, 4096)
+    if out["popsize"] % 2 == 0:
+        raise SpecError(f"tune.popsize: expected an odd number, got {out['popsize']}")
+    return out
 
+
+def _parse_ranges(tune: dict) -> dict[str, tuple[float, float]]:
+    """tune.ranges: {field: (lo, hi)} in user units; each bound within the range
+    ControllerParams.validate allows (positive on a log scale)."""
+    ranges_raw = _table("tune.ranges", tune.get("ranges", {}), {TUNABLE[f][0] for f in TUNABLE})
+    by_key = {TUNABLE[f][0]: f for f in TUNABLE}
+    ranges = {}
+    for key, value in ranges_raw.items():
+        f = by_key[key]
+        log = TUNABLE[f][2]
+        if not (isinstance(value, list) and len(value) == 2):
+            raise SpecError(f"tune.ranges.{key}: expected [lo, hi] within ControllerParams."
+                            f"{f} {allowed_range(f)}{' (> 0: log scale)' if log else ''}, "
+                            f"got {value!r}")
+        a = controller_value(f"tune.ranges.{key}[0]", key, value[0])
+        b = controller_value(f"tune.ranges.{key}[1]", key, value[1])
+        if log and a <= 0:
+            raise SpecError(f"tune.ranges.{key}[0]: {a!r} must be > 0 (a log-scale parameter)")
+        if not a < b:
+            raise SpecError(f"tune.ranges.{key}: lower bound {a} must be below upper bound {b}")
+        ranges[f] = (a, b)
+    return ranges
+
+
+def _parse_push(data: dict, duration: float) -> tuple[dict, float]:
+    """[push]: {field: value | (lo, hi) | list} and the azimuth jitter (deg)."""
     push_raw = _table("push", data.get("push", {}), TUNE_PUSH_FIELDS)
     push = {}
     for k in PUSH_FIELDS:
@@ -150,54 +168,61 @@ def parse_tune_spec(data: dict) -> TuneSpec:
     if onset_hi + 0.03 >= duration:
         raise SpecError(f"push.onset_s: onsets up to {onset_hi} s leave no time after the push "
                         f"within tune.duration_s = {duration} s")
+    return push, jitter
 
-    ctrl_raw = _table("controller", data.get("controller", {}), CONTROLLER_FIELDS)
-    controller = {k: _number(f"controller.{k}", v, *CONTROLLER_FIELDS[k])
-                  for k, v in ctrl_raw.items()}
-    randomize = parse_randomize(data)
 
+def _parse_baseline(data: dict, seed: int, end_deg: float) -> dict:
+    """[baseline]: the (1+1)-ES baseline's sigma, seed and gate temperature."""
     base = _table("baseline", data.get("baseline", {}), {"method", "sigma", "seed",
                                                          "gate_temperature_deg"})
     if base.get("method", "es") != "es":
         raise SpecError(f"baseline.method: expected 'es' ((1+1) evolution strategy), "
                         f"got {base['method']!r}")
-    sigma = _number("baseline.sigma", base.get("sigma", 0.5), 1e-4, 10.0, "(latent units)")
-    bseed = _int("baseline.seed", base.get("seed", seed), 0, 2**31 - 1)
-    btemp = _number("baseline.gate_temperature_deg", base.get("gate_temperature_deg", end),
-                    0.0, 30.0, "deg")
+    return dict(
+        baseline_sigma=_number("baseline.sigma", base.get("sigma", 0.5), 1e-4, 10.0,
+                               "(latent units)"),
+        baseline_seed=_int("baseline.seed", base.get("seed", seed), 0, 2**31 - 1),
+        baseline_temperature_deg=_number("baseline.gate_temperature_deg",
+                                         base.get("gate_temperature_deg", end_deg),
+                                         0.0, 30.0, "deg"))
 
-    ev = _table("evaluate", data.get("evaluate", {}), {"seed", "n", "impulse_ns", "azimuth_deg",
-                                                      "duration_s", "shift"})
+
+def _parse_evaluate(ev: dict, seed: int, batch: int, duration: float) -> dict:
+    """[evaluate]: the held-out pushes (seed differs from tune.seed)."""
     eseed = _int("evaluate.seed", ev.get("seed", seed + 1), 0, 2**31 - 1)
     if eseed == seed:
         raise SpecError(f"evaluate.seed: must differ from tune.seed ({seed}): held-out pushes "
                         "are never used for tuning")
-    en = _int("evaluate.n", ev.get("n", 4 * batch), 0, 10_000_000)
-    ej = _values("evaluate.impulse_ns", ev.get("impulse_ns", {"start": 0.2, "stop": 2.4,
-                                                              "num": 12}),
-                 *PUSH_FIELDS["impulse_ns"][:2], "N·s")
-    ea = _values("evaluate.azimuth_deg", ev.get("azimuth_deg", [0.0, 180.0]),
-                 *PUSH_FIELDS["azimuth_deg"][:2], "deg")
-    edur = _number("evaluate.duration_s", ev.get("duration_s", duration), 0.1, 30.0, "s")
+    return dict(
+        eval_seed=eseed,
+        eval_n=_int("evaluate.n", ev.get("n", 4 * batch), 0, 10_000_000),
+        eval_impulse_ns=_values("evaluate.impulse_ns",
+                                ev.get("impulse_ns", {"start": 0.2, "stop": 2.4, "num": 12}),
+                                *PUSH_FIELDS["impulse_ns"][:2], "N·s"),
+        eval_azimuth_deg=_values("evaluate.azimuth_deg", ev.get("azimuth_deg", [0.0, 180.0]),
+                                 *PUSH_FIELDS["azimuth_deg"][:2], "deg"),
+        eval_duration_s=_number("evaluate.duration_s", ev.get("duration_s", duration), 0.1,
+                                30.0, "s"))
 
-    method = tune.get("method", "cma")
-    if method not in METHODS:
-        raise SpecError(f"tune.method: expected one of {list(METHODS)}, got {method!r}")
-    popsize = _int("tune.popsize", tune.get("popsize", 9), 3, 4096)
-    if popsize % 2 == 0:
-        raise SpecError(f"tune.popsize: expected an odd number, got {popsize}")
-    compare = _parse_compare(data["compare"], batch) if "compare" in data else None
+
+def parse_tune_spec(data: dict) -> TuneSpec:
+    """Validate a parsed tune TOML document (SpecError names the key and the allowed range)."""
+    _table("top level", data, {"tune", "push", "controller", "randomize", "baseline", "evaluate",
+                               "compare"})
+    tune = _parse_tune(data)
+    push, jitter = _parse_push(data, tune["duration_s"])
+    ctrl_raw = _table("controller", data.get("controller", {}), CONTROLLER_FIELDS)
+    controller = {k: controller_value(f"controller.{k}", k, v) for k, v in ctrl_raw.items()}
+    randomize = parse_randomize(data)
+    baseline = _parse_baseline(data, tune["seed"], tune["anneal"][1])
+    ev = _table("evaluate", data.get("evaluate", {}), {"seed", "n", "impulse_ns", "azimuth_deg",
+                                                      "duration_s", "shift"})
+    evaluate = _parse_evaluate(ev, tune["seed"], tune["batch"], tune["duration_s"])
+    compare = _parse_compare(data["compare"], tune["batch"]) if "compare" in data else None
     shift = _parse_shift(ev["shift"]) if "shift" in ev else None
-
-    spec = TuneSpec(name=tune.get("name", "tune"), seed=seed, iterations=iterations, batch=batch,
-                    duration_s=duration, learning_rate=lr, clip_norm=clip, params=tuple(params),
-                    ranges=ranges, float64=float64, remat=remat,
-                    quantise_targets=quantise, anneal=(start, end, schedule),
-                    loss=loss, push=push, azimuth_jitter_deg=jitter, controller=controller,
-                    randomize=randomize, baseline_sigma=sigma, baseline_seed=bseed,
-                    baseline_temperature_deg=btemp, eval_seed=eseed, eval_n=en,
-                    eval_impulse_ns=ej, eval_azimuth_deg=ea, eval_duration_s=edur, raw=data,
-                    method=method, popsize=popsize, compare=compare, shift=shift)
+    spec = TuneSpec(**tune, push=push, azimuth_jitter_deg=jitter, controller=controller,
+                    randomize=randomize, **baseline, **evaluate, raw=data, compare=compare,
+                    shift=shift)
     # Start values must lie strictly inside the ranges (their latents are finite).
     rep, start_params = spec.reparam(), spec.base_params()
     for f, (a, b) in rep.user_ranges().items():

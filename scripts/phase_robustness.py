@@ -2,26 +2,29 @@
 sampling (0-27 ms, the paper does not give it; each of its rows is one trial), control off and
 on: the fraction of phases at which each row matches the paper (fall outcome; step ±30 %).
 
-python -m tkujax.studies.calibrate.phase_robustness results/calibration/calibration.json ALL
+python scripts/phase_robustness.py results/calibration/calibration.json ALL --out OUT.json
 """
 
 from __future__ import annotations
 
-import json
 import sys
 
 import numpy as np
 
-from tkujax.studies.calibrate import evaluate as E
-from tkujax.studies.calibrate import params as P
-from tkujax.studies.calibrate import targets as T
-from tkujax.studies.calibrate.probe_sampling import push_lib
+from _fit import check_out, load_fit, parser, write_json
 
 
 def main(argv=None):
-    path, which = (argv or sys.argv[1:])[:2]
-    summary = json.loads(open(path).read())
-    x, reading = summary[which]["x"], summary[which]["reading"]
+    ap = parser(__doc__, "JSON {phases_ms, rows: per-row tallies}")
+    a = ap.parse_args(argv)
+    out = check_out(ap, [a.calibration], a.out)
+    from tkujax.sim import push as push_lib
+    from tkujax.studies.calibrate import evaluate as E
+    from tkujax.studies.calibrate import params as P
+    from tkujax.studies.calibrate import targets as T
+
+    fit = load_fit(a.calibration, a.which)
+    x, reading = fit["x"], fit["reading"]
     mp = P.model_params(x)
     cp = P.controller_params(x, reading, mp)
     phases = np.arange(0.0, 0.030, 0.003)
@@ -46,12 +49,13 @@ def main(argv=None):
             t["step_ok"] += int(step_ok)
             t["n"] += 1
             t["steps"].append(round(r["step_cm"], 2) if not r["fell"] else "fell")
-        print(f"phase {1e3 * ph:4.1f} ms:", {"/".join(k): ("F" if res[k]["fell"] else round(res[k]["step_cm"], 1)) for k in T.ROWS}, flush=True)
+        row = {"/".join(k): ("F" if res[k]["fell"] else round(res[k]["step_cm"], 1))
+               for k in T.ROWS}
+        print(f"phase {1e3 * ph:4.1f} ms:", row, flush=True)
     for k, t in tally.items():
         print(k, f"fall as paper {t['fall_ok']}/{t['n']}", f"step ok {t['step_ok']}/{t['n']}")
-    open(path.replace("calibration.json", f"phase_robustness_{which}.json"), "w").write(
-        json.dumps(dict(phases_ms=(1e3 * phases).tolist(), rows=tally), indent=1))
+    write_json(out, dict(phases_ms=(1e3 * phases).tolist(), rows=tally))
 
 
 if __name__ == "__main__":
-    main()
+    main(sys.argv[1:])

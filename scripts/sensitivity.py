@@ -1,6 +1,6 @@
 """One-at-a-time sensitivities of the paper rows to each fitted parameter (bounds lo/hi).
 
-python -m tkujax.studies.calibrate.sensitivity [--center JSON] --out results/calibration/sensitivity.json
+python scripts/sensitivity.py [--center JSON] --out results/calibration/sensitivity.json
 """
 
 from __future__ import annotations
@@ -8,19 +8,18 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 from pathlib import Path
 
-import numpy as np
-
-from tkujax.studies.calibrate import evaluate as E
-from tkujax.studies.calibrate import params as P
-from tkujax.studies.calibrate import targets as T
+from _fit import check_out, write_json
 
 KEYS = [("back", "volleyball", "off"), ("back", "baseball", "off"), ("front", "volleyball", "off"),
         ("front", "baseball", "off")]
 
 
 def summary(res: dict) -> dict:
+    """The per-row numbers a sensitivity compares: fell, peak, recovery, Kalman angle past the
+    threshold (tag: first letters of direction and ball), and the stand lean."""
     s = {}
     for k in KEYS:
         r = res[k]
@@ -34,31 +33,38 @@ def summary(res: dict) -> dict:
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--center", default=None, help="JSON {name: value} (default: today's model)")
-    ap.add_argument("--out", default="results/calibration/sensitivity.json")
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--center", type=Path, default=None,
+                    help="JSON {name: value} (default: today's model)")
+    ap.add_argument("--out", type=Path, required=True)
     a = ap.parse_args(argv)
+    out = check_out(ap, [a.center], a.out)
+    import numpy as np
+
+    from tkujax.studies.calibrate import evaluate as E
+    from tkujax.studies.calibrate import params as P
+
     x0 = P.DEFAULT.copy()
     if a.center:
-        d = json.loads(Path(a.center).read_text())
+        d = json.loads(a.center.read_text())
         d = d.get("x", d)
         x0 = np.array([d[n] for n in P.NAMES])
-    out = {"center": P.as_dict(x0),
-           "base": summary(E.evaluate(x0, readings=("deviation/latched",))["deviation/latched"])}
-    print("base", out["base"], flush=True)
+    result = {"center": P.as_dict(x0),
+              "base": summary(E.evaluate(x0, readings=("deviation/latched",))
+                              ["deviation/latched"])}
+    print("base", result["base"], flush=True)
     for i, p in enumerate(P.PARAMS):
         for side, val in (("lo", p.lo), ("hi", p.hi)):
             x = x0.copy()
             x[i] = val
             try:
                 s = summary(E.evaluate(x, readings=("deviation/latched",))["deviation/latched"])
-            except Exception as err:   # noqa: BLE001
+            except Exception as err:   # noqa: BLE001  (an invalid model: recorded, not a crash)
                 s = {"error": repr(err)}
-            out[f"{p.name}={side}"] = s
+            result[f"{p.name}={side}"] = s
             print(p.name, side, val, s, flush=True)
-    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(a.out).write_text(json.dumps(out, indent=1))
+    write_json(out, result)
 
 
 if __name__ == "__main__":
-    main()
+    main(sys.argv[1:])

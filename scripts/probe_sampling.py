@@ -1,26 +1,28 @@
 """Probe: how much the Kalman angle excursion (and so the step trigger) depends on the ball's
 contact time and on the hit's phase relative to the 30 ms IMU sampling, at a given candidate.
 
-python -m tkujax.studies.calibrate.probe_sampling results/calibration/calibration.json [ALL|T4]
+python scripts/probe_sampling.py results/calibration/calibration.json ALL --out OUT.json
 """
 
 from __future__ import annotations
 
-import json
 import sys
 
 import numpy as np
 
-from tkujax.sim import push as push_lib
-from tkujax.studies.calibrate import evaluate as E
-from tkujax.studies.calibrate import params as P
+from _fit import check_out, load_fit, parser, write_json
 
 
 def main(argv=None):
-    argv = argv or sys.argv[1:]
-    summary = json.loads(open(argv[0]).read())
-    which = argv[1] if len(argv) > 1 else "ALL"
-    x, reading = summary[which]["x"], summary[which]["reading"]
+    ap = parser(__doc__, "JSON list of the probed rows")
+    a = ap.parse_args(argv)
+    out = check_out(ap, [a.calibration], a.out)
+    from tkujax.sim import push as push_lib
+    from tkujax.studies.calibrate import evaluate as E
+    from tkujax.studies.calibrate import params as P
+
+    fit = load_fit(a.calibration, a.which)
+    x, reading = fit["x"], fit["reading"]
     mp = P.model_params(x)
     cp = P.controller_params(x, reading, mp)
     rows = []
@@ -41,9 +43,8 @@ def main(argv=None):
                                        step_cm=round(100 * float(o["step_length_m"][i]), 2))
             print(row, flush=True)
             rows.append(row)
-    out = argv[0].replace("calibration.json", f"probe_sampling_{which}.json")
-    open(out, "w").write(json.dumps(rows, indent=1))
+    write_json(out, rows)
 
 
 if __name__ == "__main__":
-    main()
+    main(sys.argv[1:])

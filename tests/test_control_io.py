@@ -1,0 +1,54 @@
+"""ControllerParams from JSON and spec-style values (tkujax.control.io): ranges are
+ControllerParams.validate's, and errors name the key and the range."""
+
+import dataclasses
+import json
+import math
+
+import pytest
+
+from tkujax.control.io import (allowed_range, checked_value, controller_params_from,
+                               controller_params_from_dict, load_controller_params_json,
+                               save_controller_params_json)
+from tkujax.control.params import ControllerParams
+
+
+def test_allowed_range_is_what_validate_says():
+    assert allowed_range("step_period") == "(0, 2] s"
+    assert allowed_range("eps_forward") == "[0, pi/2) rad"
+    with pytest.raises(ValueError, match=r"step_period must be in \(0, 2\] s"):
+        dataclasses.replace(ControllerParams(), step_period=3.0).validate()
+
+
+def test_checked_value_degrees_and_errors():
+    assert checked_value("w", "eps_forward_deg", 12) == 12.0
+    with pytest.raises(ValueError, match=r"^w: 95 deg is out of range: .*eps_forward must be"):
+        checked_value("w", "eps_forward_deg", 95)
+    with pytest.raises(ValueError, match=r"^w: expected a number, .*step_period in \(0, 2\] s"):
+        checked_value("w", "step_period", True)
+    with pytest.raises(ValueError, match=r"^w: 'T_deg' names no ControllerParams field"):
+        checked_value("w", "T_deg", 1.0)
+
+
+def test_overrides_convert_degrees():
+    p = controller_params_from(ControllerParams(), {"eps_forward_deg": 10.0, "cp_gain": 2.0})
+    assert p.eps_forward == pytest.approx(math.radians(10.0)) and p.cp_gain == 2.0
+
+
+def test_dict_and_json_round_trip(tmp_path):
+    paper = ControllerParams.paper()
+    tuned = dataclasses.replace(paper, step_period=0.25, kalman_q=1e-4)
+    path = save_controller_params_json(tuned, tmp_path / "p.json")
+    assert load_controller_params_json(path) == tuned
+    partial = controller_params_from_dict({"step_period": 0.25}, "here")
+    assert partial == dataclasses.replace(paper, step_period=0.25)     # the rest: the paper's
+    base = ControllerParams()
+    assert controller_params_from_dict({}, "here", base=base) == base
+    with pytest.raises(ValueError, match=r"here: unknown field\(s\) \['T'\]"):
+        controller_params_from_dict({"T": 0.3}, "here")
+    with pytest.raises(ValueError, match=r"here: .*step_period must be in \(0, 2\] s, got 5.0"):
+        controller_params_from_dict({"step_period": 5}, "here")
+    (tmp_path / "bad.json").write_text("{")
+    with pytest.raises(ValueError, match="cannot read JSON"):
+        load_controller_params_json(tmp_path / "bad.json")
+    assert json.loads(path.read_text())["step_period"] == 0.25

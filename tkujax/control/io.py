@@ -1,0 +1,116 @@
+"""ControllerParams from JSON and from spec-style values, validated at the edge by
+`ControllerParams.validate` (the one statement of the ranges); errors name the key and the
+allowed range.
+
+Spec-style keys are ControllerParams fields, or FIELD_deg for an angle field given in degrees.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+from tkujax.control.params import ControllerParams
+
+DEG = math.pi / 180.0
+
+
+def field_of(key: str) -> tuple[str, float]:
+    """(ControllerParams field, factor to its SI unit) of a spec-style key."""
+    return (key[:-4], DEG) if key.endswith("_deg") else (key, 1.0)
+
+
+def controller_params_from(base: ControllerParams, overrides: dict) -> ControllerParams:
+    """Apply spec-style overrides (`*_deg` keys in degrees) to `base` (values may be traced:
+    nothing is checked here; check concrete values with `checked_value`)."""
+    values = {}
+    for k, v in overrides.items():
+        if k.endswith("_deg"):
+            values[k[:-4]] = v * DEG   # v may be traced: no math.radians
+        else:
+            values[k] = v
+    return dataclasses.replace(base, **values)
+
+
+def allowed_range(field: str) -> str:
+    """The range ControllerParams.validate allows for `field`: the message validate gives for
+    NaN there, which no range admits."""
+    try:
+        dataclasses.replace(ControllerParams(), **{field: math.nan}).validate()
+    except ValueError as err:
+        text = str(err)
+        if " must be in " in text:
+            return text.split(" must be in ", 1)[1].rsplit(", got", 1)[0]
+    return "(a finite number)"
+
+
+def _is_number(v) -> bool:
+    return not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
+
+
+def checked_value(where: str, key: str, value) -> float:
+    """A concrete spec-style value, checked alone by ControllerParams.validate (the defaults
+    hold the other fields). ValueError: "{where}: ..." naming the field and its range."""
+    field, factor = field_of(key)
+    if field not in {f.name for f in dataclasses.fields(ControllerParams)}:
+        raise ValueError(f"{where}: {key!r} names no ControllerParams field")
+    unit = " (given in deg)" if factor != 1.0 else ""
+    if not _is_number(value):
+        raise ValueError(f"{where}: expected a number, ControllerParams.{field} in "
+                         f"{allowed_range(field)}{unit}, got {value!r}")
+    try:
+        dataclasses.replace(ControllerParams(), **{field: float(value) * factor}).validate()
+    except ValueError as err:
+        raise ValueError(f"{where}: {value!r}{' deg' if unit else ''} is out of range: "
+                         f"{err}") from err
+    return float(value)
+
+
+def controller_params_from_dict(data, where: str,
+                                base: ControllerParams | None = None) -> ControllerParams:
+    """ControllerParams from {field: value} (SI units, radians; any subset, the others from
+    `base`, default ControllerParams.paper()), validated. ValueError names where and the key."""
+    if not isinstance(data, dict):
+        raise ValueError(f"{where}: expected a JSON object {{field: value}}, "
+                         f"got {type(data).__name__}")
+    fields = {f.name for f in dataclasses.fields(ControllerParams)}
+    unknown = sorted(set(data) - fields)
+    if unknown:
+        raise ValueError(f"{where}: unknown field(s) {unknown}; allowed: {sorted(fields)}")
+    values = {}
+    for k, v in data.items():
+        if not _is_number(v):
+            raise ValueError(f"{where}: {k} must be a number in {allowed_range(k)}, got {v!r}")
+        values[k] = float(v)
+    try:
+        return dataclasses.replace(base or ControllerParams.paper(), **values).validate()
+    except ValueError as err:
+        raise ValueError(f"{where}: {err}") from err
+
+
+# String notes a parameter file may carry besides the fields ("recommended_from": which set
+# `tkujax tune` recommends, see tkujax.studies.tune.run).
+PARAMS_NOTE_KEYS = ("recommended_from",)
+
+
+def load_controller_params_json(path: str | Path) -> ControllerParams:
+    """ControllerParams from a JSON file {field: value} (SI units, radians), as `tkujax tune`
+    and `tkujax calibrate` write it (`--params FILE.json`); string notes of PARAMS_NOTE_KEYS
+    are ignored."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as err:
+        raise ValueError(f"--params {path}: cannot read JSON: {err}") from err
+    if isinstance(data, dict):        # a note, not a parameter (tkujax tune writes it)
+        data = {k: v for k, v in data.items()
+                if not (k in PARAMS_NOTE_KEYS and isinstance(v, str))}
+    return controller_params_from_dict(data, f"--params {path}")
+
+
+def save_controller_params_json(params: ControllerParams, path: str | Path) -> Path:
+    path = Path(path)
+    path.write_text(json.dumps(dataclasses.asdict(params), indent=1) + "\n")
+    return path

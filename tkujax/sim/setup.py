@@ -1,0 +1,107 @@
+"""One init for every simulation (Brax-style): `init(model_params)` -> SimSetup, the host
+(MuJoCo C) model, the device (MJX) model, the static model index and the settled stand state.
+
+Cached per (model_params, settle_s, float64): the rollouts, sweeps, tuning, the capture-step
+optimiser, the calibration refinement and the paper's GIF build the same objects once.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+from tkujax.model import FSR_SENSORS, LEG_ACTUATORS, ModelParams
+from tkujax.sim import physics
+from tkujax.sim.mjx_import import mjx
+
+SETTLE_S = 1.0   # the stand is held this long before t = 0 (see physics.settled_stand_data)
+
+
+@dataclasses.dataclass(frozen=True)
+class ModelIndex:
+    """Static indices into the compiled model (plain numpy, never traced)."""
+
+    leg_actuators: np.ndarray
+    chest_body: int
+    chest_stand_z: float          # chest body origin height in the stand keyframe, m
+    chest_stand_cos: float        # cos of its tilt there (the chest axis leans by the stand lean)
+    gyro_adr: int
+    accel_adr: int
+    fsr_adr: np.ndarray
+    fsr_sites: np.ndarray
+    sphere_geoms: np.ndarray      # non-foot collision spheres (knees, hands, head, pelvis)
+    sphere_radii: np.ndarray
+    box_geoms: np.ndarray         # non-foot collision boxes (chest)
+    box_half_sizes: np.ndarray    # (nb, 3)
+    ankle_sites: tuple[int, int]  # r_ankle, l_ankle
+    stand_ctrl: np.ndarray
+    timestep_s: float
+
+    @staticmethod
+    def of(model: mujoco.MjModel) -> ModelIndex:
+        data = physics.stand_data(model)
+        chest = model.body("chest").id
+        foot_names = set(FSR_SENSORS)
+        pair_geoms = [int(g) for g in model.pair_geom2 if model.geom(int(g)).name not in foot_names]
+        spheres = [g for g in pair_geoms if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_SPHERE]
+        boxes = [g for g in pair_geoms if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_BOX]
+        sensor_adr = lambda n: int(model.sensor_adr[model.sensor(n).id])  # noqa: E731
+        return ModelIndex(
+            leg_actuators=np.array([model.actuator(n).id for n in LEG_ACTUATORS]),
+            chest_body=chest, chest_stand_z=float(data.xpos[chest][2]),
+            chest_stand_cos=float(data.xmat[chest][8]),
+            gyro_adr=sensor_adr("gyro"), accel_adr=sensor_adr("accel"),
+            fsr_adr=np.array([sensor_adr(n) for n in FSR_SENSORS]),
+            fsr_sites=np.array([model.site(n).id for n in FSR_SENSORS]),
+            sphere_geoms=np.array(spheres, dtype=int), sphere_radii=model.geom_size[spheres, 0],
+            box_geoms=np.array(boxes, dtype=int), box_half_sizes=model.geom_size[boxes],
+            ankle_sites=(model.site("r_ankle").id, model.site("l_ankle").id),
+            stand_ctrl=np.array(model.key("stand").ctrl), timestep_s=float(model.opt.timestep))
+
+
+@functools.lru_cache(maxsize=8)
+def model_index(params: ModelParams | None = None) -> ModelIndex:
+    return ModelIndex.of(physics.host_model(params))
+
+
+class SimSetup(NamedTuple):
+    """What a simulation starts from (see `init`)."""
+
+    host_model: mujoco.MjModel     # MuJoCo C (rendering, the C backend, static sizes)
+    device_model: mjx.Model        # MJX, on this process's first local device
+    index: ModelIndex              # static indices (never traced)
+    stand_state: mjx.Data          # the stand keyframe, settled for settle_s, clock at 0
+
+
+def init(model_params: ModelParams | None = None, settle_s: float = SETTLE_S,
+         float64: bool = False) -> SimSetup:
+    """The SimSetup of a model (None: the default robot), cached.
+
+    float64: the MJX model and state put in float64 (built under jax.enable_x64; callers run
+    their programs under it too), for derivative checks; the state's integer fields take the
+    types `mjx.step` returns under x64, so it can be a lax.scan carry."""
+    # One cache key however the arguments are spelled (lru_cache keys f(a) and f(a, 1.0) apart).
+    return _init(model_params, float(settle_s), bool(float64))
+
+
+@functools.lru_cache(maxsize=16)
+def _init(model_params: ModelParams | None, settle_s: float, float64: bool) -> SimSetup:
+    host = physics.host_model(model_params)
+    index = model_index(model_params)
+    if not float64:
+        return SimSetup(host, physics.device_model(model_params), index,
+                        physics.stand_state(host, settle_s))
+    with jax.enable_x64(True):
+        model = mjx.put_model(host)
+        state = physics.stand_state(host, settle_s)
+        # mjx.step returns some integer fields (contact geom ids) as int64 under x64 while
+        # put_data makes int32: match the step's output types.
+        shapes = jax.eval_shape(mjx.step, model, state)
+        state = jax.tree_util.tree_map(lambda x, s: jnp.asarray(x, s.dtype), state, shapes)
+    return SimSetup(host, model, index, state)
