@@ -96,10 +96,12 @@ def test_spec_conflicts_and_empty():
 
 def test_shipped_specs_expand():
     n = {f.stem: len(load_spec(f).records()["push_id"]) for f in (ROOT / "sweeps").glob("*.toml")
-         if not f.stem.startswith(("tune", "calibrate"))}   # their own formats
+         if not f.stem.startswith(("tune", "calibrate", "convergence"))}   # their own formats
     assert n["stability_map"] >= 10_000
     assert n["paper"] == 8 and n["tiny"] == 8 and n["stability_map_cpu"] == 128
     assert n["phase_cpu"] == 2520 and n["phase"] == 4 * (15 * 24 * 15 + 4000)
+    assert n["recovery_eval"] == n["recovery_eval_shift"] == 2 * (30 * 24 * 5 + 16000)
+    assert n["recovery_grid"] == 2 * 2 * 2 * 3 * 3 * 2 * 2 * 1024
 
 
 def test_onset_phase_axis():
@@ -141,6 +143,12 @@ def test_expand_grid_random_controller_grid():
     assert ((rnd >= 1.0) & (rnd <= 2.0)).all()
     assert ((rec["link_mass_scale"] >= 0.9) & (rec["link_mass_scale"] <= 1.1)).all()
     np.testing.assert_array_equal(rec["impulse_ns"], parse_spec(data).records()["impulse_ns"])
+    # One robot draw per push, shared by its 4 settings (2 step periods x off/on): the
+    # comparisons between settings are paired. Different pushes get different draws.
+    per_setting = rec["link_mass_scale"].reshape(4, 11)
+    for block in per_setting[1:]:
+        np.testing.assert_array_equal(block, per_setting[0])
+    assert len(np.unique(per_setting[0])) == 11
 
 
 def test_params_json(tmp_path):

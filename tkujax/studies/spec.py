@@ -482,7 +482,9 @@ def expand(spec: SweepSpec) -> dict[str, np.ndarray]:
 
     `from_grid` marks grid pushes (True) and random samples (False).
     Order: control setting (outermost), controller grid, grid pushes then random pushes.
-    Randomisation columns are drawn per record from the spec's seed.
+    Randomisation columns are drawn once per push from the spec's seed and shared by all of
+    its control settings and controller-grid points, so that control off and on (or two grid
+    points) of one push run on the same robot: comparisons are paired.
     """
     rng = np.random.default_rng(spec.seed)
     defaults = {k: v[2] for k, v in PUSH_FIELDS.items()}
@@ -532,9 +534,10 @@ def expand(spec: SweepSpec) -> dict[str, np.ndarray]:
             for k, v in zip(cgrid, combo):
                 records[k].append(np.full(n_push, v))
     out = {k: np.concatenate(v) for k, v in records.items()}
-    n = len(out["control"])
+    n_settings = len(spec.control) * len(combos)
     for k, v in spec.randomize.items():
-        out[k] = rng.uniform(*v, n) if isinstance(v, tuple) else np.full(n, v)
+        draw = rng.uniform(*v, n_push) if isinstance(v, tuple) else np.full(n_push, v)
+        out[k] = np.tile(draw, n_settings)
     out = _cross_steps(spec, out)
     out["push_id"] = np.arange(len(out["control"]))
     return out

@@ -54,7 +54,13 @@ OUTCOME_KEYS = ("fell", "diverged", "recovery_time_s", "step_length_m", "step_wi
                 "peak_incl_deg", "capture_point_m", "capture_point_y_m", "zmp_excursion_m")
 MANIFEST = chunks.MANIFEST
 # ControllerParams fields added after sweeps were published (left out of the hash at default).
-_LATER_FIELDS = {"accel_gate": 0.0, "cp_excess": 0.0, "cp_update_window": 0.0}
+_LATER_FIELDS = {"accel_gate": 0.0, "cp_excess": 0.0, "cp_update_window": 0.0,
+                 # the recovery extensions, at their "off" values
+                 "cp_rate_blend": 0.0, "cp_lookahead_s": 0.0, "cp_trigger": 0.0,
+                 "cp_trigger_forward_m": 0.05, "cp_trigger_backward_m": 0.10,
+                 "cp_trigger_lateral_m": 0.09, "stance_ankle_kp": 0.0, "stance_ankle_kd": 0.0,
+                 "stance_hip_kp": 0.0, "stance_hip_kd": 0.0, "stance_roll_kp": 0.0,
+                 "stance_roll_kd": 0.0, "stance_limit": 0.3, "max_steps": 1.0}
 
 
 def step_override(rec: dict) -> StepOverride:
@@ -196,6 +202,12 @@ def _spec_hash(spec: SweepSpec, params: ControllerParams, model_params: ModelPar
         parts.append({"fixed_point_defaults": dataclasses.asdict(FixedPointConfig())})
     if spec.phase_default:   # random onsets changed meaning when the phase axis came in
         parts.append("push.random.onset_phase: uniform [0, 1) by default")
+    n_settings = len(spec.control) * math.prod(
+        len(v) for v in (spec.controller_grid | spec.fpga_grid).values())
+    if any(isinstance(v, tuple) for v in spec.randomize.values()) and n_settings > 1:
+        # The robot draws became shared by the settings of a push (records of older sweeps
+        # differ): such a sweep is a new one.
+        parts.append("randomize: one draw per push, shared by its control and grid settings")
     blob = json.dumps(parts, sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
