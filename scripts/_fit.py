@@ -35,6 +35,16 @@ def load_fit(path: Path, which: str) -> dict:
     return summary[which]
 
 
+def fit_params(path: Path, which: str):
+    """(x, reading, ModelParams, ControllerParams) of the fit `which` in the summary at `path`."""
+    from tkujax.studies.calibrate import params as P
+
+    fit = load_fit(path, which)
+    x, reading = fit["x"], fit["reading"]
+    mp = P.model_params(x)
+    return x, reading, mp, P.controller_params(x, reading, mp)
+
+
 def write_json(out: Path, data) -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(data, indent=1))

@@ -10,7 +10,7 @@ import sys
 
 import numpy as np
 
-from _fit import check_out, load_fit, parser, write_json
+from _fit import check_out, fit_params, load_fit, parser, write_json
 
 
 def main(argv=None):
@@ -21,12 +21,9 @@ def main(argv=None):
 
     from tkujax.sim.rollout_mjx import simulate
     from tkujax.studies.calibrate import evaluate as E
-    from tkujax.studies.calibrate import params as P
 
-    fit = load_fit(a.calibration, a.which)
-    x, reading = fit["x"], fit["reading"]
-    mp = P.model_params(x)
-    cp = P.controller_params(x, reading, mp)
+    x, reading, mp, cp = fit_params(a.calibration, a.which)
+    fit = load_fit(a.calibration, a.which)      # its MuJoCo C rows, compared below
     push = E.pushes_for(x)
     pushes = jax.tree_util.tree_map(lambda v: np.concatenate([v, v]), push)
     enabled = np.array([0.0] * 4 + [1.0] * 4, np.float32)

@@ -11,7 +11,7 @@ import sys
 
 import numpy as np
 
-from _fit import check_out, load_fit, parser, write_json
+from _fit import check_out, fit_params, parser, write_json
 
 
 def main(argv=None):
@@ -20,13 +20,9 @@ def main(argv=None):
     out = check_out(ap, [a.calibration], a.out)
     from tkujax.sim import push as push_lib
     from tkujax.studies.calibrate import evaluate as E
-    from tkujax.studies.calibrate import params as P
     from tkujax.studies.calibrate import targets as T
 
-    fit = load_fit(a.calibration, a.which)
-    x, reading = fit["x"], fit["reading"]
-    mp = P.model_params(x)
-    cp = P.controller_params(x, reading, mp)
+    x, reading, mp, cp = fit_params(a.calibration, a.which)
     phases = np.arange(0.0, 0.030, 0.003)
     tally = {}
     for ph in phases:

@@ -10,7 +10,7 @@ import sys
 
 import numpy as np
 
-from _fit import check_out, load_fit, parser, write_json
+from _fit import check_out, fit_params, parser, write_json
 
 
 def main(argv=None):
@@ -19,12 +19,8 @@ def main(argv=None):
     out = check_out(ap, [a.calibration], a.out)
     from tkujax.sim import push as push_lib
     from tkujax.studies.calibrate import evaluate as E
-    from tkujax.studies.calibrate import params as P
 
-    fit = load_fit(a.calibration, a.which)
-    x, reading = fit["x"], fit["reading"]
-    mp = P.model_params(x)
-    cp = P.controller_params(x, reading, mp)
+    x, reading, mp, cp = fit_params(a.calibration, a.which)
     rows = []
     for dur in (0.010, 0.020, 0.030, 0.040):
         for phase in (0.0, 0.010, 0.020):

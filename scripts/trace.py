@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _fit import load_fit
+from _fit import fit_params
 
 
 def main(argv=None):
@@ -24,12 +24,8 @@ def main(argv=None):
     ap.add_argument("control", choices=("off", "on"))
     a = ap.parse_args(argv)
     from tkujax.studies.calibrate import evaluate as E
-    from tkujax.studies.calibrate import params as P
 
-    fit = load_fit(a.calibration, a.which)
-    x, reading = fit["x"], fit["reading"]
-    mp = P.model_params(x)
-    cp = P.controller_params(x, reading, mp)
+    x, reading, mp, cp = fit_params(a.calibration, a.which)
     i = E.CASES.index((a.direction, a.ball))
     enabled = np.full(4, 1.0 if a.control == "on" else 0.0, np.float32)
     s, o = E._simulate(E.pushes_for(x), enabled, cp, mp)
