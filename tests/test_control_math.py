@@ -91,7 +91,8 @@ def test_params_defaults_and_pytree():
     assert np.isclose(p.eps_forward, 12 * DEG) and np.isclose(p.eps_backward, 2 * DEG)
     assert np.isclose(p.standing_lean, 7 * DEG) and p.cp_angle_offset == p.standing_lean
     assert p.cp_gain == 1.0 and p.gate_temperature == 0.0
-    assert (p.hip_offset_y, p.hip_to_ankle_z, p.thigh_length, p.calf_length) == (0.045, 0.20, 0.11, 0.11)
+    assert ((p.hip_offset_y, p.hip_to_ankle_z, p.thigh_length, p.calf_length)
+            == (0.045, 0.20, 0.11, 0.11))
     assert (p.leg_length, p.com_height) == (0.27, 0.29)
     leaves, treedef = jax.tree_util.tree_flatten(p)
     assert len(leaves) == len(dataclasses.fields(ControllerParams))
@@ -174,7 +175,8 @@ def test_kalman_step_formula():
     phi_pred = np.array([0.1, -0.05]) + P.control_period * np.array([0.5, -0.2])
     p_pred = P.kalman_r + P.kalman_q
     k = p_pred / (p_pred + P.kalman_r)
-    np.testing.assert_allclose(s1.phi, phi_pred + k * (np.array([0.13, -0.04]) - phi_pred), rtol=1e-6)
+    np.testing.assert_allclose(s1.phi, phi_pred + k * (np.array([0.13, -0.04]) - phi_pred),
+                               rtol=1e-6)
     np.testing.assert_allclose(s1.p, [(1 - k) * p_pred] * 2, rtol=1e-6)
 
 
@@ -239,16 +241,19 @@ def test_kalman_beats_accel_and_gyro():
     base = np.array([7 * DEG, 1 * DEG])
     amp, tau, w = np.array([0.15, 0.06]), 1.5, 2 * np.pi * np.array([1.2, 0.8])
     true = base + amp * np.exp(-t[:, None] / tau) * np.sin(w * t[:, None])
-    true_rate = amp * np.exp(-t[:, None] / tau) * (w * np.cos(w * t[:, None]) - np.sin(w * t[:, None]) / tau)
+    true_rate = amp * np.exp(-t[:, None] / tau) * (w * np.cos(w * t[:, None])
+                                                   - np.sin(w * t[:, None]) / tau)
     gyro = true_rate + np.array([0.05, -0.04]) + 0.01 * rng.standard_normal((n, 2))
     acc = true + 0.05 * rng.standard_normal((n, 2))
     phi0 = base
     est = np.asarray(jax.jit(_run_filter)(P, jnp.asarray(gyro, jnp.float32),
-                                          jnp.asarray(acc, jnp.float32), jnp.asarray(phi0, jnp.float32)))
+                                          jnp.asarray(acc, jnp.float32),
+                                          jnp.asarray(phi0, jnp.float32)))
     gyro_int = phi0 + dt * np.cumsum(gyro, axis=0)
     rms = lambda e: float(np.sqrt(np.mean(e**2)))  # noqa: E731
     e_kf, e_acc, e_gyro = rms(est - true), rms(acc - true), rms(gyro_int - true)
-    print(f'RMS error: Kalman {e_kf:.4f}, accelerometer {e_acc:.4f}, integrated gyro {e_gyro:.4f} rad')
+    print(f'RMS error: Kalman {e_kf:.4f}, accelerometer {e_acc:.4f}, '
+          f'integrated gyro {e_gyro:.4f} rad')
     assert e_kf < 0.6 * e_acc and e_kf < 0.6 * e_gyro, (e_kf, e_acc, e_gyro)
 
 
@@ -265,12 +270,12 @@ def test_kalman_grads_fd():
 
 
 # ----------------------------------------------------------------------------- capture point
-def literal_capture_point(phi, l, h, g=G):
+def literal_capture_point(phi, leg_len, h, g=G):
     """Eq. 6-10 transcribed in numpy float64, with the sign of phi kept on phidot."""
-    phidot = np.sign(phi) * np.sqrt(2.0 * (g / l) * (1.0 - np.cos(phi)))    # Eq. 10 (+ sign)
-    x_com = l * np.sin(phi)                                                 # Eq. 7
-    xdot_com = l * np.cos(phi) * phidot                                     # Eq. 8
-    return x_com + xdot_com * np.sqrt(h / g)                                # Eq. 6
+    phidot = np.sign(phi) * np.sqrt(2.0 * (g / leg_len) * (1.0 - np.cos(phi)))  # Eq. 10 (+ sign)
+    x_com = leg_len * np.sin(phi)                                                # Eq. 7
+    xdot_com = leg_len * np.cos(phi) * phidot                                    # Eq. 8
+    return x_com + xdot_com * np.sqrt(h / g)                                     # Eq. 6
 
 
 def test_capture_point_vs_literal():
@@ -359,7 +364,8 @@ def literal_cpg(t, x_sup, T, gamma, H, d_y, d_z):
         return hold
     tp = T * (1 - gamma)
     wx, wy, wz = math.pi / (2 * tp), 2 * math.pi / tp, math.pi / tp
-    right = (osc(-x_sup / 2, wx, -x_sup / 2) + 0.0, osc(0.0, wy, 0.0) - d_y, osc(0.0, wz, 0.0) - d_z)
+    right = (osc(-x_sup / 2, wx, -x_sup / 2) + 0.0, osc(0.0, wy, 0.0) - d_y,
+             osc(0.0, wz, 0.0) - d_z)
     left = (osc(x_sup / 2, wx, x_sup / 2) + 0.0, osc(0.0, wy, 0.0) + d_y, osc(H, wz, 0.0) - d_z)
     return np.array(right), np.array(left)
 
@@ -428,7 +434,8 @@ def test_cpg_grads_fd(t):
     def f(p, xs=0.04):
         pr, pl = cpg_feet(jnp.float64(t), xs, p)
         return jnp.sum(pl * jnp.array([1.0, 2.0, 3.0])) + jnp.sum(pr * jnp.array([0.5, -1.0, 0.7]))
-    for name in ("step_period", "double_support_ratio", "lift_height", "hip_offset_y", "hip_to_ankle_z"):
+    for name in ("step_period", "double_support_ratio", "lift_height", "hip_offset_y",
+                 "hip_to_ankle_z"):
         check_grad_fd(grad_wrt_field(f, P, name), getattr(P, name))
     check_grad_fd(lambda xs: f(P, xs), 0.04)
     check_grad_fd(lambda tt: jnp.sum(cpg_feet(tt, 0.04, P)[1]), t)
@@ -488,9 +495,12 @@ def test_leg_ik_better_than_paper_with_lateral_offset():
     with jax.enable_x64(True):
         ours = jax.jit(leg_ik)(jnp.asarray(g), 0.11, 0.11)
         paper = paper_to_model_angles(jax.jit(paper_leg_ik)(g[:, 0], g[:, 1], -g[:, 2], 0.11, 0.11))
-        err_ours = max(np.linalg.norm(fk_angles(ours, 0.11, 0.11, i)[0] - g[i]) for i in range(len(g)))
-        err_paper = max(np.linalg.norm(fk_angles(paper, 0.11, 0.11, i)[0] - g[i]) for i in range(len(g)))
-    print(f"max FK error with |p_y| <= 4 cm: ours {err_ours:.2e} m, paper Eq. 19-28 {err_paper:.2e} m")
+        err_ours = max(np.linalg.norm(fk_angles(ours, 0.11, 0.11, i)[0] - g[i])
+                       for i in range(len(g)))
+        err_paper = max(np.linalg.norm(fk_angles(paper, 0.11, 0.11, i)[0] - g[i])
+                        for i in range(len(g)))
+    print(f"max FK error with |p_y| <= 4 cm: ours {err_ours:.2e} m, "
+          f"paper Eq. 19-28 {err_paper:.2e} m")
     assert err_ours < 1e-12 and err_paper > 1e-3
 
 
@@ -534,7 +544,7 @@ def test_leg_ik_grads_fd():
 
     for k in range(3):
         e = np.eye(3)[k]
-        check_grad_fd(lambda x: loss(jnp.asarray(p0) + x * e, 0.11, 0.11), 0.0, h=1e-7)
+        check_grad_fd(lambda x, e=e: loss(jnp.asarray(p0) + x * e, 0.11, 0.11), 0.0, h=1e-7)
     check_grad_fd(lambda x: loss(jnp.asarray(p0), x, 0.11), 0.11, h=1e-7)
     check_grad_fd(lambda x: loss(jnp.asarray(p0), 0.11, x), 0.11, h=1e-7)
 
@@ -591,7 +601,8 @@ def test_no_recompilation_across_param_values():
                 dataclasses.replace(P, gate_temperature=0.01, cp_gain=2.0),
                 dataclasses.replace(P, thigh_length=0.12, kalman_q=1e-3),
                 P.validate()]
-    outs = [tick_jit(st, jnp.array([0.0, 0.1, 0.0]), jnp.array([-2.0, 0.0, 9.6]), jnp.float32(0.15), v)
+    outs = [tick_jit(st, jnp.array([0.0, 0.1, 0.0]), jnp.array([-2.0, 0.0, 9.6]),
+                     jnp.float32(0.15), v)
             for v in variants]
     assert traces[0] == 1
     assert not np.allclose(outs[0][1].hip_pitch, outs[1][1].hip_pitch)

@@ -121,7 +121,8 @@ def test_ik_round_trip_through_mujoco_kinematics(params, kin):
     # The grid covers the CPG's workspace: the full lift, both step directions, landed feet.
     lift = want[:, 1, 2] + params.hip_to_ankle_z
     assert lift.max() == pytest.approx(params.lift_height, abs=1e-4) and lift.min() >= -1e-7
-    assert want[:, 1, 0].max() == pytest.approx(0.04) and want[:, 1, 0].min() == pytest.approx(-0.04)
+    assert (want[:, 1, 0].max() == pytest.approx(0.04)
+            and want[:, 1, 0].min() == pytest.approx(-0.04))
 
     pos_err, tilt = np.zeros(len(q)), np.zeros(len(q))
     for i in range(len(q)):
@@ -158,7 +159,8 @@ def test_ik_lateral_offsets(params, kin):
     assert np.degrees(np.abs(q[:, [R_HIP_ROLL, L_HIP_ROLL]])).max() > 5.0
     assert worst_pos < POS_TOL_M, f"worst ankle error {worst_pos:.3g} m"
     print(f"lateral offsets: worst sole tilt {worst_tilt:.3f} deg")
-    assert worst_excess <= 0.0, f"sole tilt exceeds 1 deg + |sin r sin lean| by {worst_excess:.3g} deg"
+    assert worst_excess <= 0.0, (f"sole tilt exceeds 1 deg + |sin r sin lean| by "
+                                 f"{worst_excess:.3g} deg")
 
 
 def test_stand_leg_targets_match_keyframe(params):
@@ -188,7 +190,8 @@ def test_standing_signal_holds_stand_targets(params):
     assert np.all(out.gate == 0) and np.all(states.step_weight == 0)
     assert np.all(states.x_sup_m == 0) and _trigger_index(states) is None
     np.testing.assert_array_equal(out.leg_targets,
-                                  np.broadcast_to(np.asarray(stand_leg_targets(params)), (N_PERIODS, 12)))
+                                  np.broadcast_to(np.asarray(stand_leg_targets(params)),
+                                                  (N_PERIODS, 12)))
 
 
 @pytest.mark.parametrize("direction,pitch_deg,rate,cp_gain",
@@ -240,7 +243,8 @@ def test_push_triggers_one_recovery_step(params, kin, direction, pitch_deg, rate
     np.testing.assert_allclose(feet[done, 0, 0], -x_sup / 2, atol=POS_TOL_M)
     lift = feet[:, 1, 2] - feet[0, 1, 2]
     assert lift.max() == pytest.approx(p.lift_height, abs=2e-3)
-    np.testing.assert_allclose(out.leg_targets[k:][done], out.leg_targets[k:][done][:1].repeat(done.sum(), 0),
+    np.testing.assert_allclose(out.leg_targets[k:][done],
+                               out.leg_targets[k:][done][:1].repeat(done.sum(), 0),
                                rtol=0, atol=1e-6)
 
 
@@ -249,7 +253,8 @@ def test_disabled_never_steps(params, pitch_deg, rate):
     states, out = _np(_run(params, *_imu(pitch_deg, rate), 0.0))
     assert np.all(out.gate == 0) and np.all(states.step_weight == 0) and np.all(states.x_sup_m == 0)
     np.testing.assert_array_equal(out.leg_targets,
-                                  np.broadcast_to(np.asarray(stand_leg_targets(params)), (N_PERIODS, 12)))
+                                  np.broadcast_to(np.asarray(stand_leg_targets(params)),
+                                                  (N_PERIODS, 12)))
 
 
 def test_soft_gate_gradients(params):
@@ -260,7 +265,8 @@ def test_soft_gate_gradients(params):
     # A ramp 7 -> ~18 deg with the matching gyro rate: the step starts mid-run, so the last
     # period is inside the swing and every parameter below shapes the final target.
     slope_deg = 0.8
-    gyro, accel = _imu(7.0 + slope_deg * np.arange(n), math.radians(slope_deg) / p.control_period, n)
+    gyro, accel = _imu(7.0 + slope_deg * np.arange(n),
+                       math.radians(slope_deg) / p.control_period, n)
 
     def final_l_ankle_pitch(q):
         return _scan(q, gyro, accel, 1.0)[1].leg_targets[-1, L_ANKLE_PITCH]
@@ -303,7 +309,8 @@ def test_vmap_matches_unbatched(params):
     n_batch = 64
     tilts = np.concatenate([np.linspace(-8.0, -3.0, 16), np.linspace(0.0, 10.0, 16),
                             np.linspace(13.0, 22.0, 32)])
-    rates = np.where(tilts > 12, 0.4, np.where(tilts < -2, -0.4, 0.0)) * np.linspace(0.5, 1.5, n_batch)
+    rates = (np.where(tilts > 12, 0.4, np.where(tilts < -2, -0.4, 0.0))
+             * np.linspace(0.5, 1.5, n_batch))
     seqs = [_imu(a, r) for a, r in zip(tilts, rates)]
     gyro = np.stack([s[0] for s in seqs])
     accel = np.stack([s[1] for s in seqs])
@@ -313,7 +320,8 @@ def test_vmap_matches_unbatched(params):
     assert 0 < stepped.sum() < n_batch
     for i in range(n_batch):
         single = _np(_run(params, gyro[i], accel[i], 1.0))
-        for b_leaf, s_leaf in zip(jax.tree_util.tree_leaves(batched), jax.tree_util.tree_leaves(single)):
+        for b_leaf, s_leaf in zip(jax.tree_util.tree_leaves(batched),
+                                  jax.tree_util.tree_leaves(single)):
             if b_leaf.dtype == bool:
                 np.testing.assert_array_equal(b_leaf[i], s_leaf)
             else:

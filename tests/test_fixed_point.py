@@ -366,7 +366,8 @@ def test_coefficients_are_rounded_parameters():
                     ("kalman_r", PARAMS.kalman_r), ("eps_forward", PARAMS.eps_forward),
                     ("two_sqrt_gl", 2 * math.sqrt(PARAMS.gravity / PARAMS.leg_length))]:
         f = coef_format(name, DEFAULT)
-        assert abs(int(getattr(coef, name)) - v * 2 ** f.frac_bits) <= 0.5 + 1e-6 * abs(v) * 2 ** f.frac_bits
+        assert (abs(int(getattr(coef, name)) - v * 2 ** f.frac_bits)
+                <= 0.5 + 1e-6 * abs(v) * 2 ** f.frac_bits)
 
 
 # ------------------------------------------------------------------ (b) CORDIC error bounds
@@ -383,7 +384,10 @@ def test_coefficients_are_rounded_parameters():
 #     y_n^2 is invariant up to the gain, so x_n = K_h sqrt(v) cosh(res).
 
 
-def hyperbolic_residual_bound(seq, theta_max=math.atanh(0.6)):
+HYPERBOLIC_THETA_MAX = math.atanh(0.6)
+
+
+def hyperbolic_residual_bound(seq, theta_max=HYPERBOLIC_THETA_MAX):
     """Bound on |theta_n| over theta_0 in [0, theta_max] (v' in [1/4, 1) gives y/x < 0.6) for
     theta <- |theta - atanh 2^-s| (sign-symmetric), by interval propagation."""
     lo, hi = 0.0, theta_max
@@ -470,7 +474,7 @@ def scan_float(params, gyro, accel):
     return jax.lax.scan(body, controller_init(params), (gyro, accel))[1]
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def float_run():
     return jax.jit(scan_float)(PARAMS, *push_trace())
 

@@ -37,7 +37,8 @@ def _with(path: str, value, data=BASE):
 
 
 @pytest.mark.parametrize("path, value, match", [
-    ("controller.arithmetic", "double", r"controller.arithmetic: expected one of \['float', 'fixed'\]"),
+    ("controller.arithmetic", "double",
+     r"controller.arithmetic: expected one of \['float', 'fixed'\]"),
     ("fpga.bogus_bits", 8, r"\[fpga\]: unknown key\(s\) \['bogus_bits'\]"),
     ("fpga.cordic_iterations", 0, r"fpga.cordic_iterations: 0 is out of range \[1, 30\]"),
     ("fpga.cordic_iterations", 8.5, r"fpga.cordic_iterations: expected an integer in \[1, 30\]"),
@@ -49,7 +50,8 @@ def _with(path: str, value, data=BASE):
     ("fpga.angle_int_bits", 1, r"fpga.angle_int_bits: 1 is out of range \[2, 3\]"),
     # the word limit is checked on the assembled config: 1 + 2 + 24 > 26
     ("fpga.angle_frac_bits", 24, r"fpga.angle_frac_bits must be in \[1, 23\]"),
-    ("controller.grid.fpga.latency_ticks", [0, 101], r"controller.grid.fpga.latency_ticks\[1\]: 101"),
+    ("controller.grid.fpga.latency_ticks", [0, 101],
+     r"controller.grid.fpga.latency_ticks\[1\]: 101"),
     ("controller.grid.fpga.rounding", ["nearest", "floor"], r"controller.grid.fpga.rounding\[1\]"),
     ("controller.grid.fpga.nope", [1], r"\[controller.grid.fpga\]: unknown key"),
     ("controller.grid.fpga.state_frac_bits", [8, 24], r"fpga.state_frac_bits must be in \[1, 23\]"),
@@ -115,7 +117,8 @@ def test_fixed_spec_refuses_unimplemented_controller_keys(key, value):
     parse_spec(_with(f"controller.grid.{key}", [0.0]))
     parse_spec(_with("controller.arithmetic", "float", _with(f"controller.{key}", value)))
     # Implemented fields (geometry, thresholds) are accepted with fixed arithmetic.
-    parse_spec(_with("controller.eps_forward_deg", 10.0, _with("controller.grid.cp_gain", [0.9, 1.1])))
+    parse_spec(_with("controller.eps_forward_deg", 10.0,
+                     _with("controller.grid.cp_gain", [0.9, 1.1])))
 
 
 def test_fpga_spec_expands_and_hashes():
@@ -132,8 +135,10 @@ def test_fpga_spec_expands_and_hashes():
     assert ref.arithmetic == "float" and not ref.fpga_grid and ref.fixed_point_config() is None
     assert len(ref.records()["push_id"]) == 2
     p = ControllerParams.paper()
-    h = {_spec_hash(s, p, ModelParams()) for s in (spec, ref, parse_spec(_with("fpga.cordic_iterations", 11,
-         _with("controller.grid.fpga.angle_state_frac_bits", [8, 12]))))}
+    h = {_spec_hash(s, p, ModelParams())
+         for s in (spec, ref, parse_spec(_with("fpga.cordic_iterations", 11,
+                                               _with("controller.grid.fpga.angle_state_frac_bits",
+                                                     [8, 12]))))}
     assert len(h) == 3
 
 
@@ -153,7 +158,8 @@ def test_old_sweeps_keep_their_hash():
         if spec.arithmetic == "fixed":
             continue
         fields = set(ControllerParams.__dataclass_fields__)
-        params = ControllerParams(**{k: v for k, v in m["controller_params"].items() if k in fields})
+        params = ControllerParams(**{k: v for k, v in m["controller_params"].items()
+                                     if k in fields})
         assert "model_params" in m, path
         model = model_params_from_dict(m["model_params"], str(path))
         assert _spec_hash(spec, params, model) == m["spec_hash"], path
@@ -161,7 +167,8 @@ def test_old_sweeps_keep_their_hash():
 
 # --- Closed loop on MuJoCo C (the fixed tick compiles in seconds) ---
 
-PUSHES = Push(jnp.asarray([0.5, 1.2, 2.2, 1.0, 1.8]), jnp.radians(jnp.asarray([0., 180, 0, 90, 270])),
+PUSHES = Push(jnp.asarray([0.5, 1.2, 2.2, 1.0, 1.8]),
+              jnp.radians(jnp.asarray([0., 180, 0, 90, 270])),
               jnp.full(5, 0.36), jnp.full(5, 0.02), jnp.full(5, 0.3))
 PARAMS = ControllerParams.paper()
 

@@ -45,20 +45,20 @@ def test_paper_has_every_option_off(params):
 def test_rate_aware_capture_point_hand_values(params):
     jax.config.update("jax_enable_x64", True)
     try:
-        l, h = params.leg_length, params.com_height
+        leg_len, h = params.leg_length, params.com_height
         theta, rate = 0.1, 0.8
         # b = 0, tau = 0: exactly the paper's Eq. 6-10.
         assert float(capture_point_rate(theta, rate, params)) == float(
-            capture_point(theta, l, h, G))
+            capture_point(theta, leg_len, h, G))
         # b = 1: the measured rate in Eq. 8.
         p1 = dataclasses.replace(params, cp_rate_blend=1.0)
-        want = l * math.sin(theta) + l * math.cos(theta) * rate * math.sqrt(h / G)
+        want = leg_len * math.sin(theta) + leg_len * math.cos(theta) * rate * math.sqrt(h / G)
         assert float(capture_point_rate(theta, rate, p1)) == pytest.approx(want, rel=1e-12)
         # b = 0.25: a blend of the two rates; lookahead tau multiplies by exp(tau sqrt(g/h)).
         p2 = dataclasses.replace(params, cp_rate_blend=0.25, cp_lookahead_s=0.1)
-        rate_e = math.copysign(math.sqrt(2 * G / l * (1 - math.cos(theta))), theta)
+        rate_e = math.copysign(math.sqrt(2 * G / leg_len * (1 - math.cos(theta))), theta)
         rate_b = 0.75 * rate_e + 0.25 * rate
-        want = ((l * math.sin(theta) + l * math.cos(theta) * rate_b * math.sqrt(h / G))
+        want = ((leg_len * math.sin(theta) + leg_len * math.cos(theta) * rate_b * math.sqrt(h / G))
                 * math.exp(0.1 * math.sqrt(G / h)))
         assert float(capture_point_rate(theta, rate, p2)) == pytest.approx(want, rel=1e-12)
     finally:
@@ -123,12 +123,12 @@ def test_paper_gates_when_capture_point_trigger_is_off(params):
 
 def test_capture_point_trigger_reads_the_rate_not_the_angle(params):
     p = dataclasses.replace(params, cp_trigger=1.0, cp_rate_blend=1.0)
-    lean, l, h = p.standing_lean, p.leg_length, p.com_height
+    lean, leg_len, h = p.standing_lean, p.leg_length, p.com_height
     # Beyond the paper's 12 deg threshold but swinging back fast: the capture point is inside
     # the foot, so no step (the paper would step).
     phi = math.radians(13.0)
     back = -1.2
-    x_cp = l * math.sin(phi - lean) + l * math.cos(phi - lean) * back * math.sqrt(h / G)
+    x_cp = leg_len * math.sin(phi - lean) + leg_len * math.cos(phi - lean) * back * math.sqrt(h / G)
     assert -p.cp_trigger_backward_m < x_cp < p.cp_trigger_forward_m
     det = _detect(jnp.float32(phi), jnp.float32(0.0), jnp.float32(back), jnp.float32(0.0), p)
     assert float(det.x_cp) == pytest.approx(x_cp, abs=1e-6)
@@ -136,7 +136,7 @@ def test_capture_point_trigger_reads_the_rate_not_the_angle(params):
     assert float(push_gate(jnp.float32(phi), params)) == 1.0
     # Near the standing lean but falling forward fast: the capture point is past the toe.
     fwd = 2.0
-    x_cp = l * math.cos(0.0) * fwd * math.sqrt(h / G)
+    x_cp = leg_len * math.cos(0.0) * fwd * math.sqrt(h / G)
     assert x_cp > p.cp_trigger_forward_m
     det = _detect(jnp.float32(lean), jnp.float32(0.0), jnp.float32(fwd), jnp.float32(0.0), p)
     assert float(det.pitch_gate) == 1.0

@@ -16,7 +16,8 @@ from tkujax.control.solve import solve_legs
 
 __all__ = [
     "ControllerParams", "ControllerState", "KalmanState", "Sensors", "accel_to_angle",
-    "StepOverride", "capture_point", "controller_init", "controller_step", "cpg_feet", "cpg_feet_lateral",
+    "StepOverride", "capture_point", "controller_init", "controller_step", "cpg_feet",
+    "cpg_feet_lateral",
     "kalman_init", "kalman_step", "leg_ik", "push_detected", "push_gate", "push_recovery",
     "solve_legs", "stand_leg_targets",
 ]

@@ -61,10 +61,10 @@ def capture_point_rate(phi: jax.Array, rate: jax.Array, params: ControllerParams
     x exp(omega tau), omega = sqrt(g/h) (Koolen et al. 2012). With b = 0 and tau = 0 this is
     `capture_point(phi, ...)` exactly (the blend adds 0 * (finite), the factor is exp(0) = 1).
     """
-    l, h, g = params.leg_length, params.com_height, params.gravity
-    phidot_e = energy_rate(phi, l, g)
+    leg_len, h, g = params.leg_length, params.com_height, params.gravity
+    phidot_e = energy_rate(phi, leg_len, g)
     phidot = phidot_e + params.cp_rate_blend * (rate - phidot_e)
-    x = _lip_capture_point(phi, phidot, l, h, g)
+    x = _lip_capture_point(phi, phidot, leg_len, h, g)
     return x * jnp.exp(params.cp_lookahead_s * jnp.sqrt(g / h))
 
 

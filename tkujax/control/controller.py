@@ -7,8 +7,9 @@ the same compiled function.
 
 Smooth variant: with gate_temperature > 0 the detection gate is a sigmoid; the step weight is
 the running max of the gate (w <- max(w, gate)) and x_Sup accumulates the capture point weighted
-by each increase of w, so gradients reach the thresholds. The step's start time is still the discrete instant at which
-w crosses 1/2; with gate_temperature = 0 all of this is exactly Algorithm 1.
+by each increase of w, so gradients reach the thresholds. The step's start time is still the
+discrete instant at which w crosses 1/2; with gate_temperature = 0 all of this is exactly
+Algorithm 1.
 
 Sideways pushes (params.lateral_steps = 1, a tkujax extension): the roll is watched too; when
 the lateral lean psi = -roll (positive toward +y) leaves (-eps_lateral, eps_lateral) a step is
@@ -73,7 +74,7 @@ class ControllerState:
     x_sup_m: jax.Array
     y_sup_m: jax.Array
     phi_at_detect: jax.Array
-    steps: "StepsState"
+    steps: StepsState
 
 
 @jax.tree_util.register_dataclass
@@ -89,7 +90,7 @@ class StepsState:
     swing_left: jax.Array
 
     @staticmethod
-    def init(dtype=jnp.float32) -> "StepsState":
+    def init(dtype=jnp.float32) -> StepsState:
         zero = jnp.zeros((), dtype)
         return StepsState(count=zero, feet_from=jnp.zeros((4,), dtype),
                           feet_to=jnp.zeros((4,), dtype), swing_left=jnp.ones((), dtype))
@@ -283,7 +284,8 @@ def _first_step_bookkeeping(steps: StepsState, stepping, x_sup, y_sup, params) -
     feet_to, swing_left = _first_step_feet(x_sup, y_sup, params)
     first = stepping & (steps.count < 1.5)
     return StepsState(count=jnp.where(first, 1.0, steps.count).astype(steps.count.dtype),
-                      feet_from=jnp.where(first, 0.0, steps.feet_from).astype(steps.feet_from.dtype),
+                      feet_from=jnp.where(first, 0.0,
+                                          steps.feet_from).astype(steps.feet_from.dtype),
                       feet_to=jnp.where(first, feet_to, steps.feet_to).astype(steps.feet_to.dtype),
                       swing_left=jnp.where(first, swing_left.astype(steps.swing_left.dtype),
                                            steps.swing_left))

@@ -13,7 +13,8 @@ import jax.numpy as jnp
 from tkujax.control.params import ControllerParams
 
 
-def cpg_feet(t: jax.Array, x_sup: jax.Array, params: ControllerParams) -> tuple[jax.Array, jax.Array]:
+def cpg_feet(t: jax.Array, x_sup: jax.Array,
+             params: ControllerParams) -> tuple[jax.Array, jax.Array]:
     """Ankle targets of the recovery step at time t.
 
     Args:

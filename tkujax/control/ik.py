@@ -1,7 +1,8 @@
 """Leg inverse kinematics (Sec. 3.4, Eq. 19-28), exact for the TKU-X leg chain.
 
 Joint convention of `leg_ik` (the model's, see tkujax/model/mjcf.py):
-  chain hip_yaw (z) -> hip_roll (x) -> hip_pitch (y) -> knee (y) -> ankle_pitch (y) -> ankle_roll (x);
+  chain hip_yaw (z) -> hip_roll (x) -> hip_pitch (y) -> knee (y) -> ankle_pitch (y) ->
+  ankle_roll (x);
   the three hip axes meet at the hip joint centre, the two ankle axes at the ankle centre;
   thigh = hip centre to knee, calf = knee to ankle centre; MuJoCo right-hand rule; all zero =
   straight leg pointing down (-z) with the sole flat. Consequences: R_y(a) (0, 0, -1) =
@@ -48,7 +49,8 @@ def leg_ik(p_ankle_from_hip: jax.Array, thigh, calf) -> LegAngles:
         hip_roll    = atan2(p_y, -p_z)                     (Eq. 19 without the L^z approximation)
         knee        = acos((D^2 - l_t^2 - l_c^2) / (2 l_t l_c)) >= 0, D = |p| (law of cosines,
                       computed as an equivalent, better conditioned atan2)
-        hip_pitch   = atan2(-p_x, L') - atan2(l_c sin knee, l_t + l_c cos knee), L' = sqrt(p_y^2 + p_z^2)
+        hip_pitch   = atan2(-p_x, L') - atan2(l_c sin knee, l_t + l_c cos knee),
+                      L' = sqrt(p_y^2 + p_z^2)
         ankle_pitch = -(hip_pitch + knee)                  (sole parallel to the ground)
         ankle_roll  = -hip_roll                            (sole parallel to the ground)
       reachable is False when D is outside [|l_t - l_c|, l_t + l_c]; the angles are then those

@@ -67,7 +67,8 @@ class KalmanState:
     p: jax.Array
 
 
-def kalman_init(phi0: jax.Array, params: ControllerParams, p0: jax.Array | None = None) -> KalmanState:
+def kalman_init(phi0: jax.Array, params: ControllerParams,
+                p0: jax.Array | None = None) -> KalmanState:
     """Filter state at the initial inclination.
 
     Args:

@@ -40,7 +40,8 @@ class ControllerParams:
       cp_excess             -      0 (default): the angle of Eq. 7-10 is phi - cp_angle_offset;
                                    1: it is the excess over the threshold that was crossed,
                                    phi - eps_forward forward, phi + eps_backward backward (one of
-                                   the readings of Algorithm 1 compared by tkujax.studies.calibrate).
+                                   the readings of Algorithm 1 compared by
+                                   tkujax.studies.calibrate).
       cp_update_window      s      0 (default): x_Sup is latched at the first detection; > 0: it
                                    is recomputed from the current angle each period while the
                                    step is at most this old and the push is still detected
@@ -68,7 +69,8 @@ class ControllerParams:
                                    the energy-balance rate of Eq. 9-10: phidot = (1 - b) phidot_E
                                    + b phidot_gyro (Pratt 2006, Englsberger 2011). 0 = paper.
       cp_lookahead_s        s      step to the capture point predicted this far ahead by the LIP,
-                                   xi(t) = xi0 exp(omega t), omega = sqrt(g/h) (Koolen 2012); 0 = off.
+                                   xi(t) = xi0 exp(omega t), omega = sqrt(g/h) (Koolen 2012);
+                                   0 = off.
       cp_trigger            -      0 (paper): step when phi leaves (-eps_2, eps_1); 1: step when
                                    the rate-aware capture point leaves the support, i.e. exceeds
                                    cp_trigger_forward_m ahead of / cp_trigger_backward_m behind
@@ -139,7 +141,7 @@ class ControllerParams:
     com_height: float = 0.29
 
     @classmethod
-    def paper(cls, model_params=None, variant: str = "calibrated") -> "ControllerParams":
+    def paper(cls, model_params=None, variant: str = "calibrated") -> ControllerParams:
         """The paper's values, with the geometry of the TKU-X model (default: the default one).
         variant "estimated": the Kalman noises before calibration (KALMAN_ESTIMATED)."""
         if variant not in ("calibrated", "estimated"):
@@ -158,7 +160,7 @@ class ControllerParams:
         return p.validate()
 
     @classmethod
-    def recommended(cls, model_params=None) -> "ControllerParams":
+    def recommended(cls, model_params=None) -> ControllerParams:
         """The recommended recovery controller: the paper's architecture with the recovery
         extensions on (rate-aware capture point and trigger, stance feedback, up to two steps,
         sideways steps, the accelerometer gate), tuned by CMA-ES through MJX on the default
@@ -166,7 +168,7 @@ class ControllerParams:
         whose params_after.json holds these values). Geometry and Kalman noises as `paper`."""
         return dataclasses.replace(cls.paper(model_params), **RECOMMENDED).validate()
 
-    def validate(self) -> "ControllerParams":
+    def validate(self) -> ControllerParams:
         """Check ranges on concrete values; raises ValueError naming the field. Returns self.
 
         For use at the edges (construction, configuration), not inside jit: traced fields

@@ -84,7 +84,7 @@ class Bands:
     impulse_bands: int = 4
     phase_bands: int = 3
 
-    def validate(self) -> "Bands":
+    def validate(self) -> Bands:
         if self.sectors not in SECTOR_NAMES:
             raise SpecError(f"sectors must be one of {sorted(SECTOR_NAMES)}, got {self.sectors!r}")
         if not 1 <= self.impulse_bands <= 50:

@@ -236,7 +236,7 @@ def _simulate(spec: ConvergeSpec, setting: Setting, pushes, enabled) -> dict:
         idx = np.minimum(np.arange(a, a + spec.batch), n - 1)
         if n - a < spec.batch and spec.backend == "mujoco":
             idx = np.arange(a, n)                    # no compile to share: no padding
-        chunk = jax.tree_util.tree_map(lambda v: np.asarray(v)[idx], pushes)
+        chunk = jax.tree_util.tree_map(lambda v, idx=idx: np.asarray(v)[idx], pushes)
         if spec.backend == "mujoco":
             from tkujax.sim.rollout_mujoco import simulate_mujoco
             _, out = simulate_mujoco(chunk, enabled[idx], params, model_params=mp)
@@ -273,7 +273,8 @@ def agreement(spec: ConvergeSpec, labels: dict, results: dict[str, dict]) -> dic
             continue
         r = results[s.name]
         entry = dict(timestep_ms=s.timestep_ms, solver_iterations=s.solver_iterations,
-                     ls_iterations=s.ls_iterations, impulse_scale=s.impulse_scale, wall_s=float(r.get("wall_s", math.nan)))
+                     ls_iterations=s.ls_iterations, impulse_scale=s.impulse_scale,
+                     wall_s=float(r.get("wall_s", math.nan)))
         for set_name in ("paper", "wide"):
             for c in CONTROLS:
                 sel = (labels["set"] == set_name) & (labels["control"] == c)
@@ -314,7 +315,8 @@ def agreement_markdown(spec: ConvergeSpec, agr: dict, device: str) -> str:
              f"{1000 * spec.duration_s:g} ms pulse, seed {spec.seed}).", "",
              "Fall outcomes equal to the reference's, fraction [95 % Wilson interval] (pushes "
              "that diverged in either setting left out, counted in 'div.'):", "",
-             "| setting | dt (ms) | Newton it. | ls it. | impulse x | wide, control off | wide, control on | "
+             "| setting | dt (ms) | Newton it. | ls it. | impulse x | wide, control off | "
+             "wide, control on | "
              "paper rows, off | paper rows, on | paper rows as the paper (phase 0 / all) | "
              "div. | max step change (cm, wide on) | wall (s) |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]

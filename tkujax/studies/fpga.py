@@ -187,7 +187,8 @@ def _plots(res: dict, out: Path) -> list[Path]:
             a = axes[k]
             ax.plot(a["values"], [100 * x for x in a["agreement"]], "o-")
             if a["threshold"] is not None:
-                ax.axvline(a["threshold"], color="g", ls="--", label=f"100 % from {a['threshold']:g}")
+                ax.axvline(a["threshold"], color="g", ls="--",
+                           label=f"100 % from {a['threshold']:g}")
                 ax.legend(fontsize=8)
             ax.set_xlabel(k)
             ax.set_ylabel("outcome = float (%)")
@@ -241,7 +242,8 @@ def _markdown(res: dict, spec: SweepSpec, manifests: dict) -> str:
     L = [f"# FPGA fixed-point study: {spec.name}", ""]
     L.append(f"{res['n_configs']} fixed-point configurations x "
              f"{res['configs'][0]['n']} pushes, against the float controller on the same pushes "
-             f"(backend {manifests['fixed'].get('backend')}; wall {manifests['fixed'].get('wall_s')}"
+             f"(backend {manifests['fixed'].get('backend')}; "
+             f"wall {manifests['fixed'].get('wall_s')}"
              f" s fixed + {manifests['float'].get('wall_s')} s float). Outcome = fell; "
              f"configurations vary {res['gridded'] or 'nothing'} (others at the spec's [fpga] "
              f"values or FixedPointConfig defaults).")

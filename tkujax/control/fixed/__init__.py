@@ -24,7 +24,8 @@ from tkujax.control.fixed.qformat import QFormat, quantize, straight_through, to
 from tkujax.control.fixed.support import IMPLEMENTED_FIELDS, check_supported, unsupported
 
 __all__ = [
-    "Coefficients", "CordicSpec", "IMPLEMENTED_FIELDS", "check_supported", "unsupported", "FixedControllerOutput", "FixedControllerState",
+    "Coefficients", "CordicSpec", "IMPLEMENTED_FIELDS", "check_supported", "unsupported",
+    "FixedControllerOutput", "FixedControllerState",
     "FixedPointConfig", "QFormat", "accel_to_angle_fx", "capture_point_fx", "coef_format",
     "coefficients", "controller_init_fx", "controller_step_fx", "cpg_feet_fx", "kalman_step_fx",
     "leg_ik_fx", "quantize", "servo_command", "servo_switch_substep", "solve_legs_fx",

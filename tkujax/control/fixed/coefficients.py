@@ -37,7 +37,8 @@ _COEF_INT_BITS = {"dt": 0, "cp_gain": 4, "two_sqrt_gl": 5, "sqrt_hg": 0, "inv_2l
                   "t_lift": 10, "t_land": 10, "dphase_x": 2, "dphase_z": 2, "update_ticks": 10}
 MODE_BITS = ("lateral", "cp_excess", "cp_update")   # one-bit registers (bools)
 _GROUP = {"kalman_q": "cov", "kalman_r": "cov", "eps_forward": "state", "eps_backward": "state",
-          "eps_lateral": "state", "cp_mid": "state", "cp_angle_offset": "angle", "standing_lean": "angle",
+          "eps_lateral": "state", "cp_mid": "state", "cp_angle_offset": "angle",
+          "standing_lean": "angle",
           "leg_length": "length", "hip_offset_y": "length", "hip_to_ankle_z": "length",
           "thigh": "length", "calf": "length", "lift": "length"}
 

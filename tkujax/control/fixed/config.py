@@ -79,7 +79,7 @@ class FixedPointConfig:
         self.validate()
 
     @classmethod
-    def wide(cls, **changes) -> "FixedPointConfig":
+    def wide(cls, **changes) -> FixedPointConfig:
         """Near-float words (25-26 bits, 28 iterations): for checking against the float twin."""
         base = dict(angle=QFormat(2, 23), rate=QFormat(5, 20), length=QFormat(0, 25),
                     accel=QFormat(3, 22), unit=QFormat(2, 23), state=QFormat(2, 23),
@@ -88,7 +88,7 @@ class FixedPointConfig:
         base.update(changes)
         return cls(**base)
 
-    def validate(self) -> "FixedPointConfig":
+    def validate(self) -> FixedPointConfig:
         """Raise ValueError naming the field and its allowed range; returns self."""
         def bad(name, rng, got):
             raise ValueError(f"FixedPointConfig.{name} must be {rng}, got {got!r}")
@@ -96,7 +96,8 @@ class FixedPointConfig:
         for name, (lo, hi) in _INT_BITS.items():
             f = getattr(self, name)
             if not isinstance(f, QFormat) or not all(
-                    isinstance(v, int) and not isinstance(v, bool) for v in (f.int_bits, f.frac_bits)):
+                    isinstance(v, int) and not isinstance(v, bool)
+                    for v in (f.int_bits, f.frac_bits)):
                 bad(name, "a QFormat(int_bits, frac_bits) of ints", f)
             if not lo <= f.int_bits <= hi:
                 bad(f"{name}.int_bits", f"in [{lo}, {hi}]", f.int_bits)

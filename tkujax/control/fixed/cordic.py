@@ -80,7 +80,8 @@ def _const(v: float, fmt: QFormat) -> int:
 
 
 def rotation_formats(fmt_in: QFormat, fmt_out: QFormat, g: int) -> tuple[QFormat, QFormat]:
-    return QFormat(1, fmt_out.frac_bits + g), QFormat(max(fmt_in.int_bits + 1, 3), fmt_in.frac_bits + g)
+    return (QFormat(1, fmt_out.frac_bits + g),
+            QFormat(max(fmt_in.int_bits + 1, 3), fmt_in.frac_bits + g))
 
 
 def sincos(theta: jax.Array, fmt_in: QFormat, fmt_out: QFormat, spec: CordicSpec):

@@ -48,11 +48,11 @@ class QFormat:
     def lsb(self) -> float:
         return 2.0 ** -self.frac_bits
 
-    def widened(self, int_bits: int = 0, frac_bits: int = 0) -> "QFormat":
+    def widened(self, int_bits: int = 0, frac_bits: int = 0) -> QFormat:
         """This format with extra integer / fraction bits (e.g. CORDIC headroom, guard bits)."""
         return QFormat(self.int_bits + int_bits, self.frac_bits + frac_bits)
 
-    def check(self) -> "QFormat":
+    def check(self) -> QFormat:
         if not 2 <= self.word_bits <= MAX_WORD_BITS or self.frac_bits < 0:
             raise ValueError(f"QFormat{(self.int_bits, self.frac_bits)} needs frac_bits >= 0 and "
                              f"a word of [2, {MAX_WORD_BITS}] bits, got {self.word_bits}")
@@ -111,7 +111,8 @@ def shift_left_sat(raw: jax.Array, shift: int, out: QFormat) -> jax.Array:
         return saturate(raw, out)
     hi, lo = out.max_raw >> shift, -((-out.min_raw) >> shift)
     shifted = jnp.left_shift(jnp.clip(raw, lo, hi), shift)
-    return saturate(jnp.where(raw > hi, out.max_raw, jnp.where(raw < lo, out.min_raw, shifted)), out)
+    return saturate(jnp.where(raw > hi, out.max_raw,
+                              jnp.where(raw < lo, out.min_raw, shifted)), out)
 
 
 def requant(raw: jax.Array, src: QFormat, dst: QFormat, rounding: str) -> jax.Array:
@@ -166,7 +167,8 @@ def mul(a: jax.Array, fa: QFormat, b: jax.Array, fb: QFormat, out: QFormat,
     hi, lo = _umul64(jnp.abs(a).astype(u32), jnp.abs(b).astype(u32))
     s = fa.frac_bits + fb.frac_bits - out.frac_bits
     if s > 0:
-        # floor(-m/2^s) = -floor((m + 2^s - 1)/2^s); floor(-m/2^s + 1/2) = -floor((m + 2^(s-1) - 1)/2^s)
+        # floor(-m/2^s) = -floor((m + 2^s - 1)/2^s);
+        # floor(-m/2^s + 1/2) = -floor((m + 2^(s-1) - 1)/2^s)
         b_pos = (1 << (s - 1)) if rounding == "nearest" else 0
         b_neg = (1 << (s - 1)) - 1 if rounding == "nearest" else (1 << s) - 1
         (ph, pl), (nh, nl) = _split(b_pos), _split(b_neg)

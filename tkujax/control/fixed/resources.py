@@ -49,7 +49,6 @@ import numpy as np
 
 from tkujax.control.fixed.coefficients import MODE_BITS, Coefficients, coef_format
 from tkujax.control.fixed.config import FixedPointConfig
-from tkujax.control.fixed.qformat import QFormat
 
 # The paper's chip (Table 1): Altera Cyclone III EP3C120 (device handbook figures).
 EP3C120 = dict(logic_elements=119_088, multipliers_18x18=288, m9k_blocks=432, m9k_bits=9216)

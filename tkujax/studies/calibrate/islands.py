@@ -131,7 +131,7 @@ def island_slices(names=P.NAMES, points: int = 41, refine: int = 4,
         grid = sorted(set(np.linspace(a_lo, a_hi, points).tolist()) | {x0[name]})
         cache = {}
 
-        def run(v):
+        def run(v, cache=cache, name=name):
             if v not in cache:
                 cache[v] = score(dict(x0, **{name: v}), reading, hit_phases)
             return cache[v]

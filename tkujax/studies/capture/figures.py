@@ -66,8 +66,10 @@ def region_panels(regs: list[Region], out: Path, reach_m: float) -> list[Path]:
                    Patch(fc="0.8", label="falls"),
                    Line2D([], [], c="tab:blue", ls="--", label="Koolen R₁ (LIP, step time)"),
                    Line2D([], [], c="0.5", ls=":", label="step reach l_max"),
-                   Line2D([], [], c="tab:orange", marker="*", ls="", label="LIP capture point at touchdown (sim CoM)"),
-                   Line2D([], [], c="tab:red", marker="x", ls="", label="controller's own step (x_Sup, y_Sup)"),
+                   Line2D([], [], c="tab:orange", marker="*", ls="",
+                          label="LIP capture point at touchdown (sim CoM)"),
+                   Line2D([], [], c="tab:red", marker="x", ls="",
+                          label="controller's own step (x_Sup, y_Sup)"),
                    Line2D([], [], c="k", marker="+", ls="", label="region centroid")]
         fig.legend(handles=handles, loc="lower center", ncol=4, fontsize=7, frameon=False)
         fig.suptitle(f"One-step capture regions, step from {_timing_name(timing)}\nswing ankle "

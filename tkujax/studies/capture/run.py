@@ -57,8 +57,8 @@ def optimise_cases(regs, spec: SweepSpec, params: ControllerParams, n_cases: int
         h0 = res["history"][0]
         out.append(dict(
             case_id=r.case_id, impulse_ns=r.impulse_ns, azimuth_deg=r.azimuth_deg,
-            capture_point=np.round(start[k], 4).tolist(), capture_point_margin_deg=h0["margin_deg"][k],
-            capture_point_fell=h0["fell"][k],
+            capture_point=np.round(start[k], 4).tolist(),
+            capture_point_margin_deg=h0["margin_deg"][k], capture_point_fell=h0["fell"][k],
             gradient_opt=np.round(res["best"][k], 4).tolist(),
             gradient_opt_margin_deg=float(res["best_margin_deg"][k]),
             gradient_opt_fell=bool(res["best_fell"][k]),
@@ -71,7 +71,8 @@ def optimise_cases(regs, spec: SweepSpec, params: ControllerParams, n_cases: int
 
 def _summary_md(manifest: dict, rows: list[dict], j1: list[dict], opt: list[dict],
                 files: list[Path]) -> str:
-    f = lambda v, s=100, d=1: "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{s * v:.{d}f}"  # noqa: E731
+    f = lambda v, s=100, d=1: (  # noqa: E731
+        "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{s * v:.{d}f}")
     lines = [f"# Capture regions `{manifest['name']}`: {manifest['n_pushes']} rollouts",
              "", f"Backend {manifest['backend']}, devices {', '.join(manifest['devices'])}, "
              f"wall {manifest['wall_s']} s (compile included).", "",
@@ -79,7 +80,8 @@ def _summary_md(manifest: dict, rows: list[dict], j1: list[dict], opt: list[dict
              "gap = distance from the controller's own step to the region (0 inside) and to its "
              "centroid.", "",
              "| J (N·s) | az (deg) | delay (ms) | captured / targets | area (cm²) | centroid | "
-             "ICP at touchdown | Koolen R₁ | controller step | ctrl fell | gap region | gap centroid |",
+             "ICP at touchdown | Koolen R₁ | controller step | ctrl fell | gap region | "
+             "gap centroid |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(
@@ -94,24 +96,27 @@ def _summary_md(manifest: dict, rows: list[dict], j1: list[dict], opt: list[dict
     lines += ["", "J₁ per direction (N·s): empirical = largest tested impulse with a non-empty "
               "region; theory = Koolen R₁ meets the reach l_max, with the measured step time Δt "
               "(push onset to touchdown).", "",
-              "| az (deg) | delay (ms) | Δt (s) | J₁ empirical | J₁ theory | controller's own: largest survived |",
+              "| az (deg) | delay (ms) | Δt (s) | J₁ empirical | J₁ theory | "
+              "controller's own: largest survived |",
               "|---|---|---|---|---|---|"]
     for r in j1:
-        lines.append(f"| {r['azimuth_deg']:.0f} | {1000 * r['start_delay_s']:.0f} | {r['dt_s']:.3f} | "
-                     f"{r['j1_empirical']:.2f} | {f(r['j1_theory'], 1, 2)} | "
+        lines.append(f"| {r['azimuth_deg']:.0f} | {1000 * r['start_delay_s']:.0f} | "
+                     f"{r['dt_s']:.3f} | {r['j1_empirical']:.2f} | {f(r['j1_theory'], 1, 2)} | "
                      f"{r['controller_max_survived']:.2f} |")
     if opt:
         lines += ["", "Gradient-optimal steps (Adam on the capture margin through MJX, from the "
                   "LIP capture point at touchdown); margin = minus the RMS inclination deviation "
                   "after onset (deg, higher is better).", "",
-                  "| J | az | capture point (cm) → margin, fell | grid best cell | gradient optimum |",
+                  "| J | az | capture point (cm) → margin, fell | grid best cell | "
+                  "gradient optimum |",
                   "|---|---|---|---|---|"]
         for o in opt:
             cell = lambda p, m, fl: f"({100 * p[0]:.1f}, {100 * p[1]:.1f}) → {m:.2f}°, {int(fl)}"  # noqa: E731
+            cp = cell(o['capture_point'], o['capture_point_margin_deg'], o['capture_point_fell'])
+            gb = cell(o['grid_best'], o['grid_best_margin_deg'], o['grid_best_fell'])
+            go = cell(o['gradient_opt'], o['gradient_opt_margin_deg'], o['gradient_opt_fell'])
             lines.append(f"| {o['impulse_ns']:.2f} | {o['azimuth_deg']:.0f} | "
-                         f"{cell(o['capture_point'], o['capture_point_margin_deg'], o['capture_point_fell'])} | "
-                         f"{cell(o['grid_best'], o['grid_best_margin_deg'], o['grid_best_fell'])} | "
-                         f"{cell(o['gradient_opt'], o['gradient_opt_margin_deg'], o['gradient_opt_fell'])} |")
+                         f"{cp} | {gb} | {go} |")
     lines += ["", "Figures: " + ", ".join(f"`{p.name}`" for p in files), ""]
     return "\n".join(lines)
 

@@ -68,7 +68,8 @@ def summary_markdown(rec: dict, comparison: dict | None = None) -> str:
     for f in rec["tuned"]:
         lo, hi = rec["ranges_user_units"][f]
         lines.append(f"| {f} ({TUNABLE[f][3] or '-'}) | [{lo:g}, {hi:g}] | "
-                     f"{rec['params_user']['before'][f]:.4g} | {rec['params_user']['after'][f]:.4g} |")
+                     f"{rec['params_user']['before'][f]:.4g} | "
+                     f"{rec['params_user']['after'][f]:.4g} |")
     dec = rec.get("recommendation")
     if dec:
         lines[4:4] = ["## Recommendation (params_after.json)", "",
