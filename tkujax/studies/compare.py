@@ -48,7 +48,7 @@ import numpy as np
 
 from tkujax.sim.push import onset_phase
 from tkujax.studies.chunks import read_manifest
-from tkujax.studies.maps import MAX_AZIMUTH_BINS, ROUND, _polar_mesh
+from tkujax.studies.maps import MAX_AZIMUTH_BINS, _axis, _polar_mesh
 from tkujax.studies.spec import PHASE_KEY, RANDOMIZE_FIELDS, SpecError
 from tkujax.studies.sweep import load, outcome_keys
 
@@ -327,21 +327,8 @@ def verdict(runs: list[Run], table: dict, min_pushes: int = 100, harm_pp: float 
 
 
 def map_axis(values: np.ndarray, max_bins: int, period: float | None = None):
-    """(bin centres, bin of each value), as tkujax map's axes: grid values map to themselves;
-    with more distinct values than max_bins (random samples), equal bins on a regular grid
-    (periodic: centred on 0), and, unlike the map's, empty bins are kept (drawn blank), so a
-    sparse run's cells do not stretch over the gaps."""
-    values = np.round(np.asarray(values, float), ROUND)
-    uniq = np.unique(values)
-    if len(uniq) <= max_bins:
-        return uniq, np.searchsorted(uniq, values)
-    if period is not None:
-        width = period / max_bins
-        idx = np.floor(np.mod(values + width / 2, period) / width).astype(int) % max_bins
-        return np.arange(max_bins) * width, idx
-    centres = np.linspace(uniq[0], uniq[-1], max_bins)
-    width = centres[1] - centres[0]
-    return centres, np.clip(np.round((values - centres[0]) / width).astype(int), 0, max_bins - 1)
+    """(bin centres, bin of each value): tkujax map's axes, with the empty bins kept."""
+    return _axis(values, max_bins, period, keep_empty=True)
 
 
 def difference_cells(runs: list[Run], azimuth_bins: int = 24, impulse_bins: int = 12,

@@ -32,11 +32,13 @@ MAX_IMPULSE_BINS = 48
 MAX_PHASE_BINS = 15      # 2 ms: the physics time step
 
 
-def _axis(values: np.ndarray, max_bins: int, period: float | None = None):
+def _axis(values: np.ndarray, max_bins: int, period: float | None = None,
+          keep_empty: bool = False):
     """(bin centres, bin index of each value). Grid values map to themselves; when there are
     more distinct values than max_bins (random samples), equal bins centred on a regular grid
-    (for a periodic axis, centred on 0)."""
-    values = np.round(values, ROUND)
+    (for a periodic axis, centred on 0). Empty bins are dropped unless keep_empty (then they
+    are drawn blank, so a sparse run's cells do not stretch over the gaps)."""
+    values = np.round(np.asarray(values, float), ROUND)
     uniq = np.unique(values)
     if len(uniq) <= max_bins:
         return uniq, np.searchsorted(uniq, values)
@@ -48,6 +50,8 @@ def _axis(values: np.ndarray, max_bins: int, period: float | None = None):
         centres = np.linspace(uniq[0], uniq[-1], max_bins)
         width = centres[1] - centres[0]
         idx = np.clip(np.round((values - centres[0]) / width).astype(int), 0, max_bins - 1)
+    if keep_empty:
+        return centres, idx
     used = np.unique(idx)             # drop empty bins
     return centres[used], np.searchsorted(used, idx)
 

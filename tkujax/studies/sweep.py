@@ -192,6 +192,14 @@ def mujoco_chunk(batch: dict, seed: int, base: ControllerParams, duration_s: flo
     return res
 
 
+def shares_robot_draws(spec: SweepSpec) -> bool:
+    """Whether the spec's records changed when one robot draw per push became shared by its
+    settings: random [randomize] draws and more than one setting (control or grid point)."""
+    n_settings = len(spec.control) * math.prod(
+        len(v) for v in (spec.controller_grid | spec.fpga_grid).values())
+    return any(isinstance(v, tuple) for v in spec.randomize.values()) and n_settings > 1
+
+
 def _spec_hash(spec: SweepSpec, params: ControllerParams, model_params: ModelParams) -> str:
     # Fields added later enter the hash only when set, so older sweeps still resume. The model
     # enters in full: a changed default robot (e.g. the calibration) is a different sweep.
@@ -202,9 +210,7 @@ def _spec_hash(spec: SweepSpec, params: ControllerParams, model_params: ModelPar
         parts.append({"fixed_point_defaults": dataclasses.asdict(FixedPointConfig())})
     if spec.phase_default:   # random onsets changed meaning when the phase axis came in
         parts.append("push.random.onset_phase: uniform [0, 1) by default")
-    n_settings = len(spec.control) * math.prod(
-        len(v) for v in (spec.controller_grid | spec.fpga_grid).values())
-    if any(isinstance(v, tuple) for v in spec.randomize.values()) and n_settings > 1:
+    if shares_robot_draws(spec):
         # The robot draws became shared by the settings of a push (records of older sweeps
         # differ): such a sweep is a new one.
         parts.append("randomize: one draw per push, shared by its control and grid settings")
