@@ -38,9 +38,10 @@ import pytest
 from tkujax.control.params import ControllerParams
 from tkujax.studies.spec import RANDOMIZE_DEFAULTS, SpecError
 from tkujax.control.io import load_controller_params_json as load_params_json
-from tkujax.studies.tune import (DEG, TUNABLE, LossConfig, Reparam, TuneProblem, evolution_baseline,
+from tkujax.studies.tune import (DEG, LossConfig, Reparam, TuneProblem, evolution_baseline,
                          make_optimizer, optimise, params_json, parse_tune_spec,
                          temperature_schedule)
+from tkujax.studies.tune.reparam import PAPER_TUNABLE
 
 H = 1e-5
 REL_TOL = 1e-4
@@ -65,7 +66,7 @@ KEYS = jax.random.split(jax.random.PRNGKey(0), BATCH)
 
 @pytest.fixture(scope="module")
 def reparam() -> Reparam:
-    return Reparam.make(tuple(TUNABLE))
+    return Reparam.make(PAPER_TUNABLE)
 
 
 @pytest.fixture(scope="module")
@@ -329,3 +330,21 @@ def test_alpha_order_mix_trusts_the_lower_variance_and_rejects_bias():
     biased = np.array([[0.0, 0.0]] * 4) + rng.normal(0, 1e-3, (4, 2))
     g, alpha = alpha_order_mix(biased.mean(0), biased, lp, lm, eps, sigma)
     assert alpha == 0.0 and np.linalg.norm(g - g_true) < 0.5
+
+
+def test_recovery_tuning_spec_round_trips_the_recommended_set():
+    """The extended controller's tuning space (sweeps/tune_recovery.toml): the recommended set
+    lies strictly inside it and maps to latents and back to itself."""
+    from pathlib import Path
+
+    from tkujax.studies.tune import load_tune_spec
+
+    spec = load_tune_spec(Path(__file__).resolve().parents[1] / "sweeps" / "tune_recovery.toml")
+    reparam = spec.reparam()
+    assert set(reparam.fields) - set(PAPER_TUNABLE) >= {"stance_ankle_kp", "accel_gate"}
+    rec = ControllerParams.recommended()
+    with jax.enable_x64(True):
+        z = reparam.latent_of(rec)
+        back = reparam.params_np(rec, z)
+    for f in reparam.fields:
+        assert getattr(back, f) == pytest.approx(getattr(rec, f), rel=1e-9), f
