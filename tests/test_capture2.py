@@ -23,8 +23,8 @@ D_Y, D_Z, H = 0.045, 0.20, 0.03   # hip_offset_y, hip_to_ankle_z, lift_height (p
 
 def _feet(ov, t):
     z = jnp.zeros(3, jnp.float32)
-    r, l, td = _override_feet(ov, jnp.float32(t), jnp.float32(-1e9), z, z, jnp.float32(-1.0), P)
-    return np.asarray(r), np.asarray(l), float(td)
+    r, lf, td = _override_feet(ov, jnp.float32(t), jnp.float32(-1e9), z, z, jnp.float32(-1.0), P)
+    return np.asarray(r), np.asarray(lf), float(td)
 
 
 def test_paper_constants():
@@ -50,23 +50,23 @@ TWO = dict(x_m=0.10, y_m=0.05, onset_s=0.0, steps=2.0, x2_m=0.08, y2_m=-0.04)
     (1.0, (-0.01, -D_Y - 0.045, -D_Z), (0.01, D_Y + 0.045, -D_Z)),
 ])
 def test_two_step_feet_hand_computed(t, right, left):
-    r, l, td = _feet(StepOverride(**TWO), t)
+    r, lf, td = _feet(StepOverride(**TWO), t)
     np.testing.assert_allclose(r, right, atol=2e-6)
-    np.testing.assert_allclose(l, left, atol=2e-6)
+    np.testing.assert_allclose(lf, left, atol=2e-6)
     assert td == pytest.approx(0.54, abs=1e-6)          # the second touchdown: 0.27 + 0.27
 
 
 def test_two_step_delay_and_mirror():
     """delay2_s shifts the second step; a right first step (y < 0) gives a left second step."""
-    r, l, td = _feet(StepOverride(**(TWO | dict(delay2_s=0.1))), 0.39)   # 0.39 - 0.37 < 0.03
+    r, lf, td = _feet(StepOverride(**(TWO | dict(delay2_s=0.1))), 0.39)   # 0.39 - 0.37 < 0.03
     np.testing.assert_allclose(r, (-0.05, -D_Y - 0.025, -D_Z), atol=2e-6)
     assert td == pytest.approx(0.64, abs=1e-6)
     ov = StepOverride(x_m=0.06, y_m=-0.04, onset_s=0.2, steps=2.0, x2_m=0.1, y2_m=0.06)
-    r, l, td = _feet(ov, 2.0)
+    r, lf, td = _feet(ov, 2.0)
     # First (right): right +(0.03, -0.02), left -(0.03, -0.02); second (left): left
     # +(0.05, 0.03), right -(0.05, 0.03).
     np.testing.assert_allclose(r, (0.03 - 0.05, -D_Y - 0.02 - 0.03, -D_Z), atol=2e-6)
-    np.testing.assert_allclose(l, (-0.03 + 0.05, D_Y + 0.02 + 0.03, -D_Z), atol=2e-6)
+    np.testing.assert_allclose(lf, (-0.03 + 0.05, D_Y + 0.02 + 0.03, -D_Z), atol=2e-6)
     assert td == pytest.approx(0.2 + 0.54, abs=1e-6)
 
 
@@ -96,9 +96,9 @@ def test_swing_left_argument():
     auto = cpg_feet_lateral(t, x, y, P)
     forced = cpg_feet_lateral(t, x, y, P, swing_left=True)
     np.testing.assert_array_equal(np.asarray(auto[0]), np.asarray(forced[0]))
-    r, l = cpg_feet_lateral(t, x, y, P, swing_left=False)
+    r, lf = cpg_feet_lateral(t, x, y, P, swing_left=False)
     np.testing.assert_allclose(np.asarray(r), (0.05, -D_Y + 0.02, -D_Z), atol=1e-6)
-    np.testing.assert_allclose(np.asarray(l), (-0.05, D_Y - 0.02, -D_Z), atol=1e-6)
+    np.testing.assert_allclose(np.asarray(lf), (-0.05, D_Y - 0.02, -D_Z), atol=1e-6)
 
 
 def test_two_step_override_jits_with_traced_steps():
@@ -143,7 +143,7 @@ def test_second_step_spec_keys():
     assert (rec["step_steps"][act] == 1).sum() == 12 and (rec["step_steps"] == 2).sum() == 24
     assert not rec["step_x2_m"][act & (rec["step_steps"] == 1)].any()
     rec = load_spec("sweeps/capture2_cpu.toml").records()
-    assert len(rec["push_id"]) == 36 * (1 + 25 + 25 * 9)
+    assert len(rec["push_id"]) == 36 * (1 + 25 + 25 * 15)
     assert len(load_spec("sweeps/capture_region_cpu.toml").records()["push_id"]) == 1952
 
 

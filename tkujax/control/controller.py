@@ -112,8 +112,9 @@ class StepOverride:
     swings by (x2_m, y2_m) (the same frame as x_m, y_m: +y is left, so a right-foot second step
     widens the stance with y2_m < 0), starting delay2_s after the first touchdown, with the same
     period; it is added to where the first step left the feet (relative to the waist the new
-    swing foot moves by +(x2, y2)/2 and the other by -(x2, y2)/2, as in `cpg_feet_lateral`), and
-    the touchdown becomes the second one. With steps = 1 the x2_m, y2_m, delay2_s fields are
+    swing foot moves by +(x2, y2)/2 and the other by -(x2, y2)/2, as in `cpg_feet_lateral`), so
+    it lands (x2 - x, y2 - y) from its stand place beside the first step's foot (x2 = 2 x: a
+    step as long again); the touchdown becomes the second one. With steps = 1 the x2_m, y2_m, delay2_s fields are
     ignored and the feet are bit-identical to one step.
     """
 

@@ -81,7 +81,8 @@ class Region:
             controller_y_m=f(self.controller[1]), controller_fell=f(self.controller_fell),
             gap_region_m=f(self.distance_to_region(self.controller)),
             gap_centroid_m=f(np.linalg.norm(self.controller - c)),
-            icp_in_region=f(self.distance_to_region(icp) == 0.0) if np.isfinite(icp).all() else None,
+            icp_in_region=(f(self.distance_to_region(icp) == 0.0) if np.isfinite(icp).all()
+                           else None),
             best_x_m=f(self.best_cell[0]), best_y_m=f(self.best_cell[1]))
 
 
