@@ -374,8 +374,9 @@ def _add_sweep_commands(sub) -> None:
     p.add_argument("--height", type=int, default=400)
     p.set_defaults(func=_cmd_replay)
 
-    p = sub.add_parser("capture", help="one-step capture regions: a [step] sweep, its regions, "
-                                       "theory overlays, J_1, gradient-optimal steps")
+    p = sub.add_parser("capture", help="capture regions: a [step] sweep, its regions, theory "
+                                       "overlays, J_1 (and J_2 with steps = 2), gradient-optimal "
+                                       "steps")
     p.add_argument("spec", help="spec with a [step.grid], e.g. sweeps/capture_region_cpu.toml")
     p.add_argument("--out", required=True, help="output folder (sweep chunks + capture/)")
     p.add_argument("--params", default=None, help="controller parameters JSON (tkujax tune output)")

@@ -108,6 +108,15 @@ class StepOverride:
     detection (from_detection = 1; no detection, no step). period_s: the step period T (<= 0:
     params.step_period). onset_s: the push onset on the controller clock (the rollouts fill it
     in from the Push).
+
+    steps: 1 = one step (the above), 2 = a second commanded step: the first step's support foot
+    swings by (x2_m, y2_m) (the same frame as x_m, y_m: +y is left, so a right-foot second step
+    widens the stance with y2_m < 0), starting delay2_s after the first touchdown, with the same
+    period; it is added to where the first step left the feet (relative to the waist the new
+    swing foot moves by +(x2, y2)/2 and the other by -(x2, y2)/2, as in `cpg_feet_lateral`), so
+    it lands (x2 - x, y2 - y) from its stand place beside the first step's foot (x2 = 2 x: a
+    step as long again); the touchdown becomes the second one. With steps = 1 the x2_m, y2_m,
+    delay2_s fields are ignored and the feet are bit-identical to one step.
     """
 
     active: jax.Array = 1.0
@@ -117,6 +126,10 @@ class StepOverride:
     from_detection: jax.Array = 0.0
     period_s: jax.Array = 0.0
     onset_s: jax.Array = 0.0
+    steps: jax.Array = 1.0
+    x2_m: jax.Array = 0.0
+    y2_m: jax.Array = 0.0
+    delay2_s: jax.Array = 0.0
 
 
 class ControllerOutput(NamedTuple):
@@ -354,6 +367,17 @@ def _override_feet(ov: StepOverride, time_s, detect_s, p_right, p_left, touchdow
     period = jnp.where(ov.period_s > 0.0, ov.period_s, params.step_period)
     p_ov = dataclasses.replace(params, step_period=period)
     feet = cpg_feet_lateral(time_s - start, ov.x_m, ov.y_m, p_ov)
+    land1 = start + _land_time(period, params)
+    # A second step (steps = 2): the first step's support foot swings by (x2, y2), starting
+    # delay2_s after the first touchdown, added to where the first step left the feet.
+    start2 = land1 + ov.delay2_s
+    feet2 = cpg_feet_lateral(time_s - start2, ov.x2_m, ov.y2_m, p_ov, swing_left=ov.y_m < 0.0)
+    stand = cpg_feet_lateral(jnp.full_like(time_s, -1.0), jnp.zeros_like(ov.x2_m),
+                             jnp.zeros_like(ov.y2_m), p_ov)
+    two = ov.steps > 1.5
+    feet = (jnp.where(two, feet[0] + (feet2[0] - stand[0]), feet[0]),
+            jnp.where(two, feet[1] + (feet2[1] - stand[1]), feet[1]))
+    land = jnp.where(two, start2 + _land_time(period, params), land1)
     on = ov.active > 0.5
     return (jnp.where(on, feet[0], p_right), jnp.where(on, feet[1], p_left),
-            jnp.where(on, start + _land_time(period, params), touchdown))
+            jnp.where(on, land, touchdown))

@@ -66,19 +66,22 @@ def _unit_oscillators(t: jax.Array, params: ControllerParams):
 
 
 def cpg_feet_lateral(t: jax.Array, x_sup: jax.Array, y_sup: jax.Array,
-                     params: ControllerParams) -> tuple[jax.Array, jax.Array]:
+                     params: ControllerParams, swing_left=None) -> tuple[jax.Array, jax.Array]:
     """The recovery step extended with a sideways component (a tkujax extension).
 
     The swing foot is the left one when y_sup >= 0 (falling toward +y) and the right one
     otherwise, so the legs never cross. The swing foot moves by (+x_sup/2, +y_sup/2) relative to
     the waist and lifts by H_Sup, the support foot by (-x_sup/2, -y_sup/2); y follows the same
     quarter-sine-then-hold profile as x (Eq. 13/16 with rho^y = +-y_sup/2 instead of the paper's
-    zero-amplitude Eq. 14/17). With y_sup = 0 this equals `cpg_feet` exactly.
+    zero-amplitude Eq. 14/17). With y_sup = 0 this equals `cpg_feet` exactly. swing_left
+    (optional, bool array or scalar): choose the swing foot explicitly (a commanded second step
+    swings the other foot, `tkujax.control.StepOverride`); None: by the sign of y_sup.
     """
     dtype = jnp.result_type(t, x_sup, y_sup, float)
     t, x_sup, y_sup = jnp.broadcast_arrays(*(jnp.asarray(a, dtype) for a in (t, x_sup, y_sup)))
     unit_x, _, unit_z = _unit_oscillators(t, params)
-    swing_left = y_sup >= 0.0
+    swing_left = (y_sup >= 0.0 if swing_left is None
+                  else jnp.broadcast_to(jnp.asarray(swing_left, bool), t.shape))
     lift = params.lift_height * unit_z
     d_y, d_z = params.hip_offset_y, params.hip_to_ankle_z
     half_x, half_y = 0.5 * x_sup * unit_x, 0.5 * y_sup * unit_x

@@ -123,7 +123,12 @@ STEP_FIELDS = {
     "start_delay_s": (0.0, 2.0, 0.0, "s"),
     "from_detection": (0.0, 1.0, 0.0, "(0 = after onset, 1 = after detection)"),
     "period_s": (0.0, 2.0, 0.0, "s (0 = the controller's step_period)"),
+    "steps": (1.0, 2.0, 1.0, "(1 = one commanded step, 2 = a second step of the other foot)"),
+    "x2_m": (-0.3, 0.3, 0.0, "m (second step; steps = 2)"),
+    "y2_m": (-0.3, 0.3, 0.0, "m (second step; steps = 2)"),
+    "delay2_s": (0.0, 2.0, 0.0, "s (first touchdown -> second step start)"),
 }
+SECOND_STEP_FIELDS = ("x2_m", "y2_m", "delay2_s")
 ARITHMETIC = ("float", "fixed")
 # [fpga] keys -> FixedPointConfig fields: name: (lo, hi, unit). All integers except latency_frac
 # (and rounding, a name: FPGA_ROUNDING). The frac-bit bound here is the loosest one; the word
@@ -454,6 +459,8 @@ def _parse_step(data: dict) -> tuple[dict[str, np.ndarray], bool]:
            for k, v in grid.items()}
     if "from_detection" in out and not np.isin(out["from_detection"], (0.0, 1.0)).all():
         raise SpecError(f"step.grid.from_detection: expected 0 or 1, got {out['from_detection']}")
+    if "steps" in out and not np.isin(out["steps"], (1.0, 2.0)).all():
+        raise SpecError(f"step.grid.steps: expected 1 or 2, got {out['steps']}")
     if "period_s" in out and ((out["period_s"] > 0) & (out["period_s"] < 0.05)).any():
         raise SpecError(f"step.grid.period_s: expected 0 or a value in [0.05, 2.0] s, got "
                         f"{out['period_s']}")
@@ -553,6 +560,13 @@ def _cross_steps(spec: SweepSpec, recs: dict[str, np.ndarray]) -> dict[str, np.n
     n = len(recs["control"])
     cols = {k: spec.step_grid.get(k, np.array([STEP_FIELDS[k][2]])) for k in STEP_FIELDS}
     mesh = [m.ravel() for m in np.meshgrid(*cols.values(), indexing="ij")]
+    if "steps" in spec.step_grid:
+        # One-step targets ignore the second step's fields: keep each once (at the grid's
+        # first x2_m, y2_m, delay2_s values), not once per second-step target.
+        m = dict(zip(cols, mesh))
+        first = np.all([m[k] == cols[k][0] for k in SECOND_STEP_FIELDS], 0)
+        keep = (m["steps"] > 1.5) | first
+        mesh = [v[keep] for v in mesh]
     n_steps = len(mesh[0])
     blocks = ([("ref", None)] if spec.step_reference else []) + [(i, i) for i in range(n_steps)]
     out = {k: np.concatenate([v] * len(blocks)) for k, v in recs.items()}

@@ -68,7 +68,9 @@ def step_override(rec: dict) -> StepOverride:
     return StepOverride(active=rec["step_active"], x_m=rec["step_x_m"], y_m=rec["step_y_m"],
                         start_delay_s=rec["step_start_delay_s"],
                         from_detection=rec["step_from_detection"], period_s=rec["step_period_s"],
-                        onset_s=rec["onset_s"])
+                        onset_s=rec["onset_s"],
+                        **{k: rec[f"step_{k}"] for k in ("steps", "x2_m", "y2_m", "delay2_s")
+                           if f"step_{k}" in rec})
 
 
 def outcome_keys(steps: bool) -> tuple[str, ...]:

@@ -103,8 +103,9 @@ def _icp_targets(rec: dict, sel: np.ndarray, feet: theory.Feet) -> np.ndarray:
 
 
 def regions(rec: dict, feet: theory.Feet) -> list[Region]:
-    """All regions of a [step] sweep's records (as `tkujax.studies.sweep.load` returns them)."""
-    active = rec["step_active"] > 0.5
+    """All one-step regions of a [step] sweep's records (as `tkujax.studies.sweep.load` returns
+    them); two-step records (step_steps = 2) enter only `jn_table`."""
+    active = (rec["step_active"] > 0.5) & (_steps(rec) < 1.5)
     ref = {int(c): i for i, c in enumerate(rec["case_id"]) if not active[i]}
     timing = np.stack([rec[k] for k in TIMING], -1)
     keys = np.unique(np.column_stack([rec["case_id"][active], timing[active]]), axis=0)
@@ -133,6 +134,45 @@ def regions(rec: dict, feet: theory.Feet) -> list[Region]:
             cell_area_m2=cell, icp_td=icp_med, dt_s=dt, koolen=koolen, controller=ctrl,
             controller_fell=float(rec["fell"][r]) if r is not None else math.nan))
     return out
+
+
+def _steps(rec: dict) -> np.ndarray:
+    """step_steps, 1 for sweeps recorded before the two-step override."""
+    return rec.get("step_steps", np.ones(len(rec["step_active"])))
+
+
+def jn_table(rec: dict) -> list[dict]:
+    """Per (azimuth, first-step timing): the empirical N-step limits J_N, N = 1, 2 = the largest
+    tested impulse for which any commanded single step (N = 1) or any commanded pair (N = 2)
+    did not fall, with the counts of survivors per impulse, and the controller's own largest
+    survived impulse (the reference copies). 0.0 when none survived; None for N = 2 when the
+    sweep has no two-step targets. A lower bound on the true limits: only the grid's targets
+    are tried."""
+    active, steps = rec["step_active"] > 0.5, _steps(rec)
+    ok = ~rec["fell"].astype(bool)
+    timing = np.stack([rec[k] for k in TIMING], -1)
+    rows = []
+    for az in np.unique(rec["azimuth_deg"]):
+        for t in np.unique(timing[active], axis=0):
+            at = (rec["azimuth_deg"] == az) & np.all(timing == t, -1)
+            js = np.unique(rec["impulse_ns"][at & active])
+            row = dict(azimuth_deg=float(az), start_delay_s=float(t[0]),
+                       from_detection=float(t[1]), period_s=float(t[2]),
+                       impulses_tested=[float(j) for j in js])
+            for n in (1, 2):
+                sel = at & active & (np.round(steps) == n)
+                if not sel.any():
+                    row[f"j{n}_empirical"], row[f"survivors_{n}"] = None, None
+                    continue
+                surv = [int((ok & sel & (rec["impulse_ns"] == j)).sum()) for j in js]
+                tried = [int((sel & (rec["impulse_ns"] == j)).sum()) for j in js]
+                row[f"j{n}_empirical"] = max([float(j) for j, s in zip(js, surv) if s] or [0.0])
+                row[f"survivors_{n}"] = [f"{s}/{c}" for s, c in zip(surv, tried)]
+            ref = (rec["azimuth_deg"] == az) & ~active
+            row["controller_max_survived"] = max(
+                [float(j) for j in rec["impulse_ns"][ref & ok]] or [0.0]) if ref.any() else None
+            rows.append(row)
+    return rows
 
 
 def j1_table(regs: list[Region], feet: theory.Feet) -> list[dict]:
@@ -169,8 +209,10 @@ def analyse(out_dir: str | Path, feet: theory.Feet | None = None) -> dict:
     regs = regions(rec, feet)
     rows = [r.summary() for r in regs]
     j1 = j1_table(regs, feet)
+    jn = jn_table(rec)
     dest = out_dir / "capture"
     dest.mkdir(exist_ok=True)
     (dest / "regions.json").write_text(json.dumps(rows, indent=1))
     (dest / "j1.json").write_text(json.dumps(j1, indent=1))
-    return dict(regions=regs, rows=rows, j1=j1, dir=dest)
+    (dest / "jn.json").write_text(json.dumps(jn, indent=1))
+    return dict(regions=regs, rows=rows, j1=j1, jn=jn, dir=dest)

@@ -70,7 +70,7 @@ def optimise_cases(regs, spec: SweepSpec, params: ControllerParams, n_cases: int
 
 
 def _summary_md(manifest: dict, rows: list[dict], j1: list[dict], opt: list[dict],
-                files: list[Path]) -> str:
+                files: list[Path], jn: list[dict] | None = None) -> str:
     f = lambda v, s=100, d=1: (  # noqa: E731
         "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{s * v:.{d}f}")
     lines = [f"# Capture regions `{manifest['name']}`: {manifest['n_pushes']} rollouts",
@@ -103,6 +103,22 @@ def _summary_md(manifest: dict, rows: list[dict], j1: list[dict], opt: list[dict
         lines.append(f"| {r['azimuth_deg']:.0f} | {1000 * r['start_delay_s']:.0f} | "
                      f"{r['dt_s']:.3f} | {r['j1_empirical']:.2f} | {f(r['j1_theory'], 1, 2)} | "
                      f"{r['controller_max_survived']:.2f} |")
+    if jn and any(r["j2_empirical"] is not None for r in jn):
+        lines += ["", "Empirical N-step limits (N·s): J_N = the largest tested impulse for which "
+                  "any commanded single step (N = 1) or any commanded pair of steps (N = 2, the "
+                  "other foot second) did not fall; a lower bound (grid targets only). "
+                  "Survivors: targets (or pairs) that did not fall / tried, per impulse.", "",
+                  "| az (deg) | delay (ms) | J₁ | J₂ | controller's own | impulses | "
+                  "survivors N = 1 | survivors N = 2 |", "|---|---|---|---|---|---|---|---|"]
+        for r in jn:
+            ctrl = r["controller_max_survived"]
+            lines.append(
+                f"| {r['azimuth_deg']:.0f} | {1000 * r['start_delay_s']:.0f} | "
+                f"{r['j1_empirical'] if r['j1_empirical'] is not None else '-'} | "
+                f"{r['j2_empirical'] if r['j2_empirical'] is not None else '-'} | "
+                f"{'-' if ctrl is None else ctrl} | "
+                f"{', '.join(f'{j:g}' for j in r['impulses_tested'])} | "
+                f"{', '.join(r['survivors_1'] or [])} | {', '.join(r['survivors_2'] or [])} |")
     if opt:
         lines += ["", "Gradient-optimal steps (Adam on the capture margin through MJX, from the "
                   "LIP capture point at touchdown); margin = minus the RMS inclination deviation "
@@ -151,6 +167,8 @@ def run_capture(spec: SweepSpec | str | Path, out: str | Path,
         (dest / "optimise.json").write_text(json.dumps(
             dict(wall_s=round(time.perf_counter() - t0, 1), iterations=iterations, cases=opt),
             indent=1))
-    (dest / "summary.md").write_text(_summary_md(manifest, res["rows"], res["j1"], opt, files))
+    (dest / "summary.md").write_text(_summary_md(manifest, res["rows"], res["j1"], opt, files,
+                                                 res["jn"]))
     return dict(manifest=manifest, complete=True, regions=res["rows"], j1=res["j1"],
-                optimise=opt, files=[str(p) for p in files], summary=str(dest / "summary.md"))
+                jn=res["jn"], optimise=opt, files=[str(p) for p in files],
+                summary=str(dest / "summary.md"))
