@@ -33,12 +33,11 @@ import dataclasses
 import json
 import math
 import time
-import tomllib
 from pathlib import Path
 
 import numpy as np
 
-from tkujax.studies.spec import SpecError
+from tkujax.studies.spec import SpecError, read_toml
 
 BACKENDS = ("mujoco", "mjx")
 CONTROLS = ("off", "on")
@@ -171,12 +170,7 @@ def parse_spec(data: dict) -> ConvergeSpec:
 
 
 def load_spec(path: str | Path) -> ConvergeSpec:
-    path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except (OSError, tomllib.TOMLDecodeError) as err:
-        raise SpecError(f"{path}: cannot read the TOML spec: {err}") from err
-    return parse_spec(data)
+    return parse_spec(read_toml(path))
 
 
 def spec_dict(spec: ConvergeSpec) -> dict:
