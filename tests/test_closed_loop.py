@@ -112,7 +112,7 @@ def test_outputs_finite(run):
     for key, arr in series.items():
         assert np.all(np.isfinite(arr)), key
     for key, arr in outcomes.items():
-        if key == "recovery_time_s":      # NaN by definition for a fall or "not settled"
+        if key in ("recovery_time_s", "recovery_time_pitch_s"):  # NaN: fell or "not settled"
             assert np.all(np.isnan(arr[outcomes["fell"].astype(bool)])), key
             ok = arr[np.isfinite(arr)]
             assert not np.any(np.isinf(arr)) and np.all((ok >= 0) & (ok <= CONFIG.duration_s)), key
