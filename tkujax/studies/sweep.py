@@ -53,14 +53,16 @@ from tkujax.studies.spec import FPGA_COLUMN, SpecError, SweepSpec, fixed_point_c
 OUTCOME_KEYS = ("fell", "diverged", "recovery_time_s", "step_length_m", "step_width_m",
                 "peak_incl_deg", "capture_point_m", "capture_point_y_m", "zmp_excursion_m")
 MANIFEST = chunks.MANIFEST
-# ControllerParams fields added after sweeps were published (left out of the hash at default).
-_LATER_FIELDS = {"accel_gate": 0.0, "cp_excess": 0.0, "cp_update_window": 0.0,
-                 # the recovery extensions, at their "off" values
-                 "cp_rate_blend": 0.0, "cp_lookahead_s": 0.0, "cp_trigger": 0.0,
-                 "cp_trigger_forward_m": 0.05, "cp_trigger_backward_m": 0.10,
-                 "cp_trigger_lateral_m": 0.09, "stance_ankle_kp": 0.0, "stance_ankle_kd": 0.0,
-                 "stance_hip_kp": 0.0, "stance_hip_kd": 0.0, "stance_roll_kp": 0.0,
-                 "stance_roll_kd": 0.0, "stance_limit": 0.3, "max_steps": 1.0}
+# ControllerParams fields added after sweeps were first written, at their defaults (their "off"
+# values, read from the dataclass so the two cannot drift apart): a sweep that leaves them off
+# keeps its hash.
+_LATER_FIELDS = {f.name: f.default for f in dataclasses.fields(ControllerParams) if f.name in (
+    "accel_gate", "cp_excess", "cp_update_window",
+    # the recovery extensions
+    "cp_rate_blend", "cp_lookahead_s", "cp_trigger", "cp_trigger_forward_m",
+    "cp_trigger_backward_m", "cp_trigger_lateral_m", "stance_ankle_kp", "stance_ankle_kd",
+    "stance_hip_kp", "stance_hip_kd", "stance_roll_kp", "stance_roll_kd", "stance_limit",
+    "max_steps")}
 
 
 def step_override(rec: dict) -> StepOverride:
