@@ -41,9 +41,10 @@ TUNABLE: dict[str, tuple[str, tuple[float, float], bool, str]] = {
     "stance_roll_kd": ("stance_roll_kd", (-0.1, 0.3), False, "rad/(rad/s)"),
 }
 DEFAULT_RANGES = {f: v[1] for f, v in TUNABLE.items()}
-# The paper's own tunable parameters (the first eight of TUNABLE; the rest are the recovery
-# extensions and the accelerometer gate, whose "off" values lie on their range bounds).
-PAPER_TUNABLE = tuple(TUNABLE)[:8]
+# The paper's own tunable parameters; the other TUNABLE fields are the recovery extensions and
+# the accelerometer gate, whose "off" values lie on their range bounds.
+PAPER_TUNABLE = ("step_period", "double_support_ratio", "lift_height", "eps_forward",
+                 "eps_backward", "cp_gain", "kalman_q", "kalman_r")
 DEFAULT_TUNED = ("step_period", "double_support_ratio", "lift_height", "eps_forward",
                  "eps_backward")
 # XLA options for the CPU backend: skipping LLVM's expensive passes cut the compile of the
