@@ -11,6 +11,7 @@ so a fit can average its loss over several phases. All phases go into one batch 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -37,35 +38,68 @@ def hit_onset_s(hit_phase_ms: float) -> float:
                                            1e-3 * hit_phase_ms / push_lib.CONTROL_PERIOD_S))
 
 
-def pushes_for(x, hit_phases_ms=(0.0,)) -> object:
-    """The 4 ball cases (CASES order) at each hit phase: phase-major, 4 * len(phases) pushes."""
+class Sample(NamedTuple):
+    """One trial condition the paper leaves unknown: the hit phase after the controller tick
+    (ms) and the ball's contact time (ms, the push's half-sine duration)."""
+
+    phase_ms: float
+    contact_ms: float = 1e3 * push_lib.DEFAULT_DURATION_S
+
+
+def as_sample(s) -> Sample:
+    """A Sample from a Sample, a (phase, contact) pair or a bare hit phase (ms)."""
+    if isinstance(s, Sample):
+        return s
+    if isinstance(s, (tuple, list)):
+        return Sample(float(s[0]), float(s[1]))
+    return Sample(float(s))
+
+
+def sample_key(s) -> str:
+    """The archive's key of a sample: "PHASE" at the default contact time (the key of
+    single-contact fits), "PHASE@CONTACTms" otherwise."""
+    s = as_sample(s)
+    if s.contact_ms == Sample(0.0).contact_ms:
+        return f"{s.phase_ms:g}"
+    return f"{s.phase_ms:g}@{s.contact_ms:g}ms"
+
+
+def pushes_for(x, samples=(0.0,)) -> object:
+    """The 4 ball cases (CASES order) per sample (a hit phase in ms, or a Sample):
+    sample-major, 4 * len(samples) pushes."""
     v = P.as_dict(x) if not isinstance(x, dict) else x
     return push_lib.stack_pushes([
         push_lib.make_push(v["impulse_factor"] * push_lib.ball_momentum_ns(b),
                            push_lib.DIRECTIONS[d], height_m=float(v["push_height_m"]),
-                           onset_s=hit_onset_s(ph))
-        for ph in hit_phases_ms for d, b in CASES])
+                           onset_s=hit_onset_s(s.phase_ms), duration_s=1e-3 * s.contact_ms)
+        for s in map(as_sample, samples) for d, b in CASES])
+
+
+def row_result(direction: str, fell: bool, step_m: float, rec_s: float, peak_deg: float,
+               phi_max_deg: float, phi_min_deg: float, stand_deg: float, x_sup_m: float,
+               cparams) -> dict:
+    """One simulated paper row as the loss reads it (both backends build it here)."""
+    # Kalman angle past the threshold on the push's side (> 0: crossed), deg
+    if direction == "back":
+        past = phi_max_deg - math.degrees(cparams.eps_forward)
+    else:
+        past = -math.degrees(cparams.eps_backward) - phi_min_deg
+    return dict(fell=bool(fell), rec=float(rec_s),
+                step_cm=0.0 if fell or abs(step_m) < 0.005 else 100 * float(step_m),
+                peak_deg=float(peak_deg), phi_peak_deg=float(past),
+                phi_max_deg=float(phi_max_deg), phi_min_deg=float(phi_min_deg),
+                stand_deg=float(stand_deg), x_sup_cm=100 * float(x_sup_m))
 
 
 def _rows(series, out, control, cparams, offset: int = 0) -> dict:
     res = {}
     for j, (d, b) in enumerate(CASES):
         i = offset + j
-        fell = bool(out["fell"][i])
-        step = float(out["step_length_m"][i])
         phi = np.degrees(np.asarray(series["pitch_est"][i], float))
-        # Kalman angle past the threshold on the push's side (> 0: crossed), deg
-        if d == "back":
-            past = phi.max() - math.degrees(cparams.eps_forward)
-        else:
-            past = -math.degrees(cparams.eps_backward) - phi.min()
-        res[(d, b, control)] = dict(
-            fell=fell, rec=float(out["recovery_time_s"][i]),
-            step_cm=0.0 if fell or abs(step) < 0.005 else 100 * step,
-            peak_deg=float(out["peak_incl_deg"][i]), phi_peak_deg=float(past),
-            phi_max_deg=float(phi.max()), phi_min_deg=float(phi.min()),
-            stand_deg=float(out["standing_pitch_deg"][i]),
-            x_sup_cm=100 * float(out["capture_point_m"][i]))
+        res[(d, b, control)] = row_result(
+            d, out["fell"][i], out["step_length_m"][i], out["recovery_time_s"][i],
+            out["peak_incl_deg"][i], phi.max(), phi.min(), out["standing_pitch_deg"][i],
+            out["capture_point_m"][i], cparams)
     return res
 
 
@@ -75,19 +109,20 @@ def evaluate(x, readings=tuple(P.READINGS), hit_phase_ms: float = 0.0) -> dict:
 
 
 def evaluate_phases(x, readings=tuple(P.READINGS), hit_phases_ms=(0.0,)) -> dict:
-    """{hit phase ms: {reading: {row key: sim dict}}} for parameter vector (or dict) x."""
+    """{sample: {reading: {row key: sim dict}}} for parameter vector (or dict) x, keyed by the
+    items of `hit_phases_ms` (hit phases in ms, or Samples with a contact time too)."""
     mp = P.model_params(x)
-    phases = tuple(float(ph) for ph in hit_phases_ms)
-    pushes = pushes_for(x, phases)
-    n = len(CASES) * len(phases)
+    keys = tuple(hit_phases_ms)
+    pushes = pushes_for(x, keys)
+    n = len(CASES) * len(keys)
     c0 = P.controller_params(x, next(iter(P.READINGS)), mp)
     s, o = _simulate(pushes, np.zeros(n, np.float32), c0, mp)
-    off = [_rows(s, o, "off", c0, len(CASES) * k) for k in range(len(phases))]
-    out = {ph: {} for ph in phases}
+    off = [_rows(s, o, "off", c0, len(CASES) * k) for k in range(len(keys))]
+    out = {ph: {} for ph in keys}
     for r in readings:
         cp = P.controller_params(x, r, mp)
         s, o = _simulate(pushes, np.ones(n, np.float32), cp, mp)
-        for k, ph in enumerate(phases):
+        for k, ph in enumerate(keys):
             out[ph][r] = {**off[k], **_rows(s, o, "on", cp, len(CASES) * k)}
     return out
 

@@ -43,31 +43,59 @@ def _rowkey(k) -> str:
     return "/".join(k)
 
 
-def _phase_key(ph: float) -> str:
-    return f"{ph:g}"
+def _phase_key(ph) -> str:
+    """The archive key of a sample (a hit phase in ms, or an evaluate.Sample)."""
+    return E.sample_key(ph)
 
 
-def score(x: dict, readings, hit_phases_ms, evaluator: Evaluator | None = None) -> dict:
+def expected_rows(res: dict, samples, reading: str) -> dict:
+    """Per paper row, over the samples (hit phase x contact time, each one trial the paper
+    could have run): the probability of the paper's fall outcome, and, over the trials that
+    stand, the mean step (cm) and the fraction stepping the paper's way."""
+    out = {}
+    for key, (rec_p, step_p) in T.PAPER_TABLE.items():
+        rows = [res[s][reading][key] for s in samples]
+        p_ok = float(np.mean([r["fell"] == (rec_p is None) for r in rows]))
+        stood = [r for r in rows if not r["fell"]]
+        e = dict(p_paper=p_ok)
+        if step_p is not None and stood:
+            sign = 1.0 if key[0] == "back" else -1.0
+            e.update(step_mean_cm=float(np.mean([r["step_cm"] for r in stood])),
+                     p_step_paper_way=float(np.mean([sign * r["step_cm"] >= 0.5
+                                                      for r in stood])))
+        out[_rowkey(key)] = e
+    return out
+
+
+def score(x: dict, readings, hit_phases_ms, evaluator: Evaluator | None = None,
+          results: dict | Exception | None = None) -> dict:
     """Simulate candidate x (all names) and score it: the archive record.
 
-    loss[objective][reading] = mean over hit phases of (stand-lean penalty + table loss)."""
+    hit_phases_ms: the samples (hit phases in ms, or evaluate.Sample with a contact time).
+    loss[objective][reading] = mean over samples of (stand-lean penalty + table loss): the
+    expected loss of a trial at an unknown hit phase and contact time. results: the
+    evaluation, already made (a batched backend); None: made here with `evaluator`."""
     evaluator = evaluator or E.evaluate_phases
+    samples = tuple(hit_phases_ms)
     try:
-        res = evaluator(x, tuple(readings), tuple(hit_phases_ms))
+        if isinstance(results, Exception):
+            raise results
+        res = results if results is not None else evaluator(x, tuple(readings), samples)
     except Exception as err:  # noqa: BLE001  (an invalid model: a penalty, not a crash)
         return dict(x=x, error=repr(err),
                     loss={o: {r: FAILED_LOSS for r in readings} for o in OBJECTIVE_ROWS})
     loss = {o: {r: 0.0 for r in readings} for o in OBJECTIVE_ROWS}
     pens = []
-    for ph in hit_phases_ms:
+    for ph in samples:
         pen = E.stand_penalty(res[ph][readings[0]])
         pens.append(pen)
         for o, rows in OBJECTIVE_ROWS.items():
             for r in readings:
-                loss[o][r] += (pen + T.table_loss(res[ph][r], rows)[0]) / len(hit_phases_ms)
+                loss[o][r] += (pen + T.table_loss(res[ph][r], rows)[0]) / len(samples)
     return dict(x=x, loss=loss, stand_penalty=float(np.mean(pens)),
+                expected={r: expected_rows(res, samples, r) for r in readings},
                 rows={_phase_key(ph): {r: {_rowkey(k): v for k, v in res[ph][r].items()}
-                                       for r in readings} for ph in hit_phases_ms})
+                                       for r in readings} for ph in samples})
 
 
 def _key(x: dict) -> tuple:
@@ -180,19 +208,27 @@ def run_calibrate(spec: CalibrateSpec | str | Path, out: str | Path, *,
     n_cached = len(archive.records)
     log = (lambda s: None) if quiet else (lambda s: print(s, file=sys.stderr, flush=True))
     pool = None
-    if spec.workers > 1 and evaluator is None:
+    if spec.workers > 1 and evaluator is None and spec.backend == "mujoco":
         import multiprocessing as mp
 
         os.environ.setdefault("TKUJAX_CAL_THREADS", "1")   # one MuJoCo thread per worker
         pool = mp.get_context("spawn").Pool(spec.workers)
-    scorer = functools.partial(score, readings=spec.readings, hit_phases_ms=spec.hit_phases_ms,
+    scorer = functools.partial(score, readings=spec.readings, hit_phases_ms=spec.samples,
                                evaluator=evaluator)
     counts = dict(evals=0, simulated=0)
     t0 = time.time()
 
     def run_many(xs: list[dict], runner: Runner | None) -> list[dict]:
         new = [x for x in xs if _key(x) not in archive.cache]
-        recs = pool.map(scorer, new) if (pool is not None and len(new) > 1) else map(scorer, new)
+        new = list({_key(x): x for x in new}.values())          # a generation may repeat one
+        if spec.backend == "mjx" and evaluator is None and new:   # the generation in one batch
+            from tkujax.studies.calibrate import evaluate_mjx
+            results = evaluate_mjx.evaluate_many(new, spec.readings, spec.samples, spec.params,
+                                                 spec.robots_per_call)
+            recs = [scorer(x, results=r) for x, r in zip(new, results)]
+        else:
+            recs = (pool.map(scorer, new) if (pool is not None and len(new) > 1)
+                    else map(scorer, new))
         for _x, rec in zip(new, recs):
             rec.update(objective=runner.objective if runner else "start",
                        restart=runner.restarts if runner else 0,
@@ -270,26 +306,42 @@ def _params_md(x: dict, spec: CalibrateSpec) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _score_many(spec: CalibrateSpec, xs: list[dict], readings, evaluator: Evaluator | None
+                ) -> list[dict]:
+    """score() of every x: one MJX batch on the mjx backend, else one at a time."""
+    if spec.backend == "mjx" and evaluator is None:
+        from tkujax.studies.calibrate import evaluate_mjx
+        results = evaluate_mjx.evaluate_many(xs, tuple(readings), spec.samples, spec.params,
+                                             spec.robots_per_call)
+        return [score(x, readings, spec.samples, results=r) for x, r in zip(xs, results)]
+    return [score(x, readings, spec.samples, evaluator) for x in xs]
+
+
 def _sensitivities(spec: CalibrateSpec, x: dict, reading: str, objective: str,
                    evaluator: Evaluator | None, h: float = 0.05) -> list[dict]:
-    """Central differences of the phase-averaged loss, step h of each fitted bound's range.
+    """Central differences of the sample-averaged loss, step h of each fitted bound's range.
 
     curvature (per range²) large: the data pin the parameter; slope and curvature ~ 0: free."""
-    def loss(xx):
-        rec = score(xx, (reading,), spec.hit_phases_ms, evaluator)
-        return (rec["loss"][objective][reading],
-                T.score(_rows(rec, _phase_key(spec.hit_phases_ms[0]), reading),
-                        OBJECTIVE_ROWS[objective]) if "rows" in rec else None)
-
-    f0, s0 = loss(x)
-    out = []
+    points = [dict(x)]
     for n in spec.params:
         lo, hi = spec.bounds[n]
-        fs, flips = [], []
         for s in (-1, 1):
             xx = dict(x)
             xx[n] = float(np.clip(x[n] + s * h * (hi - lo), lo, hi))
-            f, sc = loss(xx)
+            points.append(xx)
+
+    def loss(rec):
+        return (rec["loss"][objective][reading],
+                T.score(_rows(rec, _phase_key(spec.samples[0]), reading),
+                        OBJECTIVE_ROWS[objective]) if "rows" in rec else None)
+
+    scored = [loss(r) for r in _score_many(spec, points, (reading,), evaluator)]
+    f0, s0 = scored[0]
+    out = []
+    for k, n in enumerate(spec.params):
+        fs, flips = [], []
+        for j, s in enumerate((-1, 1)):
+            f, sc = scored[1 + 2 * k + j]
             fs.append(f)
             if sc is not None and s0 is not None and sc["falls"] != s0["falls"]:
                 flips.append(f"{'-' if s < 0 else '+'}: falls {sc['falls']}")
@@ -330,9 +382,17 @@ def _objective_section(spec: CalibrateSpec, ok: list[dict], obj: str, phases: li
                  rows={ph: rec["rows"][ph][rd] for ph in phases})
     title = ("Fit on all 8 rows" if obj == "ALL"
              else "Fit on Table 4 (pushes from behind) only; Table 5 predicted")
-    md = [f"## {title}", "", f"Loss {f:.3f} (mean over hit phases), reading **{rd}**.", "",
+    md = [f"## {title}", "", f"Loss {f:.3f} (mean over the samples), reading **{rd}**.", "",
           _params_md(rec["x"], spec)]
-    for ph in phases:
+    if "expected" in rec:
+        entry["expected"] = rec["expected"][rd]
+        md += [f"In expectation over the {len(phases)} samples (each a trial at an unknown hit "
+               "phase and contact time):", "", _expected_md(rec["expected"][rd]), ""]
+    shown = phases if len(phases) <= 3 else phases[:1]
+    if len(shown) < len(phases):
+        md += [f"Per-sample tables: the first sample below; all {len(phases)} in best.json "
+               "(rows).", ""]
+    for ph in shown:
         res = _rows(rec, ph, rd)
         if obj == "ALL":
             md.append(R.table_md(res, T.ROWS, f"All 8 rows, hit phase {ph} ms"))
@@ -345,6 +405,19 @@ def _objective_section(spec: CalibrateSpec, ok: list[dict], obj: str, phases: li
                                         loss=T.table_loss(_rows(rec, ph, rd), T.TABLE5)[0])
                                for ph in phases}
     return entry, md
+
+
+def _expected_md(exp: dict) -> str:
+    lines = ["| row | paper | P(paper's fall outcome) | mean step, standing trials (cm) | "
+             "P(step the paper's way) |", "|---|---|---|---|---|"]
+    for key, (rec_p, step_p) in T.PAPER_TABLE.items():
+        e = exp[_rowkey(key)]
+        paper = "falls" if rec_p is None else (f"stands, step {step_p:g} cm" if step_p
+                                               else "stands")
+        step = f"{e['step_mean_cm']:+.2f}" if "step_mean_cm" in e else "-"
+        way = f"{e['p_step_paper_way']:.2f}" if "p_step_paper_way" in e else "-"
+        lines.append(f"| {' '.join(key)} | {paper} | {e['p_paper']:.2f} | {step} | {way} |")
+    return "\n".join(lines) + "\n"
 
 
 def _selection_section(spec: CalibrateSpec, ok: list[dict], phases: list[str]
@@ -388,20 +461,24 @@ def write_report(spec: CalibrateSpec, out: Path, recs: list[dict], start_rec: di
     if not ok:
         raise RuntimeError(f"no candidate could be simulated (see the errors in "
                            f"{out / 'archive.jsonl'})")
-    phases = [_phase_key(ph) for ph in spec.hit_phases_ms]
+    phases = [_phase_key(ph) for ph in spec.samples]
     summary = dict(name=spec.name, n_candidates=len(recs), n_failed=len(recs) - len(ok),
                    fitted=list(spec.params), readings=list(spec.readings),
-                   hit_phases_ms=list(spec.hit_phases_ms), objectives=list(spec.objectives),
+                   hit_phases_ms=list(spec.hit_phases_ms),
+                   contact_times_ms=list(spec.contact_times_ms), backend=spec.backend,
+                   objectives=list(spec.objectives),
                    search=search, spec_digest=spec.fit_digest())
     if "rows" in start_rec:
         summary["start"] = dict(loss={o: min(start_rec["loss"][o].values())
                                       for o in spec.objectives}, x=start_rec["x"])
     md = [f"# Calibration `{spec.name}` (`tkujax calibrate`)", "",
           f"{len(recs)} candidates in the archive ({summary['n_failed']} refused by the model), "
-          f"each simulated on the paper's 8 rows (MuJoCo C backend, noise-free), "
-          f"{len(spec.readings)} reading(s) of Algorithm 1, hit phase(s) "
-          f"{', '.join(phases)} ms after the controller tick (the loss is the mean over the "
-          f"phases). This run: {search['candidates_this_run']} candidates "
+          f"each simulated on the paper's 8 rows "
+          f"({'MJX, a generation per call' if spec.backend == 'mjx' else 'MuJoCo C'} backend, "
+          f"noise-free), {len(spec.readings)} reading(s) of Algorithm 1, samples (hit phase "
+          f"ms after the controller tick, @contact time when not 20 ms) {', '.join(phases)} "
+          f"(the loss is the mean over the samples: an expected loss). "
+          f"This run: {search['candidates_this_run']} candidates "
           f"({search['simulated_this_run']} simulated, the rest read back from the archive), "
           f"{search['wall_s']} s wall, {search['cpu_count']} CPU(s), workers {search['workers']}, "
           f"stopped by {search['stopped_by']}.", "",

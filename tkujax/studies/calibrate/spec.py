@@ -6,13 +6,18 @@ params = [...]            subset of params.NAMES to fit (default: all); the othe
 readings = [...]          subset of params.READINGS (default: all): one fit per reading
 rows = "all"              "all" (8 rows) or "table4" (pushes from behind only)
 heldout = true            with rows = "all": also fit on Table 4 alone and predict Table 5
-hit_phases_ms = [0]       hit phases after the 30 ms controller tick; the loss is their mean
+hit_phases_ms = [0]       hit phases after the 30 ms controller tick
+contact_times_ms = [20]   ball contact times (the push's half-sine duration); the loss is the
+                          mean over every (hit phase, contact time): an expected loss
 [fit.bounds]              name = [lo, hi]: narrower bounds (never wider than params.py's)
 [fit.start]               name = value: the search's starting point (default: the base model)
 [search]
 budget_s, max_evals       wall seconds of this invocation and/or total candidates (at least one)
 popsize, restarts         CMA-ES population and the number of IPOP restarts (doubling it)
 workers, seed, sigma0     parallel processes (0: this one), CMA seed, initial step (unit cube)
+backend = "mujoco"        "mujoco": MuJoCo C on the CPU, one candidate per process; "mjx": a
+                          whole generation per compiled MJX call (a GPU)
+robots_per_call = 32      mjx: candidate robots per call (the batch is padded to it)
 [report]
 sensitivity = true        finite-difference sensitivities at the best fit (2 runs per parameter)
 """
@@ -29,6 +34,9 @@ from tkujax.studies.spec import SpecError, _number, _table, read_toml
 
 ROWS_CHOICES = ("all", "table4")
 MAX_PHASE_MS = 30.0                  # the controller's sampling period
+DEFAULT_CONTACT_MS = 20.0            # tkujax.sim.push.DEFAULT_DURATION_S
+CONTACT_RANGE_MS = (5.0, 60.0)       # a ball on a robot: a few ms (hard) to tens of ms (soft)
+BACKENDS = ("mujoco", "mjx")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -41,6 +49,7 @@ class CalibrateSpec:
     rows: str                                       # "all" | "table4"
     heldout: bool
     hit_phases_ms: tuple[float, ...]
+    contact_times_ms: tuple[float, ...]
     budget_s: float | None
     max_evals: int | None
     popsize: int
@@ -49,6 +58,14 @@ class CalibrateSpec:
     seed: int
     sigma0: float
     sensitivity: bool
+    backend: str = "mujoco"
+    robots_per_call: int = 32
+
+    @property
+    def samples(self) -> tuple:
+        """Every (hit phase, contact time) the loss averages over, phase-major."""
+        from tkujax.studies.calibrate.evaluate import Sample
+        return tuple(Sample(p, c) for p in self.hit_phases_ms for c in self.contact_times_ms)
 
     @property
     def objectives(self) -> tuple[str, ...]:
@@ -62,6 +79,8 @@ class CalibrateSpec:
         different digest would mix incomparable losses, so run_calibrate refuses it."""
         key = dict(params=self.params, bounds=self.bounds, start=self.start,
                    readings=self.readings, hit_phases_ms=self.hit_phases_ms)
+        if self.contact_times_ms != (DEFAULT_CONTACT_MS,):   # fits of one contact time: as before
+            key["contact_times_ms"] = self.contact_times_ms
         return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -91,8 +110,8 @@ def parse_calibrate_spec(data: dict) -> CalibrateSpec:
     """Validate a parsed calibrate TOML document (SpecError names the key and allowed range)."""
     _table("top level", data, {"fit", "search", "report"})
     fit = _table("fit", data.get("fit", {}), {"name", "description", "params", "readings",
-                                              "rows", "heldout", "hit_phases_ms", "bounds",
-                                              "start"})
+                                              "rows", "heldout", "hit_phases_ms",
+                                              "contact_times_ms", "bounds", "start"})
     for k in ("name", "description"):
         if k in fit and not isinstance(fit[k], str):
             raise SpecError(f"fit.{k}: expected a string, got {fit[k]!r}")
@@ -111,6 +130,13 @@ def parse_calibrate_spec(data: dict) -> CalibrateSpec:
     if MAX_PHASE_MS in phases:              # 30 ms is the next tick: phase 0 again
         raise SpecError(f"fit.hit_phases_ms: expected numbers in [0, {MAX_PHASE_MS:g}) ms "
                         f"(30 ms is the next tick, i.e. phase 0), got {list(phases)}")
+
+    contacts = fit.get("contact_times_ms", [DEFAULT_CONTACT_MS])
+    if not isinstance(contacts, list) or not contacts or len(set(contacts)) != len(contacts):
+        raise SpecError(f"fit.contact_times_ms: expected a non-empty list of distinct numbers in "
+                        f"[{CONTACT_RANGE_MS[0]:g}, {CONTACT_RANGE_MS[1]:g}] ms, got {contacts!r}")
+    contacts = tuple(_number(f"fit.contact_times_ms[{i}]", v, *CONTACT_RANGE_MS, "ms")
+                     for i, v in enumerate(contacts))
 
     bounds = {p.name: (p.lo, p.hi) for p in P.PARAMS}
     for key, value in _table("fit.bounds", fit.get("bounds", {}), P.NAMES).items():
@@ -147,7 +173,8 @@ def parse_calibrate_spec(data: dict) -> CalibrateSpec:
                             f"fit.bounds.{key} [{lo:g}, {hi:g}]; give a start inside them")
 
     search = _table("search", data.get("search", {}), {"budget_s", "max_evals", "popsize",
-                                                       "restarts", "workers", "seed", "sigma0"})
+                                                       "restarts", "workers", "seed", "sigma0",
+                                                       "backend", "robots_per_call"})
     budget = search.get("budget_s")
     budget = None if budget is None else _number("search.budget_s", budget, 1.0, 30 * 86400.0, "s")
     max_evals = search.get("max_evals")
@@ -160,13 +187,20 @@ def parse_calibrate_spec(data: dict) -> CalibrateSpec:
     seed = _int("search.seed", search.get("seed", 0), 0, 2**31 - 1)
     sigma0 = _number("search.sigma0", search.get("sigma0", 0.25), 1e-3, 1.0, "(unit cube)")
 
+    backend = search.get("backend", "mujoco")
+    if backend not in BACKENDS:
+        raise SpecError(f"search.backend: expected one of {list(BACKENDS)}, got {backend!r}")
+    robots_per_call = _int("search.robots_per_call", search.get("robots_per_call", 32), 1, 4096)
+
     report = _table("report", data.get("report", {}), {"sensitivity"})
     sens = _bool("report.sensitivity", report.get("sensitivity", True))
     return CalibrateSpec(name=fit.get("name", "calibrate"), params=names, bounds=bounds,
                          start=start, readings=readings, rows=rows, heldout=heldout,
-                         hit_phases_ms=phases, budget_s=budget, max_evals=max_evals,
+                         hit_phases_ms=phases, contact_times_ms=contacts, budget_s=budget,
+                         max_evals=max_evals,
                          popsize=popsize, restarts=restarts, workers=workers, seed=seed,
-                         sigma0=sigma0, sensitivity=sens)
+                         sigma0=sigma0, sensitivity=sens, backend=backend,
+                         robots_per_call=robots_per_call)
 
 
 def load_calibrate_spec(path: str | Path) -> CalibrateSpec:
