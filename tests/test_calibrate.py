@@ -266,3 +266,41 @@ def test_real_evaluation_one_candidate(tmp_path):
     assert all(isinstance(r["fell"], bool) for r in rows.values())
     cp = load_params_json(tmp_path / "controller_params.json")
     assert cp == P.controller_params(s["T4"]["x"], "deviation/updated")
+
+
+def test_ensemble_default_member_and_islands(tmp_path):
+    """Stand-in evaluator: ensemble.json holds distinct candidates within the tolerance of the
+    best, its default member is their medoid, and the islands contain the default member."""
+    from tkujax.model.ensemble import load_ensemble
+    from tkujax.studies.calibrate import ensemble as ENS
+
+    spec = _spec({"params": ["foot_length_m", "leg_kp"], "readings": ["deviation/latched"],
+                  "hit_phases_ms": [0], "contact_times_ms": [15, 25], "heldout": False},
+                 {"max_evals": 24, "popsize": 6},
+                 report={"sensitivity": False, "ensemble_tolerance": 0.5, "ensemble_max": 8,
+                         "island_points": 7})
+    summary = run_calibrate(spec, tmp_path, evaluator=stand_in([]), quiet=True)
+    ens = load_ensemble(tmp_path / "ensemble.json")
+    members = ens.raw["members"]
+    losses = [m["loss"] for m in members]
+    assert 2 <= len(members) <= 8 and losses == sorted(losses)
+    assert losses[-1] <= losses[0] + 0.5
+    assert ens.default_member == ENS.medoid([{"x": m["x"]} for m in members], spec.params,
+                                            spec.bounds)
+    isl = summary["ensemble"]["islands"]
+    for n in spec.params:
+        v0 = members[ens.default_member]["x"][n]
+        lo, hi = isl[n]["island_loss"]            # the slice goes through the member itself
+        assert lo <= v0 <= hi and v0 in isl[n]["values"]
+        assert len(isl[n]["values"]) in (7, 8)    # 7 even points, plus v0 when not one of them
+    assert (tmp_path / "default_model_params.json").exists()
+    assert "@15ms" in (tmp_path / "calibration.md").read_text()
+
+
+def test_ensemble_spec_errors():
+    with pytest.raises(SpecError, match="report.island_points"):
+        _spec({}, {"max_evals": 2}, report={"island_points": 10})
+    with pytest.raises(SpecError, match=r"fit.contact_times_ms\[0\]"):
+        _spec({"contact_times_ms": [1]}, {"max_evals": 2})
+    with pytest.raises(SpecError, match="search.backend"):
+        _spec({}, {"max_evals": 2, "backend": "gpu"})

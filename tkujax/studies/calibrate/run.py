@@ -94,8 +94,14 @@ def score(x: dict, readings, hit_phases_ms, evaluator: Evaluator | None = None,
                 loss[o][r] += (pen + T.table_loss(res[ph][r], rows)[0]) / len(samples)
     return dict(x=x, loss=loss, stand_penalty=float(np.mean(pens)),
                 expected={r: expected_rows(res, samples, r) for r in readings},
-                rows={_phase_key(ph): {r: {_rowkey(k): v for k, v in res[ph][r].items()}
+                rows={_phase_key(ph): {r: {_rowkey(k): _compact(v)
+                                           for k, v in res[ph][r].items()}
                                        for r in readings} for ph in samples})
+
+
+def _compact(row: dict) -> dict:
+    """A row with its floats at 5 significant digits (the archive holds every sample's rows)."""
+    return {k: (float(f"{v:.5g}") if isinstance(v, float) else v) for k, v in row.items()}
 
 
 def _key(x: dict) -> tuple:
@@ -452,6 +458,54 @@ def _sensitivity_md(sens: list[dict], primary: str) -> list[str]:
     return md
 
 
+def _ensemble_section(spec: CalibrateSpec, ok: list[dict], best: dict, objective: str,
+                      out: Path, evaluator: Evaluator | None) -> tuple[dict, list[str]]:
+    """ensemble.json, the default member's files, island widths (ensemble.py)."""
+    from tkujax.model.ensemble import save_ensemble
+    from tkujax.model.io import save_model_params_json
+    from tkujax.studies.calibrate import ensemble as ENS
+
+    rd, tol = best["reading"], spec.ensemble_tolerance
+    members = ENS.select(ok, objective, rd, tol, spec.ensemble_max, spec.params, spec.bounds)
+    k = ENS.medoid(members, spec.params, spec.bounds)
+    dflt = members[k]
+    losses = [ENS.record_loss(m, objective, rd) for m in members]
+    save_ensemble(out / "ensemble.json",
+                  [dict(model_params=P.model_params(m["x"]), x=m["x"], loss=f,
+                        expected=m.get("expected", {}).get(rd)) for m, f in zip(members, losses)],
+                  k, objective=objective, reading=rd, tolerance=tol, best_loss=losses[0],
+                  samples=[_phase_key(s) for s in spec.samples], source=spec.name)
+    save_model_params_json(P.model_params(dflt["x"]), out / "default_model_params.json")
+    save_controller_params_json(P.controller_params(dflt["x"], rd), out /
+                                "default_controller_params.json")
+    entry = dict(n_members=len(members), tolerance=tol, default_member=k,
+                 default_loss=losses[k], best_loss=losses[0], default_x=dflt["x"])
+    md = ["## Ensemble of plausible robots (ensemble.json)", "",
+          f"{len(members)} distinct candidates within {tol:g} of the best expected loss "
+          f"({losses[0]:.3f}, objective {objective}, reading {rd}), at most {spec.ensemble_max}."
+          f" Default member: #{k}, the medoid in the unit cube of the fitted bounds (the middle "
+          f"of the island), loss {losses[k]:.3f}; its files: default_model_params.json, "
+          "default_controller_params.json.", "",
+          "| parameter | min | median | max | default member |", "|---|---|---|---|---|"]
+    for n in spec.params:
+        v = np.array([m["x"][n] for m in members])
+        md.append(f"| {n} | {v.min():.4g} | {np.median(v):.4g} | {v.max():.4g} | "
+                  f"{dflt['x'][n]:.4g} |")
+    md.append("")
+    if "expected" in dflt:
+        md += ["The default member in expectation:", "", _expected_md(dflt["expected"][rd]), ""]
+    if spec.island_points:
+        pts = ENS.slice_points(dflt["x"], spec.params, spec.bounds, spec.island_points)
+        recs = _score_many(spec, [p[2] for p in pts], (rd,), evaluator)
+        isl = ENS.islands(dflt["x"], [(n, v, r) for (n, v, _), r in zip(pts, recs)], objective,
+                          rd, losses[0], tol, spec.params, spec.bounds)
+        entry["islands"] = isl
+        md += ["### Island widths around the default member", "",
+               f"One-parameter slices, {spec.island_points} points over each fitted bound, "
+               "scored in expectation over every sample:", "", ENS.islands_md(isl, tol), ""]
+    return entry, md
+
+
 def write_report(spec: CalibrateSpec, out: Path, recs: list[dict], start_rec: dict,
                  search: dict, evaluator: Evaluator | None = None) -> dict:
     """best.json, calibration.md, search_trace.png, model_params.json, controller_params.json."""
@@ -499,6 +553,10 @@ def write_report(spec: CalibrateSpec, out: Path, recs: list[dict], start_rec: di
         sens = _sensitivities(spec, best["x"], best["reading"], primary, evaluator)
         summary["sensitivity"] = sens
         md += _sensitivity_md(sens, primary)
+
+    if spec.ensemble_tolerance is not None:
+        summary["ensemble"], lines = _ensemble_section(spec, ok, best, primary, out, evaluator)
+        md += lines
 
     x = best["x"]
     mp = P.model_params(x)

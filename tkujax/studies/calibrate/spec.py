@@ -20,6 +20,10 @@ backend = "mujoco"        "mujoco": MuJoCo C on the CPU, one candidate per proce
 robots_per_call = 32      mjx: candidate robots per call (the batch is padded to it)
 [report]
 sensitivity = true        finite-difference sensitivities at the best fit (2 runs per parameter)
+ensemble_tolerance = 1.0  write ensemble.json: the candidates within this loss of the best
+                          (absent: no ensemble); ensemble_max caps its members (default 64)
+island_points = 40        island widths: slices of this many points per fitted parameter through
+                          the ensemble's default member (0: none; needs ensemble_tolerance)
 """
 
 from __future__ import annotations
@@ -60,6 +64,9 @@ class CalibrateSpec:
     sensitivity: bool
     backend: str = "mujoco"
     robots_per_call: int = 32
+    ensemble_tolerance: float | None = None
+    ensemble_max: int = 64
+    island_points: int = 0
 
     @property
     def samples(self) -> tuple:
@@ -192,15 +199,25 @@ def parse_calibrate_spec(data: dict) -> CalibrateSpec:
         raise SpecError(f"search.backend: expected one of {list(BACKENDS)}, got {backend!r}")
     robots_per_call = _int("search.robots_per_call", search.get("robots_per_call", 32), 1, 4096)
 
-    report = _table("report", data.get("report", {}), {"sensitivity"})
+    report = _table("report", data.get("report", {}), {"sensitivity", "ensemble_tolerance",
+                                                       "ensemble_max", "island_points"})
     sens = _bool("report.sensitivity", report.get("sensitivity", True))
+    tol = report.get("ensemble_tolerance")
+    tol = None if tol is None else _number("report.ensemble_tolerance", tol, 1e-6, 1e3, "(loss)")
+    ens_max = _int("report.ensemble_max", report.get("ensemble_max", 64), 2, 4096)
+    points = _int("report.island_points", report.get("island_points", 0), 0, 400)
+    if points and (points < 5 or tol is None):
+        raise SpecError(f"report.island_points: expected 0, or 5-400 together with "
+                        f"report.ensemble_tolerance, got {points!r}"
+                        f"{'' if tol is not None else ' without ensemble_tolerance'}")
     return CalibrateSpec(name=fit.get("name", "calibrate"), params=names, bounds=bounds,
                          start=start, readings=readings, rows=rows, heldout=heldout,
                          hit_phases_ms=phases, contact_times_ms=contacts, budget_s=budget,
                          max_evals=max_evals,
                          popsize=popsize, restarts=restarts, workers=workers, seed=seed,
                          sigma0=sigma0, sensitivity=sens, backend=backend,
-                         robots_per_call=robots_per_call)
+                         robots_per_call=robots_per_call, ensemble_tolerance=tol,
+                         ensemble_max=ens_max, island_points=points)
 
 
 def load_calibrate_spec(path: str | Path) -> CalibrateSpec:
