@@ -27,6 +27,10 @@ from tkujax.sim.mjx_import import mjx
 from tkujax.sim.setup import SETTLE_S, ModelIndex
 
 
+class UnlistedFieldError(ValueError):
+    """A field varies across the robots that the caller's program does not vary."""
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class RobotSet:
     """R robots of one structure (see the module doc).
@@ -127,7 +131,7 @@ def _varying(leaves: list[list], fixed: tuple[int, ...] | None, what: str, tree)
     extra = sorted(set(differ) - set(fixed))
     if extra:
         names = _leaf_names(tree)
-        raise ValueError(f"{what} fields vary that the program does not vary: "
+        raise UnlistedFieldError(f"{what} fields vary that the program does not vary: "
                          f"{', '.join(names[i] for i in extra)}")
     return tuple(fixed)
 

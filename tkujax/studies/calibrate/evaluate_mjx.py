@@ -33,18 +33,28 @@ def _template() -> dict:
     return P.as_dict(P.base_vector())
 
 
-@functools.lru_cache(maxsize=4)
+_LEAF_IDS: dict[tuple[str, ...], tuple[tuple[int, ...], tuple[int, ...]]] = {}
+
+
 def _leaf_ids(names: tuple[str, ...]) -> tuple[tuple[int, ...], tuple[int, ...]]:
     """The model and stand-state fields that the parameters `names` move: probed once at the
-    bounds' corners (every fitted parameter at its low, then its high bound)."""
-    base = _template()
-    probes = [P.model_params(base)]
-    for corner in (P.LO, P.HI):
-        x = dict(base)
-        for n in names:
-            x[n] = float(corner[P.NAMES.index(n)])
-        probes.append(P.model_params(x))
-    return robots_lib.varying_leaves(probes)
+    bounds' corners and 8 random points inside them (a field the probe missed is added when a
+    candidate moves it: `_evaluate_chunk`)."""
+    if names not in _LEAF_IDS:
+        base = _template()
+        rng = np.random.default_rng(0)
+        probes = [P.model_params(base)]
+        for corner in [P.LO, P.HI] + [P.LO + rng.uniform(0, 1, len(P.LO)) * (P.HI - P.LO)
+                                      for _ in range(8)]:
+            x = dict(base)
+            for n in names:
+                x[n] = float(corner[P.NAMES.index(n)])
+            try:
+                probes.append(P.model_params(x))
+            except ValueError:
+                pass                                  # a corner the model refuses
+        _LEAF_IDS[names] = robots_lib.varying_leaves(probes)
+    return _LEAF_IDS[names]
 
 
 @functools.lru_cache(maxsize=4)
@@ -97,13 +107,22 @@ def evaluate_many(xs: list[dict], readings: tuple[str, ...], samples: tuple,
         except Exception as err:  # noqa: BLE001  (the model refused it)
             results[i] = err
     ok = list(mps)
-    ids = _leaf_ids(tuple(names))
     per = max(1, int(robots_per_call))
     for start in range(0, len(ok), per):
         chunk = ok[start:start + per]
-        for i, res in zip(chunk, _evaluate_chunk([xs[i] for i in chunk],
-                                                 [mps[i] for i in chunk], readings, samples,
-                                                 ids, per, config)):
+        cx, cm = [xs[i] for i in chunk], [mps[i] for i in chunk]
+        try:
+            out = _evaluate_chunk(cx, cm, readings, samples, _leaf_ids(tuple(names)), per,
+                                  config)
+        except robots_lib.UnlistedFieldError:
+            # a field the probe did not see move: vary it too from now on (one recompile)
+            m_ids, s_ids = robots_lib.varying_leaves([P.model_params(_template())] + cm)
+            old_m, old_s = _leaf_ids(tuple(names))
+            _LEAF_IDS[tuple(names)] = (tuple(sorted(set(old_m) | set(m_ids))),
+                                       tuple(sorted(set(old_s) | set(s_ids))))
+            out = _evaluate_chunk(cx, cm, readings, samples, _leaf_ids(tuple(names)), per,
+                                  config)
+        for i, res in zip(chunk, out):
             results[i] = res
     return results
 
