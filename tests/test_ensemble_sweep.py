@@ -158,7 +158,8 @@ def test_each_record_runs_on_its_member(ensemble_run):
 @pytest.mark.slow
 def test_mujoco_c_runs_each_member(ensemble_run, tmp_path):
     """The MuJoCo C backend (one batch per member) agrees with the MJX sweep on the fall
-    outcomes (the pushes are far from the boundary) and writes the same robot_id column."""
+    outcomes (the pushes are far from the boundary) and writes the same robot_id column; a
+    replay runs the record on its member."""
     from tkujax.studies.sweep import load, run_sweep
 
     spec, _, mjx_rec = ensemble_run
@@ -167,6 +168,15 @@ def test_mujoco_c_runs_each_member(ensemble_run, tmp_path):
     rec = load(tmp_path)
     np.testing.assert_array_equal(rec["robot_id"], mjx_rec["robot_id"])
     assert np.mean(rec["fell"] == mjx_rec["fell"]) >= 0.85
+    # replay re-runs the record on its member, and refuses a changed ensemble file
+    from tkujax.studies.replay import replay
+
+    i = int(np.flatnonzero(rec["robot_id"] == 1)[0])
+    again = replay(tmp_path, i)
+    assert again["identical"] and again["model_params"] == spec.ensemble.members[1]
+    _ensemble(Path(spec.ensemble.resolved), n_members=3)
+    with pytest.raises(ValueError, match="has changed since the sweep ran"):
+        replay(tmp_path, i)
 
 
 # --- The map: per-member boundaries and their band (synthetic records, no simulation) ---
