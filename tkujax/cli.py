@@ -140,11 +140,8 @@ def _cmd_replay(args) -> int:
                   "or OSMesa (libosmesa6) and MUJOCO_GL=osmesa.", file=sys.stderr)
         else:
             from tkujax.sim import physics
-            from tkujax.studies.replay import model_params_from
-            from tkujax.studies.chunks import read_manifest
 
-            host = physics.host_model(model_params_from(read_manifest(Path(args.run_dir))
-                                                        .get("model_params")))
+            host = physics.host_model(result["model_params"])
             frames = render.render_frames(host, result["qpos"], args.width, args.height)
             print(render.save_gif(frames, args.out, fps=1.0 / result["control_period_s"]))
     return 0 if result["same_outcome"] else 1

@@ -585,7 +585,7 @@ def compare_runs(run_args: list[str], out: str | Path, labels: list[str] | None 
         if r.label in seen:
             runs[i] = dataclasses.replace(r, label=f"{r.label} #{i + 1}")
         seen.add(runs[i].label)
-    ignore = frozenset(RANDOMIZE_FIELDS) if unpaired_robots else frozenset()
+    ignore = frozenset(RANDOMIZE_FIELDS) | {"robot_id"} if unpaired_robots else frozenset()
     for r in runs[1:]:
         check_same_pushes(runs[0], r, ignore)
     table = cell_table(runs, bands, unpaired_robots)

@@ -7,6 +7,12 @@ records (fall *fraction*), and the fall boundary is where that fraction crosses 
 the 30 ms control period instead, per control setting and controller-grid point.
 Diverged records (numerical blow-up, `tkujax.sim.metrics`) are neither fell nor survived: they
 are left out of every cell and fraction, and counted on their own in the summary.
+
+Sweeps over an ensemble of robots ([randomize] ensemble: a robot_id column) also get each
+boundary per member (`member_boundaries`: the same definition on the member's own records, at
+an azimuth only where the member has at least MIN_MEMBER_PUSHES records there), drawn as the
+10-90 % band of the members' boundaries with their median (where at least MIN_BAND_MEMBERS
+members count), written to boundary_by_member.json / .csv and stated in summary.md.
 """
 
 from __future__ import annotations
@@ -30,6 +36,9 @@ ROUND = 6
 MAX_AZIMUTH_BINS = 72     # 5 deg
 MAX_IMPULSE_BINS = 48
 MAX_PHASE_BINS = 15      # 2 ms: the physics time step
+MIN_MEMBER_PUSHES = 6    # records of a member at an azimuth (one control setting) for its boundary
+MIN_BAND_MEMBERS = 3     # members with a boundary at an azimuth for the band there
+BAND_QUANTILES = (0.1, 0.5, 0.9)
 
 
 def _axis(values: np.ndarray, max_bins: int, period: float | None = None,
@@ -83,6 +92,59 @@ def max_recoverable_impulse(rec: dict, control: bool) -> tuple[np.ndarray, np.nd
         first = np.argmax(fell) if fell.any() else len(js)
         out[i] = js[first - 1] if first > 0 else 0.0
     return azs, out
+
+
+def _boundary_of_tested(js: np.ndarray, frac: np.ndarray) -> float:
+    """max_recoverable_impulse's definition over the tested cells only (frac NaN: untested):
+    the largest tested impulse below the first whose fall fraction is >= 1/2; 0 when the
+    smallest tested one fell; the largest tested when none fell."""
+    tested = np.isfinite(frac)
+    jt, ft = js[tested], frac[tested]
+    fell = ft >= 0.5
+    first = int(np.argmax(fell)) if fell.any() else len(jt)
+    return float(jt[first - 1]) if first > 0 else 0.0
+
+
+def member_boundaries(rec: dict, control: bool, min_pushes: int = MIN_MEMBER_PUSHES,
+                      min_members: int = MIN_BAND_MEMBERS) -> dict:
+    """The fall boundary of each ensemble member (rec["robot_id"]) and their spread.
+
+    Azimuth and impulse bins are the map's (`_cells` over every member's records); a member's
+    boundary at an azimuth is `_boundary_of_tested` over its own cells there, NaN where it has
+    fewer than `min_pushes` records at that azimuth. q10 / median / q90: np.quantile (linear) of
+    the members' boundaries at each azimuth where at least `min_members` have one (else NaN).
+    Returns dict(azimuth_deg, impulse_ns (bins), members, boundary (members, azimuths), pushes
+    (members, azimuths), n_members (per azimuth), q10, median, q90)."""
+    sel = rec["control"].astype(bool) == control
+    if "diverged" in rec:
+        sel &= ~rec["diverged"].astype(bool)
+    azs, ia = _axis(np.mod(rec["azimuth_deg"][sel], 360.0), MAX_AZIMUTH_BINS, 360.0)
+    js, ij = _axis(rec["impulse_ns"][sel], MAX_IMPULSE_BINS)
+    rid = np.asarray(rec["robot_id"])[sel].astype(int)
+    fell = rec["fell"][sel].astype(float)
+    members = np.unique(rid[rid >= 0])
+    boundary = np.full((len(members), len(azs)), np.nan)
+    pushes = np.zeros((len(members), len(azs)), int)
+    for m, member in enumerate(members):
+        s = rid == member
+        total = np.zeros((len(azs), len(js)))
+        count = np.zeros_like(total)
+        np.add.at(total, (ia[s], ij[s]), fell[s])
+        np.add.at(count, (ia[s], ij[s]), 1.0)
+        pushes[m] = count.sum(1).astype(int)
+        with np.errstate(invalid="ignore"):
+            frac = np.where(count > 0, total / np.maximum(count, 1), np.nan)
+        for a in range(len(azs)):
+            if pushes[m, a] >= min_pushes:
+                boundary[m, a] = _boundary_of_tested(js, frac[a])
+    n_members = np.isfinite(boundary).sum(0)
+    q = np.full((len(BAND_QUANTILES), len(azs)), np.nan)
+    for a in np.flatnonzero(n_members >= max(min_members, 1)):
+        b = boundary[:, a]
+        q[:, a] = np.quantile(b[np.isfinite(b)], BAND_QUANTILES)
+    return dict(azimuth_deg=azs, impulse_ns=js, members=members, boundary=boundary,
+                pushes=pushes, n_members=n_members, q10=q[0], median=q[1], q90=q[2],
+                min_pushes=min_pushes, min_members=min_members)
 
 
 def fall_by_phase(rec: dict, variant_keys: tuple[str, ...] = ()) -> dict:
@@ -164,6 +226,15 @@ def _name(control: bool) -> str:
     return "control on" if control else "control off"
 
 
+def _spec_of(manifest: dict):
+    """The sweep's SweepSpec without reading its ensemble file (the maps need the records'
+    columns, not the robots; the file may have moved since the sweep ran)."""
+    data = dict(manifest["spec"])
+    if isinstance(data.get("randomize"), dict):
+        data["randomize"] = {k: v for k, v in data["randomize"].items() if k != "ensemble"}
+    return parse_spec(data)
+
+
 def _records(out_dir: Path, manifest: dict) -> tuple[dict, dict, np.ndarray, int]:
     """(every non-diverged record, the records the maps use, the from_grid mask of the first,
     the number diverged). Maps and the boundary table use the grid's exact cells when the sweep
@@ -171,7 +242,7 @@ def _records(out_dir: Path, manifest: dict) -> tuple[dict, dict, np.ndarray, int
     separately."""
     everything = load(out_dir)
     if "from_grid" not in everything:   # sweeps written before the column existed
-        everything["from_grid"] = parse_spec(manifest["spec"]).records()["from_grid"][
+        everything["from_grid"] = _spec_of(manifest).records()["from_grid"][
             everything["push_id"]]
     diverged = everything.get("diverged", np.zeros(len(everything["fell"]), bool)).astype(bool)
     everything = {k: v[~diverged] for k, v in everything.items()}
@@ -186,16 +257,35 @@ def _save(fig, path: Path, plt) -> Path:
     return path
 
 
-def _stability_figure(rec: dict, controls: list[bool], maps: Path, plt) -> Path:
-    """Polar stability map: fall fraction, with the boundary of each setting overlaid."""
+def _band(ax, band: dict, colour: str, name: str) -> None:
+    """The members' 10-90 % band and median boundary on a polar axis (closed around)."""
+    wrap = lambda v: np.append(v, v[0])  # noqa: E731
+    a = np.radians(wrap(band["azimuth_deg"]))
+    a[-1] += 2 * np.pi
+    lo, mid, hi = wrap(band["q10"]), wrap(band["median"]), wrap(band["q90"])
+    ok = np.isfinite(mid)
+    ax.fill_between(a, np.where(ok, lo, 0), np.where(ok, hi, 0), where=ok, color=colour,
+                    alpha=0.3, lw=0, label=f"ensemble 10-90 %, {name}")
+    for edge in (lo, hi):
+        ax.plot(a, np.where(ok, edge, np.nan), color=colour, lw=0.5, alpha=0.8)
+    ax.plot(a, np.where(ok, mid, np.nan), color=colour, ls=":", lw=1.2,
+            label=f"ensemble median, {name}")
+
+
+def _stability_figure(rec: dict, controls: list[bool], maps: Path, plt,
+                      bands: dict | None = None) -> Path:
+    """Polar stability map: fall fraction, with the boundary of each setting overlaid (and,
+    for an ensemble sweep, the band of the members' boundaries: `bands` {control: band})."""
     fig, axes = plt.subplots(1, len(controls), subplot_kw=dict(projection="polar"),
                              figsize=(5 * len(controls), 4.6), squeeze=False)
     for ax, c in zip(axes[0], controls):
         mesh = _polar_panel(ax, rec, "fell", c, f"fall fraction, {_name(c)}", "RdYlGn_r", 0, 1)
-        for c2, style in zip(controls, ("k--", "b-")):
+        for c2, style, colour in zip(controls, ("k--", "b-"), ("k", "b")):
             azs, jmax = max_recoverable_impulse(rec, c2)
             a = np.radians(np.append(azs, azs[0] + 360))
             ax.plot(a, np.append(jmax, jmax[0]), style, lw=1.2, label=f"boundary, {_name(c2)}")
+            if bands and c2 in bands:
+                _band(ax, bands[c2], colour, _name(c2))
     axes[0, -1].legend(loc="lower left", bbox_to_anchor=(0.75, -0.12), fontsize=7)
     fig.suptitle("radius: impulse (N·s); angle: push azimuth (0° = pushed from behind, "
                  "90° = from the right)", fontsize=8, y=0.02)
@@ -312,6 +402,71 @@ def _summary_text(manifest: dict, everything: dict, rec: dict, grid: np.ndarray,
             + "\n".join(rows) + "\n\n" + phase_md)
 
 
+def _ensemble_outputs(rec: dict, controls: list[bool], maps: Path) -> tuple[dict, list[Path], str]:
+    """({control: member_boundaries}, [boundary_by_member.json, .csv], the summary's section)
+    of an ensemble sweep (records with robot_id >= 0)."""
+    bands = {c: member_boundaries(rec, c) for c in controls}
+    js = lambda v: [None if not np.isfinite(x) else round(float(x), ROUND)  # noqa: E731
+                    for x in np.asarray(v, float)]
+    doc = dict(min_pushes=MIN_MEMBER_PUSHES, min_members=MIN_BAND_MEMBERS,
+               quantiles=list(BAND_QUANTILES), definition=(
+                   "per member: the largest tested impulse below which every tested impulse "
+                   "was survived (fall fraction < 1/2), over the member's own records at that "
+                   "azimuth; null where it has fewer than min_pushes records there"),
+               controls=[dict(control=_name(c), azimuth_deg=js(b["azimuth_deg"]),
+                              q10=js(b["q10"]), median=js(b["median"]), q90=js(b["q90"]),
+                              n_members=[int(x) for x in b["n_members"]],
+                              members=[dict(robot_id=int(m), boundary_ns=js(b["boundary"][k]),
+                                            pushes=[int(x) for x in b["pushes"][k]])
+                                       for k, m in enumerate(b["members"])])
+                         for c, b in bands.items()])
+    json_path, csv_path = maps / "boundary_by_member.json", maps / "boundary_by_member.csv"
+    json_path.write_text(json.dumps(doc, indent=1) + "\n")
+    lines = ["control,robot_id,azimuth_deg,pushes,boundary_ns"]
+    for c, b in bands.items():
+        for k, m in enumerate(b["members"]):
+            for a, az in enumerate(b["azimuth_deg"]):
+                v = b["boundary"][k, a]
+                lines.append(f"{_name(c)},{int(m)},{az:g},{int(b['pushes'][k, a])},"
+                             + ("" if not np.isfinite(v) else f"{v:g}"))
+    csv_path.write_text("\n".join(lines) + "\n")
+
+    n_members = len(np.unique(np.asarray(rec["robot_id"])[np.asarray(rec["robot_id"]) >= 0]))
+    head = "| azimuth (deg) | " + " | ".join(
+        f"{_name(c)}: median [10 %, 90 %] (members)" for c in bands) + " |"
+    rows = [head, "|---" * (1 + len(bands)) + "|"]
+
+    def fmt(b: dict, az: float) -> str:
+        hit = np.flatnonzero(np.isclose(b["azimuth_deg"], az))
+        if not len(hit) or not np.isfinite(b["median"][hit[0]]):
+            return "-"
+        a = hit[0]
+        return (f"{b['median'][a]:.2f} [{b['q10'][a]:.2f}, {b['q90'][a]:.2f}] "
+                f"({int(b['n_members'][a])})")
+
+    for az in np.unique(np.concatenate([b["azimuth_deg"] for b in bands.values()])):
+        rows.append(f"| {az:.0f} | " + " | ".join(fmt(b, az) for b in bands.values()) + " |")
+    widths = []
+    for c, b in bands.items():
+        w = b["q90"] - b["q10"]
+        if np.isfinite(w).any():
+            i = int(np.nanargmax(w))
+            widths.append(f"{_name(c)}: median width {np.nanmedian(w):.2f} N·s, widest "
+                          f"{w[i]:.2f} N·s at {b['azimuth_deg'][i]:.0f}°")
+        else:
+            widths.append(f"{_name(c)}: no azimuth has {MIN_BAND_MEMBERS} members with "
+                          f"{MIN_MEMBER_PUSHES} pushes each (run more pushes per member)")
+    text = (f"## Fall boundary across the ensemble ({n_members} robots)\n\n"
+            f"Each member's boundary is computed from its own pushes (the same definition as "
+            f"above) at each azimuth where it has at least {MIN_MEMBER_PUSHES} pushes; the band "
+            f"is the 10-90 % range of the members' boundaries (median in the middle), drawn on "
+            f"stability_polar.png where at least {MIN_BAND_MEMBERS} members count. Band "
+            f"(10-90 %): {'; '.join(widths)}. Per-member boundaries: boundary_by_member.json "
+            f"and .csv. Cells: median [10 %, 90 %] in N·s (members counted).\n\n"
+            + "\n".join(rows) + "\n")
+    return bands, [json_path, csv_path], text
+
+
 def make_maps(out_dir: str | Path, params: ControllerParams | None = None) -> dict:
     """Write maps/*.png and maps/summary.md (+ .json) for the sweep in `out_dir`."""
     import matplotlib
@@ -328,17 +483,23 @@ def make_maps(out_dir: str | Path, params: ControllerParams | None = None) -> di
     maps.mkdir(exist_ok=True)
     controls = [c for c in (False, True) if (rec["control"].astype(bool) == c).any()]
     lip = capturability.lip_model()
-    files = [_stability_figure(rec, controls, maps, plt),
+    ensemble = "robot_id" in rec and (np.asarray(rec["robot_id"]) >= 0).any()
+    bands, ensemble_files, ensemble_md = (_ensemble_outputs(rec, controls, maps) if ensemble
+                                          else ({}, [], ""))
+    files = [_stability_figure(rec, controls, maps, plt, bands),
              _recovery_figure(rec, controls, maps, plt), _capture_figure(rec, lip, maps, plt)]
     theory_png, table = _theory_figure(rec, controls, lip, params, maps, plt)
     files.append(theory_png)
     # Fall rate against the push's phase in the control period.
-    variant_keys = tuple(sorted(parse_spec(manifest["spec"]).controller_grid))
+    variant_keys = tuple(sorted(_spec_of(manifest).controller_grid))
     phase_png, phase_md = _phase_outputs(rec, variant_keys, maps, plt)
     files.append(phase_png)
     rows, summary = _theory_table(table, lip, params)
     text = _summary_text(manifest, everything, rec, grid, n_diverged, controls, lip, params,
                          rows, phase_md)
+    if ensemble_md:
+        text += "\n" + ensemble_md
+    files += ensemble_files
     (maps / "summary.md").write_text(text)
     (maps / "summary.json").write_text(json.dumps(summary, indent=1))
     return dict(files=[str(f) for f in files], summary=str(maps / "summary.md"),

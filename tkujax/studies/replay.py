@@ -56,7 +56,8 @@ def replay(run_dir: str | Path, index: int) -> dict:
 
     Returns dict(index, chunk, backend, stored, replayed (outcome columns), same_outcome
     (fell and diverged equal), identical (every column within RTOL/ATOL), differences
-    {column: (stored, replayed)}, qpos (n_ticks, nq), control_period_s)."""
+    {column: (stored, replayed)}, qpos (n_ticks, nq), control_period_s, model_params (the
+    record's robot: its ensemble member, or the sweep's model; None: the default))."""
     run_dir = Path(run_dir)
     manifest = chunks.read_manifest(run_dir)
     if not manifest:
@@ -64,14 +65,21 @@ def replay(run_dir: str | Path, index: int) -> dict:
     n = int(manifest["n_pushes"])
     if not 0 <= index < n:
         raise ValueError(f"--index must be in [0, {n - 1}] (the sweep's push_id), got {index}")
-    spec = parse_spec(manifest["spec"])
+    spec = parse_spec(manifest["spec"])   # a [randomize] ensemble is read again from its path
+    recorded = manifest.get("ensemble", {}).get("sha256")
+    if spec.ensemble is not None and recorded and recorded != spec.ensemble.sha256:
+        raise ValueError(f"the ensemble file {spec.ensemble.resolved} has changed since the sweep "
+                         f"ran (sha256 {spec.ensemble.sha256[:12]}... != {recorded[:12]}...): "
+                         "replay needs the sweep's robots")
     size = int(manifest["chunk_size"])
     chunk, pos = divmod(index, size)
     stored = _stored_record(run_dir, manifest, chunk, pos)
     params = controller_params_from_dict(manifest["controller_params"],
                                          f"{run_dir / chunks.MANIFEST}: controller_params",
                                          base=ControllerParams())
-    model_params = model_params_from(manifest.get("model_params"))
+    # An ensemble sweep's robots are its members (the manifest's model_params is then unused).
+    model_params = (None if spec.ensemble is not None
+                    else model_params_from(manifest.get("model_params")))
     base = controller_params_from(params, spec.controller)
     recs = record_inputs(spec)
     lo, hi = chunk * size, min((chunk + 1) * size, n)
@@ -82,7 +90,7 @@ def replay(run_dir: str | Path, index: int) -> dict:
                            with_qpos=True, varied=tuple(sorted(spec.controller_grid)),
                            steps=bool(spec.step_grid),
                            fpga=spec.fpga if spec.arithmetic == "fixed" else None,
-                           fpga_varied=tuple(sorted(spec.fpga_grid)))
+                           fpga_varied=tuple(sorted(spec.fpga_grid)), ensemble=spec.ensemble)
         res = {k: v[pos] for k, v in res.items()}
     else:
         import jax
@@ -90,7 +98,8 @@ def replay(run_dir: str | Path, index: int) -> dict:
         padded = int(manifest.get("padded_chunk", size))
         fn = make_chunk_fn(tuple(sorted(spec.controller_grid)), spec.duration_s,
                            model_params, with_qpos=True, steps=bool(spec.step_grid),
-                           fixed=spec.fixed_point_config({k: v[pos] for k, v in inputs.items()}))
+                           fixed=spec.fixed_point_config({k: v[pos] for k, v in inputs.items()}),
+                           ensemble=spec.ensemble)
         one = {k: np.asarray(v[pos:pos + 1], np.float32) for k, v in inputs.items()}
         key = chunk_keys(spec.seed, chunk, padded)[pos:pos + 1]
         res = jax.tree_util.tree_map(lambda x: np.asarray(x)[0], fn(one, key, traced_params(base)))
@@ -107,4 +116,6 @@ def replay(run_dir: str | Path, index: int) -> dict:
                 same_outcome=not ({"fell", "diverged"} & set(differences)),
                 identical=not differences, differences=differences,
                 qpos=np.asarray(res["qpos"], np.float64),
+                model_params=(model_params if spec.ensemble is None else
+                              spec.ensemble.members[int(stored["robot_id"])]),
                 control_period_s=RolloutConfig().control_period_s)

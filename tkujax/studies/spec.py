@@ -35,6 +35,13 @@ record carries an onset_phase column (derived from onset_s when not given).
     [controller.grid]          # ControllerParams varied as a grid (crossed with the pushes)
     [randomize]                # per-push model/sensor randomisation ({uniform = [lo, hi]} or
                                # a value)
+    ensemble = "results/calibration/ensemble.json"   # one member robot drawn per push
+                               # (tkujax.model.ensemble; the other keys apply on top of it)
+
+[randomize] ensemble: each push draws one member uniformly (integer robot_id in [0, n), with the
+sweep seed, after the other [randomize] draws), shared by the push's control and grid settings;
+the records carry it in a robot_id column. The path is relative to the current directory (or
+absolute); the file is read and validated here, and its sha256 enters the sweep's hash.
 
 FPGA fixed-point controller (issue 15; `tkujax.control.fixed`):
 
@@ -62,6 +69,7 @@ FPGA fixed-point controller (issue 15; `tkujax.control.fixed`):
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import itertools
 import math
 import re
@@ -74,6 +82,8 @@ import numpy as np
 from tkujax.control.io import checked_value
 from tkujax.control.fixed.config import GROUP_INT_BITS, MAX_GROUP_WORD_BITS, FixedPointConfig
 from tkujax.control.fixed.qformat import ROUNDING_MODES, QFormat
+from tkujax.model.ensemble import load_ensemble
+from tkujax.model.params import ModelParams
 from tkujax.sim.push import onset_from_phase, onset_phase
 
 
@@ -144,8 +154,51 @@ FPGA_FIELDS = (
        "latency_frac": (0.0, 1.0, "(fraction of a control period; 1 excluded)"),
        "rounding": (0, len(ROUNDING_MODES) - 1, f"(one of {ROUNDING_MODES})")})
 FPGA_COLUMN = "fpga_"   # record column prefix of a gridded [fpga] key
+# [randomize] ensemble = "PATH": one member of an ensemble of robots per push (`EnsembleRef`);
+# recorded per record in ROBOT_ID_COLUMN. Not a RANDOMIZE_FIELDS entry: tune specs do not take it.
+ENSEMBLE_KEY = "ensemble"
+ROBOT_ID_COLUMN = "robot_id"
 SWEEP_FIELDS = {"name": str, "seed": int, "chunk_size": int, "duration_s": (int, float),
                 "control": list, "description": str}
+
+
+@dataclasses.dataclass(frozen=True)
+class EnsembleRef:
+    """[randomize] ensemble: the file as the spec gives it, its absolute path, the sha256 of its
+    content and its members' ModelParams. Equal (and hashed) by content: the cache key of the
+    ensemble's compiled robots."""
+
+    path: str = dataclasses.field(compare=False)
+    resolved: str = dataclasses.field(compare=False)
+    sha256: str
+    members: tuple[ModelParams, ...] = dataclasses.field(compare=False, repr=False)
+    default_member: int = dataclasses.field(compare=False, default=0)
+
+    @property
+    def n(self) -> int:
+        return len(self.members)
+
+    def describe(self) -> dict:
+        """The manifest's record of the ensemble."""
+        return dict(path=self.path, resolved=self.resolved, sha256=self.sha256, n=self.n,
+                    default_member=self.default_member)
+
+
+def parse_ensemble(value) -> EnsembleRef:
+    """randomize.ensemble: read and validate the file (`load_ensemble`); SpecError names the key
+    and the file's problem."""
+    key = f"randomize.{ENSEMBLE_KEY}"
+    if not isinstance(value, str) or not value.strip():
+        raise SpecError(f"{key}: expected the path of an ensemble file (a string, relative to "
+                        f"the current directory or absolute), got {value!r}")
+    path = Path(value).expanduser()
+    try:
+        ens = load_ensemble(path)
+        digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    except (ValueError, OSError) as err:
+        raise SpecError(f"{key}: {err}") from None
+    return EnsembleRef(path=value, resolved=str(path.resolve()), sha256=digest,
+                       members=ens.members, default_member=ens.default_member)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -170,6 +223,7 @@ class SweepSpec:
     arithmetic: str = "float"
     fpga: dict[str, Any] = dataclasses.field(default_factory=dict)
     fpga_grid: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
+    ensemble: EnsembleRef | None = None   # [randomize] ensemble
 
     def fixed_point_config(self, rec: dict | None = None) -> FixedPointConfig | None:
         """The FixedPointConfig of a record (its fpga_* columns over [fpga]); None for float."""
@@ -339,7 +393,10 @@ def parse_spec(data: dict) -> SweepSpec:
     if both:
         raise SpecError(f"controller: {both} set both as fixed values and in [controller.grid]")
 
-    randomize = parse_randomize(data)
+    rand = _table("randomize", data.get("randomize", {}), set(RANDOMIZE_FIELDS) | {ENSEMBLE_KEY})
+    ensemble = parse_ensemble(rand[ENSEMBLE_KEY]) if ENSEMBLE_KEY in rand else None
+    randomize = parse_randomize({"randomize": {k: v for k, v in rand.items()
+                                               if k != ENSEMBLE_KEY}})
     step_grid, step_reference = _parse_step(data)
     if arithmetic == "fixed" and step_grid:
         raise SpecError("[step]: commanded steps have no fixed-point controller twin; "
@@ -353,7 +410,7 @@ def parse_spec(data: dict) -> SweepSpec:
                      randomize=randomize, raw=data, phase_default=phase_default,
                      step_grid=step_grid,
                      step_reference=step_reference, arithmetic=arithmetic, fpga=fpga,
-                     fpga_grid=fpga_grid)
+                     fpga_grid=fpga_grid, ensemble=ensemble)
 
 
 def _check_fixed_controller(controller: dict, grid: dict) -> None:
@@ -491,7 +548,8 @@ def expand(spec: SweepSpec) -> dict[str, np.ndarray]:
     Order: control setting (outermost), controller grid, grid pushes then random pushes.
     Randomisation columns are drawn once per push from the spec's seed and shared by all of
     its control settings and controller-grid points, so that control off and on (or two grid
-    points) of one push run on the same robot: comparisons are paired.
+    points) of one push run on the same robot: comparisons are paired. With [randomize]
+    ensemble, the member (robot_id, uniform in [0, n)) is drawn last, the same way.
     """
     rng = np.random.default_rng(spec.seed)
     defaults = {k: v[2] for k, v in PUSH_FIELDS.items()}
@@ -545,6 +603,8 @@ def expand(spec: SweepSpec) -> dict[str, np.ndarray]:
     for k, v in spec.randomize.items():
         draw = rng.uniform(*v, n_push) if isinstance(v, tuple) else np.full(n_push, v)
         out[k] = np.tile(draw, n_settings)
+    if spec.ensemble is not None:   # drawn after the others: their values do not change
+        out[ROBOT_ID_COLUMN] = np.tile(rng.integers(0, spec.ensemble.n, n_push), n_settings)
     out = _cross_steps(spec, out)
     out["push_id"] = np.arange(len(out["control"]))
     return out

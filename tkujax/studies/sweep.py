@@ -48,7 +48,8 @@ from tkujax.sim.setup import init
 from tkujax.studies import chunks
 from tkujax.studies.progress import Progress
 from tkujax.studies.provenance import git_commit, versions
-from tkujax.studies.spec import FPGA_COLUMN, SpecError, SweepSpec, fixed_point_config, load_spec
+from tkujax.studies.spec import (FPGA_COLUMN, ROBOT_ID_COLUMN, EnsembleRef, SpecError, SweepSpec,
+                                 fixed_point_config, load_spec)
 
 OUTCOME_KEYS = ("fell", "diverged", "recovery_time_s", "step_length_m", "step_width_m",
                 "peak_incl_deg", "capture_point_m", "capture_point_y_m", "zmp_excursion_m")
@@ -88,7 +89,8 @@ def traced_params(params: ControllerParams) -> ControllerParams:
 
 def make_chunk_fn(varied: tuple[str, ...], duration_s: float,
                   model_params: ModelParams | None = None, with_qpos: bool = False,
-                  steps: bool = False, fixed: FixedPointConfig | None = None):
+                  steps: bool = False, fixed: FixedPointConfig | None = None,
+                  ensemble: EnsembleRef | None = None):
     """jit(vmap) of push records -> outcomes: f(batch, keys, params) with `params` a
     ControllerParams shared by the batch (pass it through `traced_params`), and `varied` the
     controller fields given per record instead (a [controller.grid]).
@@ -99,32 +101,66 @@ def make_chunk_fn(varied: tuple[str, ...], duration_s: float,
     with_qpos: also return the state at every control period ("qpos", for replay).
     steps: records carry a commanded step (step_* columns, a [step] sweep).
     fixed: run the fixed-point controller with this (static) FixedPointConfig; one compiled
-    program per distinct config (word lengths change the program; `fpga_groups`)."""
+    program per distinct config (word lengths change the program; `fpga_groups`).
+    ensemble: [randomize] ensemble: each record runs on member rec["robot_id"] of the ensemble's
+    RobotSet (`ensemble_robots`, built once per ensemble content), its model and settled stand
+    picked inside the program; model_params must then be None. The controller parameters stay
+    the batch's (the controller does not know which robot it runs on)."""
+    if ensemble is not None and model_params is not None:
+        raise SpecError("[randomize] ensemble gives the robots: pass no model_params with it")
     # Positional call into the cache: lru_cache keys f(a, b) and f(a, b, steps=False) apart,
     # which would compile the same program twice.
-    return _make_chunk_fn(tuple(varied), duration_s, model_params, with_qpos, steps, fixed)
+    return _make_chunk_fn(tuple(varied), duration_s, model_params, with_qpos, steps, fixed,
+                          ensemble)
+
+
+@functools.lru_cache(maxsize=4)
+def ensemble_robots(ensemble: EnsembleRef):
+    """The RobotSet of an ensemble's members (`tkujax.sim.robots`), cached by the file's content
+    (EnsembleRef compares by sha256)."""
+    from tkujax.sim.robots import robot_set
+    try:
+        return robot_set(ensemble.members)
+    except ValueError as err:
+        raise SpecError(f"randomize.ensemble: {ensemble.path}: {err}") from None
 
 
 @functools.lru_cache(maxsize=16)
-def _make_chunk_fn(varied, duration_s, model_params, with_qpos, steps, fixed):
-    _, model, index, state = init(model_params)
+def _make_chunk_fn(varied, duration_s, model_params, with_qpos, steps, fixed, ensemble=None):
+    from tkujax.sim.robots import put_leaves
+
+    if ensemble is None:
+        _, model, index, state = init(model_params)
+    else:
+        robots = ensemble_robots(ensemble)
+        model, index, state = robots.base_model, robots.index, robots.base_state
     config = RolloutConfig(duration_s=duration_s, record_qpos=with_qpos, fixed=fixed)
 
-    def one(rec, key, base_params):
+    def one(rec, key, base_params, robot_values=None):
         push = Push(rec["impulse_ns"], jnp.radians(rec["azimuth_deg"]), rec["height_m"],
                     rec["duration_s"], rec["onset_s"])
         params = controller_params_from(base_params, {k: rec[k] for k in varied})
-        m = randomize_model(model, index.chest_body, mass_scale=rec["link_mass_scale"],
+        m, s = model, state
+        if robot_values is not None:   # this record's ensemble member
+            rid = rec[ROBOT_ID_COLUMN].astype(jnp.int32)
+            m = put_leaves(model, robots.model_leaf_ids, robot_values[0], rid)
+            s = put_leaves(state, robots.state_leaf_ids, robot_values[1], rid)
+        m = randomize_model(m, index.chest_body, mass_scale=rec["link_mass_scale"],
                             torso_com_dx_m=rec["torso_com_offset_x_m"],
                             friction=rec["floor_friction"], kp_scale=rec["servo_kp_scale"])
-        series = rollout(m, state, push, params, rec["control"], key, rec["gyro_noise_std"],
+        series = rollout(m, s, push, params, rec["control"], key, rec["gyro_noise_std"],
                          rec["accel_noise_std"], config, index,
                          step_override(rec) if steps else None)
         out = rollout_outcomes(series, push.onset_s)
         res = {k: out[k] for k in OUTCOME_KEYS} | ({"qpos": series.qpos} if with_qpos else {})
         return res | (capture_outcomes(series, push.onset_s, params.gravity) if steps else {})
 
-    return jax.jit(jax.vmap(one, in_axes=(0, 0, None)))
+    if ensemble is None:
+        return jax.jit(jax.vmap(one, in_axes=(0, 0, None)))
+    # The members' values are arguments of the program, not constants baked into it.
+    fn = jax.jit(jax.vmap(one, in_axes=(0, 0, None, None)))
+    values = robots.values()
+    return lambda batch, keys, params: fn(batch, keys, params, values)
 
 
 BACKENDS = ("auto", "mjx", "mujoco")
@@ -133,7 +169,8 @@ BACKENDS = ("auto", "mjx", "mujoco")
 def choose_backend(requested: str, spec: SweepSpec) -> str:
     """"auto": MJX on a GPU/TPU; on a CPU, MuJoCo C (about 5x faster there) when the spec
     allows it. The MuJoCo C path takes one model per sweep: per-push model randomisation needs
-    MJX. A [controller.grid] runs on both (MuJoCo C: one batch per grid point of a chunk)."""
+    MJX. A [controller.grid] runs on both (MuJoCo C: one batch per grid point of a chunk), and
+    so does a [randomize] ensemble (MuJoCo C: one batch per member present in a chunk)."""
     if requested not in BACKENDS:
         raise SpecError(f"backend must be one of {BACKENDS}, got {requested!r}")
     needs_mjx = [k for k in spec.randomize if k not in ("gyro_noise_std", "accel_noise_std")
@@ -153,17 +190,22 @@ def _capture_outcomes_batch(series, onset_s, gravity):
 def mujoco_chunk(batch: dict, seed: int, base: ControllerParams, duration_s: float,
                  model_params: ModelParams | None, with_qpos: bool = False,
                  varied: tuple[str, ...] = (), steps: bool = False,
-                 fpga: dict | None = None, fpga_varied: tuple[str, ...] = ()) -> dict:
+                 fpga: dict | None = None, fpga_varied: tuple[str, ...] = (),
+                 ensemble: EnsembleRef | None = None) -> dict:
     """One chunk on MuJoCo C (tkujax.sim.rollout_mujoco), outcomes (and qpos) as numpy: one
     batch per controller-grid point present in the chunk (`varied` names the grid's fields; the
     controller's parameters are shared by a batch there). steps: records carry a commanded step
     (step_* columns, a [step] sweep) and get the capture-region columns too. fpga: the [fpga]
     values of a fixed-point sweep (None: float controller), fpga_varied: its gridded keys
-    (columns fpga_<key>): one batch per (controller-grid point, FixedPointConfig)."""
+    (columns fpga_<key>): one batch per (controller-grid point, FixedPointConfig). ensemble: a
+    [randomize] ensemble: one batch per member too (column robot_id; model_params is then
+    unused: each batch runs its member's ModelParams)."""
     from tkujax.sim.rollout_mujoco import simulate_mujoco
 
     n = len(batch["impulse_ns"])
     cols = list(varied) + [FPGA_COLUMN + k for k in fpga_varied]
+    if ensemble is not None:
+        cols.append(ROBOT_ID_COLUMN)            # last: the member of each batch
     grid = np.stack([batch[k] for k in cols], 1) if cols else np.zeros((n, 0))
     points, which = np.unique(grid, axis=0, return_inverse=True)
     res = {}
@@ -172,7 +214,8 @@ def mujoco_chunk(batch: dict, seed: int, base: ControllerParams, duration_s: flo
         # Python floats: one compiled controller tick for every grid point (values are traced).
         params = controller_params_from(base, {k: float(v) for k, v in zip(varied, point)})
         fixed = None if fpga is None else fixed_point_config(
-            fpga | dict(zip(fpga_varied, point[len(varied):])))
+            fpga | dict(zip(fpga_varied, point[len(varied):len(varied) + len(fpga_varied)])))
+        robot = model_params if ensemble is None else ensemble.members[int(point[-1])]
         pushes = Push(*(jnp.asarray(v[sel], jnp.float32) for v in (
             batch["impulse_ns"], np.radians(batch["azimuth_deg"]), batch["height_m"],
             batch["duration_s"], batch["onset_s"])))
@@ -181,7 +224,7 @@ def mujoco_chunk(batch: dict, seed: int, base: ControllerParams, duration_s: flo
         series, out = simulate_mujoco(
             pushes, batch["control"][sel].astype(np.float32), params, seed=seed,
             gyro_noise_std=float(batch["gyro_noise_std"][0]),
-            accel_noise_std=float(batch["accel_noise_std"][0]), model_params=model_params,
+            accel_noise_std=float(batch["accel_noise_std"][0]), model_params=robot,
             config=RolloutConfig(duration_s=duration_s, record_qpos=with_qpos, fixed=fixed),
             overrides=overrides)
         fields = {k: np.asarray(out[k]) for k in OUTCOME_KEYS}
@@ -214,6 +257,8 @@ def _spec_hash(spec: SweepSpec, params: ControllerParams, model_params: ModelPar
         parts.append({"fixed_point_defaults": dataclasses.asdict(FixedPointConfig())})
     if spec.phase_default:   # random onsets changed meaning when the phase axis came in
         parts.append("push.random.onset_phase: uniform [0, 1) by default")
+    if spec.ensemble is not None:   # the robots themselves, by the file's content
+        parts.append({"randomize.ensemble sha256": spec.ensemble.sha256})
     if shares_robot_draws(spec):
         # The robot draws became shared by the settings of a push (records of older sweeps
         # differ): such a sweep is a new one.
@@ -273,7 +318,7 @@ class _ChunkJob:
             res = mujoco_chunk({k: recs[k][lo:hi] for k in self.input_keys}, spec.seed + i,
                                self.base, spec.duration_s, self.model_params, varied=varied,
                                steps=steps, fpga=spec.fpga if spec.arithmetic == "fixed" else None,
-                               fpga_varied=tuple(sorted(spec.fpga_grid)))
+                               fpga_varied=tuple(sorted(spec.fpga_grid)), ensemble=spec.ensemble)
             return {k: recs[k][lo:hi] for k in recs} | res
         keys = chunk_keys(spec.seed, i, self.padded)
         res = {}
@@ -286,7 +331,7 @@ class _ChunkJob:
             batch = {k: jax.device_put(recs[k][lo:hi][rows].astype(np.float32), self.sharding)
                      for k in self.input_keys}
             fn = make_chunk_fn(varied, spec.duration_s, self.model_params, steps=steps,
-                               fixed=fixed)
+                               fixed=fixed, ensemble=spec.ensemble)
             part = fn(batch, jax.device_put(keys[rows], self.sharding), traced_params(self.base))
             for k, v in part.items():
                 v = np.asarray(v)[:len(sel)]
@@ -343,6 +388,8 @@ def _describe(spec: SweepSpec, digest: str, n: int, n_chunks: int, padded: int,
                     backend=backend, format="npz chunks, one record per push")
     if spec.arithmetic == "fixed":
         manifest["fixed_point_defaults"] = dataclasses.asdict(FixedPointConfig())
+    if spec.ensemble is not None:
+        manifest["ensemble"] = spec.ensemble.describe()
     return manifest
 
 
@@ -361,6 +408,9 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
     boundary).
     """
     spec = spec if isinstance(spec, SweepSpec) else load_spec(spec)
+    if spec.ensemble is not None and model_params is not None:
+        raise SpecError("[randomize] ensemble gives the sweep's robots: give either it or a "
+                        "model (--model), not both")
     params = params or ControllerParams.paper()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
