@@ -96,10 +96,10 @@ def test_spec_conflicts_and_empty():
 
 def test_shipped_specs_expand():
     n = {f.stem: len(load_spec(f).records()["push_id"]) for f in (ROOT / "sweeps").glob("*.toml")
-         if not f.stem.startswith(("tune", "calibrate", "convergence"))   # their own formats
-         and f.stem != "ensemble_cpu"}   # needs calibrate's ensemble file: test_ensemble_sweep
+         if not f.stem.startswith(("tune", "calibrate", "convergence"))}   # their own formats
     assert n["stability_map"] >= 10_000
     assert n["paper"] == 8 and n["tiny"] == 8 and n["stability_map_cpu"] == 128
+    assert n["ensemble_cpu"] == 384          # its ensemble: results/calibration/expected
     assert n["phase_cpu"] == 2520 and n["phase"] == 4 * (15 * 24 * 15 + 4000)
     assert n["recovery_eval"] == n["recovery_eval_shift"] == 2 * (30 * 24 * 5 + 16000)
     assert n["recovery_grid"] == 2 * 2 * 2 * 3 * 3 * 2 * 2 * 1024
