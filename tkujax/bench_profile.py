@@ -1,0 +1,291 @@
+"""`tkujax bench --profile`: what each part of the closed loop costs per control tick.
+
+By ablation: the closed loop of the sweeps (`tkujax.studies.sweep.make_chunk_fn`: per-push
+model fields, sensor noise, controller, push wrench, Series records and outcomes) is timed
+whole, then with one part replaced by a trivial stand-in (`RolloutConfig.ablate`, a Python
+branch at trace time, so the other parts' program is unchanged), at one batch and duration:
+
+  full            the closed loop as the sweeps run it
+  no_push         the same program, every impulse 0 (what the pushes and falls cost the physics)
+  no_noise        no sensor-noise draws (the bench's pushes have zero noise: same results)
+  no_controller   no controller: the legs hold the stand targets
+  no_wrench       no push wrench computed per substep (xfrc_applied stays 0)
+  no_records      no Series and no outcomes: the pelvis height per tick is the only output
+  shared_model    one model for the batch (no per-push model fields: randomize_model)
+  physics_only    all of the above at once: the tick/substep scans around mjx.step
+  raw             one flat scan of mjx.step holding the stand targets, as many steps, from the
+                  same settled state (the bench's raw-MJX figure, in this loop's units)
+
+Each row gives ms per control tick and `cost_ms_per_tick` = full - row: what the replaced part
+costs (no_push: what the pushed state costs the physics; negative when the stand-in is slower).
+`controller_parts` times the controller's pieces alone (vmapped over the batch in a scan over
+the ticks, synthetic IMU readings): Kalman, detection, CPG (the paper's, the lateral one and
+later steps), IK, stance feedback, quantisation, and the whole `controller_step`. Alone, a
+piece cannot fuse with its neighbours: an upper bound of its share in the closed loop.
+
+Extra variants (`variants=`): "unroll_substeps=K" / "unroll_ticks=K" (scan unrolling of the
+full loop), measured the same way. The variants are lowered one after the other and compiled
+in parallel threads (compile time is not what this measures); `trace_dir`: a `jax.profiler`
+trace of one run of the full loop, whose op names carry the rollout's named scopes (sensors,
+controller, physics/push_wrench, physics/mjx_step, records).
+Speeds are reported, never asserted.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import statistics
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from tkujax.sim import physics
+
+DEFAULT_VARIANTS = ("full", "no_push", "no_noise", "no_controller", "no_wrench", "no_records",
+                    "shared_model", "physics_only", "raw")
+_ABLATE = {"no_noise": ("noise",), "no_controller": ("controller",), "no_wrench": ("wrench",),
+           "no_records": ("records",),
+           "physics_only": ("noise", "controller", "wrench", "records")}
+_SHARED_MODEL = ("shared_model", "physics_only")
+
+
+def _variant_config(name: str) -> dict:
+    """RolloutConfig fields of a variant name (see the module docstring)."""
+    if name in ("full", "no_push", "shared_model", "raw"):
+        return {}
+    if name in _ABLATE:
+        return {"ablate": _ABLATE[name]}
+    key, _, val = name.partition("=")
+    if key in ("unroll_substeps", "unroll_ticks") and val.isdigit() and int(val) >= 1:
+        return {key: int(val)}
+    raise ValueError(f"unknown profile variant {name!r}; known: {DEFAULT_VARIANTS} and "
+                     f"unroll_substeps=K, unroll_ticks=K")
+
+
+def _loop_fn(name: str, duration_s: float):
+    """jit(vmap) of (records, keys, params) -> outputs for a variant, as make_chunk_fn builds
+    the sweeps' chunk (`full` is that program)."""
+    from tkujax.sim.metrics import outcomes as rollout_outcomes
+    from tkujax.sim.push import Push
+    from tkujax.sim.randomize import randomize_model
+    from tkujax.sim.rollout_mjx import RolloutConfig, rollout
+    from tkujax.sim.setup import init
+    from tkujax.studies.sweep import OUTCOME_KEYS
+
+    host, model, index, state = init()
+    if name == "raw":
+        n_steps = _n_ticks(duration_s) * _substeps()
+        ctrl = jnp.asarray(index.stand_ctrl, state.qpos.dtype)
+
+        def raw(rec, key, params):
+            return physics.step_holding(model, state, ctrl, n_steps)[0].qpos[2]
+
+        return jax.jit(jax.vmap(raw, in_axes=(0, 0, None)))
+    config = RolloutConfig(duration_s=duration_s, **_variant_config(name))
+
+    def one(rec, key, params):
+        push = Push(rec["impulse_ns"], jnp.radians(rec["azimuth_deg"]), rec["height_m"],
+                    rec["duration_s"], rec["onset_s"])
+        m = model if name in _SHARED_MODEL else randomize_model(
+            model, index.chest_body, mass_scale=rec["link_mass_scale"],
+            torso_com_dx_m=rec["torso_com_offset_x_m"], friction=rec["floor_friction"],
+            kp_scale=rec["servo_kp_scale"])
+        series = rollout(m, state, push, params, rec["control"], key, rec["gyro_noise_std"],
+                         rec["accel_noise_std"], config, index)
+        if "records" in config.ablate:
+            return series[-1]
+        out = rollout_outcomes(series, push.onset_s)
+        return {k: out[k] for k in OUTCOME_KEYS}
+
+    return jax.jit(jax.vmap(one, in_axes=(0, 0, None)))
+
+
+def _substeps() -> int:
+    from tkujax.sim.push import CONTROL_PERIOD_S
+
+    return int(round(CONTROL_PERIOD_S / physics.host_model().opt.timestep))
+
+
+def _n_ticks(duration_s: float) -> int:
+    from tkujax.sim.push import CONTROL_PERIOD_S
+
+    return int(round(duration_s / CONTROL_PERIOD_S))
+
+
+def _time_calls(fn, repeats: int) -> float:
+    jax.block_until_ready(fn())    # warm-up (already compiled: first-run effects only)
+    times = []
+    for _ in range(max(repeats, 1)):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn())
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def profile_closed_loop(batch: int, duration_s: float = 0.6, repeats: int = 1,
+                        variants=DEFAULT_VARIANTS, compile_workers: int = 4,
+                        trace_dir: str | Path | None = None, log=None) -> dict:
+    """The ablation table at one batch (see the module docstring)."""
+    from tkujax.bench import _push_batch, traced_paper_params
+
+    log = log or (lambda msg: None)
+    variants = tuple(variants)
+    if "full" not in variants:
+        variants = ("full",) + variants
+    for v in variants:
+        if v != "no_push":
+            _variant_config(v)           # unknown names fail before any compile
+    params = traced_paper_params()
+    recs = _push_batch(batch)
+    keys = jax.random.split(jax.random.PRNGKey(0), batch)
+    n_ticks = _n_ticks(duration_s)
+    programs = [v for v in variants if v != "no_push"]
+    t0 = time.perf_counter()
+    lowered = {}
+    for v in programs:
+        lowered[v] = _loop_fn(v, duration_s).lower(recs, keys, params)
+    lower_s = time.perf_counter() - t0
+    log(f"profile {batch}: lowered {len(programs)} programs in {lower_s:.1f} s; compiling")
+    t0 = time.perf_counter()
+    with concurrent.futures.ThreadPoolExecutor(max(1, compile_workers)) as pool:
+        compiled = dict(zip(programs, pool.map(lambda v: lowered[v].compile(), programs)))
+    compile_s = time.perf_counter() - t0
+    log(f"profile {batch}: compiled in {compile_s:.1f} s")
+    no_push = dict(recs, impulse_ns=jnp.zeros_like(recs["impulse_ns"]))
+    seconds = {}
+    for v in variants:
+        exe = compiled["full" if v == "no_push" else v]
+        r = no_push if v == "no_push" else recs
+        seconds[v] = _time_calls(lambda exe=exe, r=r: exe(r, keys, params), repeats)
+        log(f"profile {batch}: {v} {1e3 * seconds[v] / n_ticks:.3f} ms/tick")
+    full = seconds["full"]
+    rows = [dict(variant=v, seconds=s, ms_per_tick=1e3 * s / n_ticks,
+                 cost_ms_per_tick=1e3 * (full - s) / n_ticks,
+                 share_of_full=(full - s) / full) for v, s in seconds.items()]
+    result = dict(batch=batch, duration_s=duration_s, n_ticks=n_ticks, substeps=_substeps(),
+                  repeats=repeats, lower_s=round(lower_s, 2),
+                  compile_parallel_s=round(compile_s, 2), compile_workers=compile_workers,
+                  rows=rows)
+    if trace_dir:
+        trace = Path(trace_dir) / f"batch{batch}"
+        trace.mkdir(parents=True, exist_ok=True)
+        exe = compiled["full"]
+        jax.block_until_ready(exe(recs, keys, params))
+        with jax.profiler.trace(str(trace)):
+            jax.block_until_ready(exe(recs, keys, params))
+        result["trace_dir"] = str(trace)
+    return result
+
+
+def _parts(params, batch: int, dtype):
+    """{name: (init carry, step(carry, (gyro, accel)) -> carry)} of the controller's pieces, each
+    vmapped over the batch; the carry folds in every output so nothing is dead code."""
+    from tkujax.control.controller import (_detect, _later_step_feet, controller_init,
+                                          controller_step, Sensors, StepsState, stance_offsets)
+    from tkujax.control.cpg import cpg_feet, cpg_feet_lateral
+    from tkujax.control.kalman import (accel_to_angle, accel_variance, gyro_to_rates,
+                                       kalman_init, kalman_step)
+    from tkujax.control.solve import solve_legs
+    from tkujax.sim.tick import quantise_targets
+
+    zero = jnp.zeros((batch,), dtype)
+
+    def fold(acc, *outs):
+        return acc + sum(jnp.sum(jnp.asarray(o, dtype).reshape(batch, -1), -1)
+                         for o in jax.tree_util.tree_leaves(outs))
+
+    def vm(f):
+        return jax.vmap(f)
+
+    k0 = jax.vmap(lambda _: kalman_init(jnp.stack([jnp.asarray(params.standing_lean, dtype),
+                                                   jnp.zeros((), dtype)]), params))(zero)
+    s0 = jax.vmap(lambda _: controller_init(params, dtype))(zero)
+
+    def kalman(c, x):
+        k, acc = c
+        k = vm(lambda k, g, a: kalman_step(k, gyro_to_rates(g), accel_to_angle(a), params,
+                                           accel_variance(a, params)))(k, *x)
+        return (k, fold(acc, k.phi))
+
+    def detection(acc, x):
+        g, a = x
+        det = vm(lambda g, a: _detect(accel_to_angle(a)[0], -accel_to_angle(a)[1],
+                                      gyro_to_rates(g)[0], -gyro_to_rates(g)[1], params))(g, a)
+        return fold(acc, det)
+
+    def cpg(acc, x):
+        g, _ = x
+        t = g[:, 0]
+        steps = jax.vmap(lambda _: StepsState.init(dtype))(zero)
+        x_sup, y_sup = jnp.full_like(t, 0.03), jnp.full_like(t, 0.01)
+        return fold(acc, vm(lambda t, x: cpg_feet(t, x, params))(t, x_sup),
+                    vm(lambda t, x, y: cpg_feet_lateral(t, x, y, params))(t, x_sup, y_sup),
+                    vm(lambda t, s: _later_step_feet(t, s, params))(t, steps))
+
+    def ik(acc, x):
+        g, _ = x
+        p_r = jnp.stack([0.01 * g[:, 0], -params.hip_offset_y + 0.0 * g[:, 1],
+                         -params.hip_to_ankle_z + 0.0 * g[:, 2]], -1)
+        p_l = p_r * jnp.asarray([1.0, -1.0, 1.0], dtype)
+        return fold(acc, vm(lambda a, b: solve_legs(a, b, params))(p_r, p_l))
+
+    def stance(acc, x):
+        g, a = x
+        return fold(acc, vm(lambda g, a: stance_offsets(a[0], g[0], a[1], g[1], params))(g, a))
+
+    def quantise(acc, x):
+        g, _ = x
+        return fold(acc, quantise_targets(jnp.tile(g, (1, 4))))
+
+    def whole(c, x):
+        s, acc = c
+        s, out = vm(lambda s, g, a: controller_step(s, Sensors(g, a), params, 1.0))(s, *x)
+        return (s, fold(acc, out))
+
+    return {"kalman": ((k0, zero), kalman), "detection": (zero, detection), "cpg": (zero, cpg),
+            "ik": (zero, ik), "stance": (zero, stance), "quantise": (zero, quantise),
+            "controller_step": ((s0, zero), whole)}
+
+
+def profile_controller_parts(batch: int, duration_s: float = 0.6, repeats: int = 1) -> list:
+    """ms per tick of each controller piece alone at `batch` (see the module docstring)."""
+    from tkujax.bench import traced_paper_params
+
+    params = traced_paper_params()
+    n_ticks = _n_ticks(duration_s)
+    rng = np.random.default_rng(0)
+    gyro = jnp.asarray(rng.normal(0.0, 0.5, (n_ticks, batch, 3)), jnp.float32)
+    accel = jnp.asarray(rng.normal(0.0, 0.5, (n_ticks, batch, 3)) + [0.0, 0.0, 9.81],
+                        jnp.float32)
+    rows = []
+    for name, (init, step) in _parts(params, batch, jnp.float32).items():
+        def run(init=init, step=step):
+            return jax.lax.scan(lambda c, x: (step(c, x), None), init, (gyro, accel))[0]
+
+        fn = jax.jit(run)
+        sec = _time_calls(fn, repeats)
+        rows.append(dict(part=name, seconds=sec, ms_per_tick=1e3 * sec / n_ticks))
+    return rows
+
+
+def profile_markdown(p: dict) -> list[str]:
+    """Markdown lines of one batch's profile (ablation table, then the controller's parts)."""
+    lines = [f"### Closed-loop profile at batch {p['batch']} ({p['n_ticks']} ticks of "
+             f"{p['substeps']} substeps, median of {p['repeats']})", "",
+             "| variant | ms per tick | cost of the replaced part, ms per tick | share of full |",
+             "|---|---|---|---|"]
+    for r in p["rows"]:
+        lines.append(f"| {r['variant']} | {r['ms_per_tick']:.3f} | {r['cost_ms_per_tick']:+.3f} "
+                     f"| {100 * r['share_of_full']:+.1f} % |")
+    if p.get("controller_parts"):
+        full = next(r["ms_per_tick"] for r in p["rows"] if r["variant"] == "full")
+        lines += ["", "| controller part (alone) | ms per tick | share of full loop |",
+                  "|---|---|---|"]
+        lines += [f"| {c['part']} | {c['ms_per_tick']:.4f} | "
+                  f"{100 * c['ms_per_tick'] / full:.1f} % |" for c in p["controller_parts"]]
+    if p.get("trace_dir"):
+        lines += ["", f"jax.profiler trace of the full loop: `{p['trace_dir']}`."]
+    return lines
