@@ -34,6 +34,9 @@ Speeds are reported, never asserted.
 from __future__ import annotations
 
 import concurrent.futures
+import gzip
+import json
+import re
 import statistics
 import time
 from pathlib import Path
@@ -66,8 +69,17 @@ def _variant_config(name: str) -> dict:
 
 
 def _loop_fn(name: str, duration_s: float):
-    """jit(vmap) of (records, keys, params) -> outputs for a variant, as make_chunk_fn builds
-    the sweeps' chunk (`full` is that program)."""
+    """jit(vmap) of (records, keys, params) -> outputs for a variant name."""
+    return loop_fn(duration_s, _variant_config(name), shared_model=name in _SHARED_MODEL,
+                   raw=name == "raw")
+
+
+def loop_fn(duration_s: float, config_fields: dict | None = None, shared_model: bool = False,
+            raw: bool = False):
+    """jit(vmap) of (records, keys, params) -> outputs, built as make_chunk_fn builds the
+    sweeps' chunk (with no fields and no flags it is that program: the outcomes of
+    OUTCOME_KEYS), with further RolloutConfig fields; shared_model: no per-push model fields;
+    raw: a flat scan of mjx.step holding the stand targets for as many steps instead."""
     from tkujax.sim.metrics import outcomes as rollout_outcomes
     from tkujax.sim.push import Push
     from tkujax.sim.randomize import randomize_model
@@ -76,20 +88,20 @@ def _loop_fn(name: str, duration_s: float):
     from tkujax.studies.sweep import OUTCOME_KEYS
 
     host, model, index, state = init()
-    if name == "raw":
+    if raw:
         n_steps = _n_ticks(duration_s) * _substeps()
         ctrl = jnp.asarray(index.stand_ctrl, state.qpos.dtype)
 
-        def raw(rec, key, params):
+        def flat(rec, key, params):
             return physics.step_holding(model, state, ctrl, n_steps)[0].qpos[2]
 
-        return jax.jit(jax.vmap(raw, in_axes=(0, 0, None)))
-    config = RolloutConfig(duration_s=duration_s, **_variant_config(name))
+        return jax.jit(jax.vmap(flat, in_axes=(0, 0, None)))
+    config = RolloutConfig(duration_s=duration_s, **(config_fields or {}))
 
     def one(rec, key, params):
         push = Push(rec["impulse_ns"], jnp.radians(rec["azimuth_deg"]), rec["height_m"],
                     rec["duration_s"], rec["onset_s"])
-        m = model if name in _SHARED_MODEL else randomize_model(
+        m = model if shared_model else randomize_model(
             model, index.chest_body, mass_scale=rec["link_mass_scale"],
             torso_com_dx_m=rec["torso_com_offset_x_m"], friction=rec["floor_friction"],
             kp_scale=rec["servo_kp_scale"])
@@ -177,7 +189,61 @@ def profile_closed_loop(batch: int, duration_s: float = 0.6, repeats: int = 1,
         with jax.profiler.trace(str(trace)):
             jax.block_until_ready(exe(recs, keys, params))
         result["trace_dir"] = str(trace)
+        try:
+            result["trace_scopes"] = trace_scopes(trace, exe.as_text(), n_ticks)
+        except Exception as err:  # noqa: BLE001 - best effort: the trace itself is kept
+            result["trace_scopes"] = dict(error=f"{type(err).__name__}: {err}"[:500])
     return result
+
+
+SCOPES = ("push_wrench", "mjx_step", "sensors", "controller", "records", "physics")
+_NO_KERNEL = ("while", "call", "conditional", "tuple", "get-tuple-element", "parameter",
+              "constant", "bitcast")
+
+
+def _instruction_scopes(hlo_text: str) -> dict[str, str]:
+    """{HLO instruction name: the innermost named scope of the rollout in its op_name} for the
+    instructions of the optimised module that can run as kernels (not loops or calls)."""
+    pat = re.compile(r'^\s*(?:ROOT\s+)?%?([\w.\-]+)\s*=\s*\S.*?\s([a-z][\w\-]*)\(.*'
+                     r'op_name="([^"]*)"')
+    out = {}
+    for line in hlo_text.splitlines():
+        m = pat.match(line)
+        if not m or m.group(2) in _NO_KERNEL:
+            continue
+        tokens = set(re.findall(r"[A-Za-z_]+", m.group(3)))
+        out[m.group(1)] = next((sc for sc in SCOPES if sc in tokens), "other")
+    return out
+
+
+def trace_scopes(trace_dir: Path, hlo_text: str, n_ticks: int) -> dict:
+    """Best-effort reading of a jax.profiler trace: the time of the trace's events whose name
+    is an instruction of the optimised program, summed by the rollout's named scope (`other`:
+    outside them: outcomes, loop plumbing). Events are matched by name only (CPU: the HLO
+    instruction; GPU: the kernel, named after its fusion where XLA keeps the name); unmatched
+    ones are counted apart. Durations overlap where kernels run concurrently."""
+    files = sorted(Path(trace_dir).rglob("*.trace.json.gz"), key=lambda f: f.stat().st_mtime)
+    if not files:
+        return dict(error="no *.trace.json.gz in the trace folder")
+    events = json.loads(gzip.decompress(files[-1].read_bytes())).get("traceEvents", [])
+    names = _instruction_scopes(hlo_text)
+    us = dict.fromkeys(SCOPES + ("other",), 0.0)
+    matched = unmatched = 0
+    for e in events:
+        if e.get("ph") != "X":
+            continue
+        args = e.get("args") or {}
+        key = next((k for k in (e.get("name"), args.get("hlo_op"), args.get("long_name"))
+                    if isinstance(k, str) and k in names), None)
+        if key is None:
+            unmatched += 1
+            continue
+        matched += 1
+        us[names[key]] += float(e.get("dur", 0.0))
+    total = sum(us.values())
+    return dict(file=str(files[-1]), events_matched=matched, events_unmatched=unmatched,
+                scopes={k: dict(ms_per_tick=v / 1e3 / n_ticks,
+                                share=v / total if total else None) for k, v in us.items()})
 
 
 def _parts(params, batch: int, dtype):
@@ -288,4 +354,14 @@ def profile_markdown(p: dict) -> list[str]:
                   f"{100 * c['ms_per_tick'] / full:.1f} % |" for c in p["controller_parts"]]
     if p.get("trace_dir"):
         lines += ["", f"jax.profiler trace of the full loop: `{p['trace_dir']}`."]
+    ts = p.get("trace_scopes") or {}
+    if ts.get("scopes"):
+        lines += ["", f"Trace events by named scope ({ts['events_matched']} events matched to "
+                  f"the program's instructions, {ts['events_unmatched']} not):", "",
+                  "| scope | ms per tick | share of matched |", "|---|---|---|"]
+        lines += [f"| {k} | {v['ms_per_tick']:.4f} | "
+                  + (f"{100 * v['share']:.1f} %" if v["share"] is not None else "-") + " |"
+                  for k, v in ts["scopes"].items()]
+    elif ts.get("error"):
+        lines += ["", f"Trace by scope: {ts['error']}"]
     return lines
