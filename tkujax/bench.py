@@ -283,7 +283,7 @@ def run_bench(out: str | Path, batches=MODES["default"]["batches"], duration_s: 
               grad_compile_batch: int = 0, *, mode: str = "default",
               stages: tuple[str, ...] | None = None, profile_batches=(),
               profile_duration_s: float = 0.6, profile_repeats: int = 1,
-              profile_variants=None, compile_workers: int = 4,
+              profile_variants=None, compile_workers: int | None = None,
               trace_dir: str | Path | None = None, grad_variants: list[dict] | None = None,
               grad_cached: bool = True, budget_s: float | None = None,
               quiet: bool = False) -> dict:
@@ -340,8 +340,9 @@ def run_bench(out: str | Path, batches=MODES["default"]["batches"], duration_s: 
         for b in profile_batches:
             def stage_profile(b=b):
                 p = bench_profile.profile_closed_loop(
-                    b, profile_duration_s, profile_repeats, variants, compile_workers,
-                    trace_dir, log=run.log)
+                    b, profile_duration_s, profile_repeats, variants,
+                    compile_workers or bench_profile.DEFAULT_COMPILE_WORKERS, trace_dir,
+                    log=run.log)
                 result["profile"].append(p)
                 run.write()
                 p["controller_parts"] = bench_profile.profile_controller_parts(

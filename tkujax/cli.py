@@ -504,8 +504,9 @@ def _add_study_commands(sub) -> None:
     p.add_argument("--profile-variants", default=None,
                    help="';'-list (default: all of tkujax.bench_profile.DEFAULT_VARIANTS); also "
                         "unroll_substeps=K, unroll_ticks=K")
-    p.add_argument("--compile-workers", type=int, default=4,
-                   help="threads compiling the profile's variants in parallel")
+    p.add_argument("--compile-workers", type=int, default=None,
+                   help="threads compiling the profile's variants in parallel (default: "
+                        "min(8, CPU cores))")
     p.add_argument("--trace", default=None,
                    help="folder for a jax.profiler trace of the full loop (profile stage)")
     p.add_argument("--budget-s", type=float, default=None,
