@@ -162,3 +162,19 @@ def test_profile_on_cpu(tmp_path):
     assert any((tmp_path / "trace").rglob("*.xplane.pb"))
     md = out.with_suffix(".md").read_text()
     assert "Closed-loop profile at batch 2" in md and "| no_records |" in md
+
+
+def test_gradient_bench_spec_parses():
+    """The gradient benchmarks' tune spec is accepted (TUNABLE's recovery extensions start on
+    their range bounds, which a spec refuses: the paper's 8 are benchmarked), and the rollout
+    options reach the TuneProblem's RolloutConfig."""
+    from tkujax.studies.tune.benchmark import bench_spec
+    from tkujax.studies.tune.problem import TuneProblem
+    from tkujax.studies.tune.reparam import PAPER_TUNABLE
+
+    for jitter in (False, True):
+        spec = bench_spec(8, 0.45, "tick_nocse", jitter=jitter)
+        assert spec.reparam().size == len(PAPER_TUNABLE) == 8
+    problem = TuneProblem(spec.reparam(), spec.base_params(), spec.loss, 0.45, "tick_nocse",
+                          rollout_options=dict(unroll_substeps=3))
+    assert problem.config.remat == "tick_nocse" and problem.config.unroll_substeps == 3
