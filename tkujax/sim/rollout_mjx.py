@@ -99,11 +99,24 @@ def _push_wrench(idx: ModelIndex, d: mjx.Data, push: Push) -> jax.Array:
     return jnp.zeros_like(d.xfrc_applied).at[idx.chest_body].set(jnp.concatenate([force, torque]))
 
 
+def _runs(ids) -> list[tuple[int, int]]:
+    """Static ids as (start, stop) runs of consecutive ids, in order."""
+    runs: list[tuple[int, int]] = []
+    for i in (int(i) for i in ids):
+        if runs and runs[-1][1] == i:
+            runs[-1] = (runs[-1][0], i + 1)
+        else:
+            runs.append((i, i + 1))
+    return runs
+
+
 def _rows(x: jax.Array, ids) -> jax.Array:
-    """x[ids] for static ids, as static slices: no integer index array is traced, so nothing
-    depends on the x64 mode (index arrays traced under x64 after being cached under x32 gave
-    int32/int64 mismatches)."""
-    return jnp.stack([x[int(i)] for i in ids])
+    """x[ids] for static ids, as static slices, one per run of consecutive ids (the eight sole
+    sensors are one slice): no integer index array is traced, so nothing depends on the x64
+    mode (index arrays traced under x64 after being cached under x32 gave int32/int64
+    mismatches)."""
+    parts = [x[a:b] for a, b in _runs(ids)]
+    return parts[0] if len(parts) == 1 else jnp.concatenate(parts)
 
 
 def _lowest_body_point(idx: ModelIndex, d: mjx.Data) -> jax.Array:
