@@ -282,7 +282,7 @@ def run_bench(out: str | Path, batches=MODES["default"]["batches"], duration_s: 
               compile_batch: int = 1024, scaling_batch: int | None = None,
               grad_compile_batch: int = 0, *, mode: str = "default",
               stages: tuple[str, ...] | None = None, profile_batches=(),
-              profile_duration_s: float = 0.6, profile_repeats: int = 1,
+              profile_duration_s: float = 0.3, profile_repeats: int = 1,
               profile_variants=None, compile_workers: int | None = None,
               trace_dir: str | Path | None = None, grad_variants: list[dict] | None = None,
               grad_cached: bool = True, budget_s: float | None = None,

@@ -498,7 +498,7 @@ def _add_study_commands(sub) -> None:
     p.add_argument("--profile", action="store_true",
                    help="add the closed-loop profile (ablations and controller parts)")
     p.add_argument("--profile-batches", default="1024,65536")
-    p.add_argument("--profile-duration", type=float, default=0.6,
+    p.add_argument("--profile-duration", type=float, default=0.3,
                    help="simulated seconds per push in the profile")
     p.add_argument("--profile-repeats", type=int, default=1)
     p.add_argument("--profile-variants", default=None,
