@@ -5,9 +5,17 @@
   c. the CPU peer: MuJoCo C physics across all cores with the JAX controller between ticks
      (when tkujax.sim.rollout_mujoco is available);
   d. one tuning gradient step (when tkujax.studies.tune is available): time and peak device memory;
-  e. compile time of (b), cold (empty persistent cache) and from the persistent cache.
+  e. compile time of (b), cold (empty persistent cache) and from the persistent cache;
+  f. compile time of the tuning gradient, per variant of its program (remat, unrolling);
+  g. the profile of (b): what each part costs per control tick (`tkujax.bench_profile`).
 Each figure is the median of `repeats` timed runs after a warm-up; the ratios b/a and b/c are
 printed. Speeds are reported, never asserted.
+
+Two sizes (MODES): "default" (a, b at 1,024 and 65,536, c, e: a few minutes on one GPU) and
+"full" (a, b at four batches, c, d, e, f and the multi-device scaling). Every stage is timed;
+progress goes to stderr, and the JSON and its .md are rewritten after each stage with
+`stages` (name, status, wall_s), `total_wall_s` and `complete`, so a run cut short keeps what
+finished.
 """
 
 from __future__ import annotations
