@@ -139,6 +139,9 @@ def test_cli_modes(tmp_path, monkeypatch):
     assert grad["grad_variants"] == [{"remat": "tick_nocse"}] and grad["grad_cached"] is False
     assert grad["grad_compile_batch"] == MODES["full"]["grad_compile_batch"]
     assert grad["budget_s"] == 300
+    assert cli.main(["bench", "--out", out, "--stages", "gradient_step,gradient_compile"]) == 0
+    assert calls[-1]["grad_batch"] == 1024 and calls[-1]["grad_compile_batch"] == 256
+    assert calls[-1]["grad_variants"] is None
 
 
 @pytest.mark.slow

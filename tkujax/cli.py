@@ -231,8 +231,14 @@ def _cmd_bench(args) -> int:
     if args.profile and stages and "profile" not in stages:
         stages = stages + ("profile",)
     grad_variants = parse_grad_variants(args.grad_variants) if args.grad_variants else None
-    if grad_variants and not sizes["grad_compile_batch"]:
-        sizes["grad_compile_batch"] = MODES["full"]["grad_compile_batch"]
+    # A stage asked for by name (or gradient variants) whose size the mode leaves at 0: the
+    # full mode's size.
+    named = set(stages or ()) | ({"gradient_compile"} if grad_variants else set())
+    for stage, key in (("compile", "compile_batch"), ("cpu_peer", "cpu_batch"),
+                       ("gradient_step", "grad_batch"), ("multi_device", "scaling_batch"),
+                       ("gradient_compile", "grad_compile_batch")):
+        if stage in named and not sizes[key]:
+            sizes[key] = MODES["full"][key]
     run_bench(args.out, batches=sizes["batches"], duration_s=args.duration,
               repeats=sizes["repeats"], raw_steps=args.raw_steps,
               cpu_batch=sizes["cpu_batch"] or None, grad_batch=sizes["grad_batch"] or None,
