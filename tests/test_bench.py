@@ -181,3 +181,20 @@ def test_gradient_bench_spec_parses():
     problem = TuneProblem(spec.reparam(), spec.base_params(), spec.loss, 0.45, "tick_nocse",
                           rollout_options=dict(unroll_substeps=3))
     assert problem.config.remat == "tick_nocse" and problem.config.unroll_substeps == 3
+
+
+@pytest.mark.parametrize("variant", ["raw", "physics_only", "shared_model", "no_controller"])
+def test_profile_variants_step_every_robot(variant):
+    """Under vmap a variant whose output does not depend on the record would step one robot
+    and broadcast it: every variant's physics carries the batch axis."""
+    import jax
+
+    from tkujax.bench import _push_batch, traced_paper_params
+    from tkujax.bench_profile import _loop_fn
+    from tkujax.sim import physics
+
+    batch, nq = 3, physics.host_model().nq
+    recs = _push_batch(batch)
+    keys = jax.random.split(jax.random.PRNGKey(0), batch)
+    text = str(jax.make_jaxpr(_loop_fn(variant, 0.06))(recs, keys, traced_paper_params()))
+    assert f"f32[{batch},{nq}]" in text

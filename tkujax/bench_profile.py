@@ -98,7 +98,7 @@ def loop_fn(duration_s: float, config_fields: dict | None = None, shared_model: 
         ctrl = jnp.asarray(index.stand_ctrl, state.qpos.dtype)
 
         def flat(rec, key, params):
-            return physics.step_holding(model, state, ctrl, n_steps)[0].qpos[2]
+            return physics.step_holding(model, _per_robot(state, rec), ctrl, n_steps)[0].qpos[2]
 
         return jax.jit(jax.vmap(flat, in_axes=(0, 0, None)))
     config = RolloutConfig(duration_s=duration_s, **(config_fields or {}))
@@ -110,14 +110,24 @@ def loop_fn(duration_s: float, config_fields: dict | None = None, shared_model: 
             model, index.chest_body, mass_scale=rec["link_mass_scale"],
             torso_com_dx_m=rec["torso_com_offset_x_m"], friction=rec["floor_friction"],
             kp_scale=rec["servo_kp_scale"])
-        series = rollout(m, state, push, params, rec["control"], key, rec["gyro_noise_std"],
-                         rec["accel_noise_std"], config, index)
+        # With noise, controller and wrench all stood in for, nothing depends on the record:
+        # vmap would step one robot and broadcast it. The state is made per robot instead.
+        alone = {"noise", "controller", "wrench"} <= set(config.ablate)
+        series = rollout(m, _per_robot(state, rec) if alone else state, push, params,
+                         rec["control"], key, rec["gyro_noise_std"], rec["accel_noise_std"],
+                         config, index)
         if "records" in config.ablate:
             return series[-1]
         out = rollout_outcomes(series, push.onset_s)
         return {k: out[k] for k in OUTCOME_KEYS}
 
     return jax.jit(jax.vmap(one, in_axes=(0, 0, None)))
+
+
+def _per_robot(state, rec):
+    """The state made to depend on the record (qpos + 0 * impulse: the same values; XLA keeps
+    floating-point x * 0), so that under vmap the physics runs once per robot."""
+    return state.replace(qpos=state.qpos + 0.0 * rec["impulse_ns"].astype(state.qpos.dtype))
 
 
 def _substeps() -> int:
