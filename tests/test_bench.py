@@ -198,3 +198,29 @@ def test_profile_variants_step_every_robot(variant):
     keys = jax.random.split(jax.random.PRNGKey(0), batch)
     text = str(jax.make_jaxpr(_loop_fn(variant, 0.06))(recs, keys, traced_paper_params()))
     assert f"f32[{batch},{nq}]" in text
+
+
+def test_profile_rows_written_as_measured(tmp_path, monkeypatch):
+    """The profile stage's JSON holds each row as soon as it is measured (fakes: no compile)."""
+    from tkujax import bench_profile
+
+    out = tmp_path / "p.json"
+    seen = []
+
+    def fake_profile(batch, duration_s, repeats, variants, workers, trace_dir, log, into,
+                     on_update):
+        into.update(batch=batch, duration_s=duration_s, n_ticks=10, substeps=15,
+                    repeats=repeats, rows=[])
+        for i, v in enumerate(("full", "raw")):
+            into["rows"].append(dict(variant=v, seconds=1.0 - 0.5 * i, ms_per_tick=100 - 50 * i,
+                                     cost_ms_per_tick=50.0 * i, share_of_full=0.5 * i))
+            on_update()
+            seen.append([r["variant"] for r in json.loads(out.read_text())["profile"][0]["rows"]])
+        raise RuntimeError("cut short")
+
+    monkeypatch.setattr(bench_profile, "profile_closed_loop", fake_profile)
+    run_bench(out, stages=("profile",), profile_batches=(8,), quiet=True)
+    assert seen == [["full"], ["full", "raw"]]
+    on_disk = json.loads(out.read_text())
+    assert on_disk["stages"][0]["status"] == "failed"
+    assert "| raw | 50.000 | +50.000 | +50.0 % |" in out.with_suffix(".md").read_text()

@@ -347,11 +347,12 @@ def run_bench(out: str | Path, batches=MODES["default"]["batches"], duration_s: 
         variants = tuple(profile_variants or bench_profile.DEFAULT_VARIANTS)
         for b in profile_batches:
             def stage_profile(b=b):
-                p = bench_profile.profile_closed_loop(
+                p = {}
+                result["profile"].append(p)     # filled, and written, row by row
+                bench_profile.profile_closed_loop(
                     b, profile_duration_s, profile_repeats, variants,
                     compile_workers or bench_profile.DEFAULT_COMPILE_WORKERS, trace_dir,
-                    log=run.log)
-                result["profile"].append(p)
+                    log=run.log, into=p, on_update=run.write)
                 run.write()
                 p["controller_parts"] = bench_profile.profile_controller_parts(
                     b, profile_duration_s, profile_repeats)

@@ -154,14 +154,16 @@ def _time_calls(fn, repeats: int) -> float:
 
 def profile_closed_loop(batch: int, duration_s: float = 0.3, repeats: int = 1,
                         variants=DEFAULT_VARIANTS, compile_workers: int = DEFAULT_COMPILE_WORKERS,
-                        trace_dir: str | Path | None = None, log=None) -> dict:
-    """The ablation table at one batch (see the module docstring)."""
+                        trace_dir: str | Path | None = None, log=None, into: dict | None = None,
+                        on_update=None) -> dict:
+    """The ablation table at one batch (see the module docstring). `into`: the dict to fill
+    (returned), `on_update()`: called after each timed variant (the bench rewrites its JSON:
+    a run cut short keeps the rows measured so far)."""
     from tkujax.bench import _push_batch, traced_paper_params
 
     log = log or (lambda msg: None)
-    variants = tuple(variants)
-    if "full" not in variants:
-        variants = ("full",) + variants
+    on_update = on_update or (lambda: None)
+    variants = ("full",) + tuple(v for v in variants if v != "full")
     for v in variants:
         if v != "no_push":
             _variant_config(v)           # unknown names fail before any compile
@@ -171,33 +173,35 @@ def profile_closed_loop(batch: int, duration_s: float = 0.3, repeats: int = 1,
     recs["onset_s"] = jnp.full_like(recs["onset_s"], min(0.3, duration_s / 3))
     keys = jax.random.split(jax.random.PRNGKey(0), batch)
     n_ticks = _n_ticks(duration_s)
+    result = into if into is not None else {}
+    result.update(batch=batch, duration_s=duration_s, n_ticks=n_ticks, substeps=_substeps(),
+                  repeats=repeats, compile_workers=compile_workers, rows=[])
     programs = [v for v in variants if v != "no_push"]
     t0 = time.perf_counter()
     lowered = {}
     for v in programs:
         lowered[v] = _loop_fn(v, duration_s).lower(recs, keys, params)
-    lower_s = time.perf_counter() - t0
-    log(f"profile {batch}: lowered {len(programs)} programs in {lower_s:.1f} s; compiling")
+    result["lower_s"] = round(time.perf_counter() - t0, 2)
+    log(f"profile {batch}: lowered {len(programs)} programs in {result['lower_s']:.1f} s; "
+        f"compiling")
     t0 = time.perf_counter()
     with concurrent.futures.ThreadPoolExecutor(max(1, compile_workers)) as pool:
         compiled = dict(zip(programs, pool.map(lambda v: lowered[v].compile(), programs)))
-    compile_s = time.perf_counter() - t0
-    log(f"profile {batch}: compiled in {compile_s:.1f} s")
+    result["compile_parallel_s"] = round(time.perf_counter() - t0, 2)
+    log(f"profile {batch}: compiled in {result['compile_parallel_s']:.1f} s")
+    on_update()
     no_push = dict(recs, impulse_ns=jnp.zeros_like(recs["impulse_ns"]))
-    seconds = {}
-    for v in variants:
+    full = None
+    for v in variants:         # "full" first: every row's cost is relative to it
         exe = compiled["full" if v == "no_push" else v]
         r = no_push if v == "no_push" else recs
-        seconds[v] = _time_calls(lambda exe=exe, r=r: exe(r, keys, params), repeats)
-        log(f"profile {batch}: {v} {1e3 * seconds[v] / n_ticks:.3f} ms/tick")
-    full = seconds["full"]
-    rows = [dict(variant=v, seconds=s, ms_per_tick=1e3 * s / n_ticks,
-                 cost_ms_per_tick=1e3 * (full - s) / n_ticks,
-                 share_of_full=(full - s) / full) for v, s in seconds.items()]
-    result = dict(batch=batch, duration_s=duration_s, n_ticks=n_ticks, substeps=_substeps(),
-                  repeats=repeats, lower_s=round(lower_s, 2),
-                  compile_parallel_s=round(compile_s, 2), compile_workers=compile_workers,
-                  rows=rows)
+        sec = _time_calls(lambda exe=exe, r=r: exe(r, keys, params), repeats)
+        full = sec if full is None else full
+        result["rows"].append(dict(variant=v, seconds=sec, ms_per_tick=1e3 * sec / n_ticks,
+                                   cost_ms_per_tick=1e3 * (full - sec) / n_ticks,
+                                   share_of_full=(full - sec) / full))
+        log(f"profile {batch}: {v} {1e3 * sec / n_ticks:.3f} ms/tick")
+        on_update()
     if trace_dir:
         trace = Path(trace_dir) / f"batch{batch}"
         try:     # best effort: a profiler that cannot start must not lose the table
@@ -357,6 +361,8 @@ def profile_controller_parts(batch: int, duration_s: float = 0.3,
 
 def profile_markdown(p: dict) -> list[str]:
     """Markdown lines of one batch's profile (ablation table, then the controller's parts)."""
+    if "n_ticks" not in p:
+        return []                     # started, nothing measured yet
     lines = [f"### Closed-loop profile at batch {p['batch']} ({p['n_ticks']} ticks of "
              f"{p['substeps']} substeps, median of {p['repeats']})", "",
              "| variant | ms per tick | cost of the replaced part, ms per tick | share of full |",
@@ -364,8 +370,8 @@ def profile_markdown(p: dict) -> list[str]:
     for r in p["rows"]:
         lines.append(f"| {r['variant']} | {r['ms_per_tick']:.3f} | {r['cost_ms_per_tick']:+.3f} "
                      f"| {100 * r['share_of_full']:+.1f} % |")
-    if p.get("controller_parts"):
-        full = next(r["ms_per_tick"] for r in p["rows"] if r["variant"] == "full")
+    if p.get("controller_parts") and p["rows"]:
+        full = p["rows"][0]["ms_per_tick"]      # the full loop's row comes first
         lines += ["", "| controller part (alone) | ms per tick | share of full loop |",
                   "|---|---|---|"]
         lines += [f"| {c['part']} | {c['ms_per_tick']:.4f} | "
