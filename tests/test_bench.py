@@ -1,12 +1,15 @@
-"""`tkujax bench` runs end to end on a CPU with tiny sizes and writes valid JSON (speeds are
-reported, never asserted). Batch 4 x 1.5 s matches tests/test_sweep.py's tiny sweep, so the
-closed-loop program compiled there is reused through make_chunk_fn's cache."""
+"""`tkujax bench` on a CPU with tiny sizes: valid JSON, every stage's status and wall time, the
+JSON rewritten after each stage, a failing stage recorded while the next runs, the budget, the
+CLI's modes, the profile's table. Speeds are reported, never asserted. Batch 4 x 1.5 s matches
+tests/test_sweep.py's tiny sweep, so the closed-loop program compiled there is reused through
+make_chunk_fn's cache (and the persistent cache)."""
 
 import json
 
 import pytest
 
-from tkujax.bench import run_bench
+from tkujax import bench
+from tkujax.bench import MODES, parse_grad_variants, run_bench, summary_markdown
 
 
 @pytest.mark.slow
@@ -22,5 +25,202 @@ def test_bench_end_to_end(tmp_path):
     assert on_disk["closed_loop"][0]["pushes_per_s"] > 0
     assert on_disk["cpu_peer"]["batch"] == 4 and on_disk["cpu_peer"]["pushes_per_s"] > 0
     assert on_disk["versions"]["mujoco"] and on_disk["device"]
+    assert [s["name"] for s in on_disk["stages"]] == ["raw_4", "closed_loop_4", "cpu_peer"]
+    assert all(s["status"] == "done" and s["wall_s"] > 0 for s in on_disk["stages"])
+    assert on_disk["complete"] and on_disk["total_wall_s"] >= sum(
+        s["wall_s"] for s in on_disk["stages"])
     md = out.with_suffix(".md").read_text()
-    assert "| 4 |" in md and "CPU peer" in md
+    assert "| 4 |" in md and "CPU peer" in md and "Total wall time" in md
+
+
+def _fake_stages(monkeypatch, seen: list, out):
+    """Instant stand-ins for the measuring functions; each checks that the JSON on disk
+    already holds every stage before it (written incrementally)."""
+    def on_disk_stages():
+        return [s["name"] for s in json.loads(out.read_text())["stages"]] if out.exists() else []
+
+    def raw(b, steps, repeats):
+        seen.append((f"raw_{b}", on_disk_stages()))
+        return dict(batch=b, steps=steps, seconds=1.0, physics_steps_per_s=100.0 * b)
+
+    def closed(b, duration, repeats, compiled=None):
+        seen.append((f"closed_loop_{b}", on_disk_stages()))
+        return dict(batch=b, duration_s=duration, seconds=1.0, pushes_per_s=float(b),
+                    physics_steps_per_s=80.0 * b)
+
+    def cpu(b, duration, repeats):
+        seen.append(("cpu_peer", on_disk_stages()))
+        raise RuntimeError("no MuJoCo C here")
+
+    monkeypatch.setattr(bench, "raw_stepping", raw)
+    monkeypatch.setattr(bench, "closed_loop", closed)
+    monkeypatch.setattr(bench, "cpu_peer", cpu)
+
+
+def test_stages_written_incrementally_failure_recorded(tmp_path, monkeypatch, capsys):
+    out = tmp_path / "b.json"
+    seen = []
+    _fake_stages(monkeypatch, seen, out)
+    result = run_bench(out, batches=(8, 16), compile_batch=0, cpu_batch=4)
+    assert seen == [("raw_8", []), ("closed_loop_8", ["raw_8"]),
+                    ("raw_16", ["raw_8", "closed_loop_8"]),
+                    ("closed_loop_16", ["raw_8", "closed_loop_8", "raw_16"]),
+                    ("cpu_peer", ["raw_8", "closed_loop_8", "raw_16", "closed_loop_16"])]
+    on_disk = json.loads(out.read_text())
+    assert on_disk == json.loads(json.dumps(result))
+    status = {s["name"]: s["status"] for s in on_disk["stages"]}
+    assert status == {"raw_8": "done", "closed_loop_8": "done", "raw_16": "done",
+                      "closed_loop_16": "done", "cpu_peer": "failed"}
+    assert "no MuJoCo C here" in on_disk["stages"][-1]["error"]
+    assert on_disk["complete"] and "total_wall_s" in on_disk
+    err = capsys.readouterr().err
+    assert "closed_loop_16: start" in err and "cpu_peer: FAILED" in err
+    md = out.with_suffix(".md").read_text()
+    assert "| 16 | 1.6e+03 | 1.28e+03 | 16 | 0.80 |" in md and "| cpu_peer | failed" in md
+
+
+def test_budget_skips_later_stages(tmp_path, monkeypatch):
+    out = tmp_path / "b.json"
+    _fake_stages(monkeypatch, [], out)
+    run_bench(out, batches=(8,), compile_batch=0, cpu_batch=0, budget_s=0.0, quiet=True)
+    on_disk = json.loads(out.read_text())
+    assert [s["status"] for s in on_disk["stages"]] == ["skipped", "skipped"]
+    assert on_disk["raw"] == [] and on_disk["complete"]
+    assert "skipped" in summary_markdown(on_disk)
+
+
+def test_unknown_stage_and_variant_fail_early(tmp_path):
+    with pytest.raises(ValueError, match="unknown bench stage"):
+        run_bench(tmp_path / "b.json", stages=("warp",))
+    with pytest.raises(ValueError, match="unknown profile variant"):
+        run_bench(tmp_path / "b.json", stages=("profile",), profile_batches=(2,),
+                  profile_variants=("no_gravity",))
+    assert not (tmp_path / "b.json").exists()
+
+
+def test_parse_grad_variants():
+    assert parse_grad_variants("remat=tick;remat=nested,unroll_substeps=3;autotune=0") == [
+        {"remat": "tick"}, {"remat": "nested", "unroll_substeps": 3}, {"autotune": 0}]
+    for bad in ("remat=sometimes", "unroll_ticks=x", "speed=9", "remat"):
+        with pytest.raises(ValueError):
+            parse_grad_variants(bad)
+
+
+def test_cli_modes(tmp_path, monkeypatch):
+    """The CLI's default and --full sizes, --stages, --profile and the options reach run_bench."""
+    from tkujax import cli
+
+    calls = []
+
+    def fake_run_bench(out, **kw):
+        calls.append(kw)
+        res = dict(device_kind="cpu", n_devices=1, versions={}, repeats=kw["repeats"],
+                   duration_s=kw["duration_s"], raw=[], closed_loop=[], stages=[],
+                   total_wall_s=0.0, complete=True)
+        (tmp_path / "b.json").write_text(json.dumps(res))
+        return res
+
+    monkeypatch.setattr(bench, "run_bench", fake_run_bench)
+    out = str(tmp_path / "b.json")
+    assert cli.main(["bench", "--out", out]) == 0
+    assert cli.main(["bench", "--out", out, "--full", "--repeats", "5"]) == 0
+    assert cli.main(["bench", "--out", out, "--stages", "profile", "--profile-batches", "2,4",
+                     "--profile-variants", "no_noise;raw", "--trace", "tr"]) == 0
+    assert cli.main(["bench", "--out", out, "--stages", "gradient_compile", "--grad-variants",
+                     "remat=tick_nocse", "--grad-cold-only", "--budget-s", "300"]) == 0
+    default, full, prof, grad = calls
+    assert default["batches"] == MODES["default"]["batches"] == (1024, 65536)
+    assert default["grad_batch"] is None and default["grad_compile_batch"] == 0
+    assert default["stages"] is None and default["profile_batches"] == ()
+    assert full["batches"] == (1024, 4096, 16384, 65536) and full["repeats"] == 5
+    assert full["grad_batch"] == 1024 and full["mode"] == "full"
+    assert prof["stages"] == ("profile",) and prof["profile_batches"] == (2, 4)
+    assert prof["profile_variants"] == ("no_noise", "raw") and prof["trace_dir"] == "tr"
+    assert grad["grad_variants"] == [{"remat": "tick_nocse"}] and grad["grad_cached"] is False
+    assert grad["grad_compile_batch"] == MODES["full"]["grad_compile_batch"]
+    assert grad["budget_s"] == 300
+    assert cli.main(["bench", "--out", out, "--stages", "gradient_step,gradient_compile"]) == 0
+    assert calls[-1]["grad_batch"] == 1024 and calls[-1]["grad_compile_batch"] == 256
+    assert calls[-1]["grad_variants"] is None
+
+
+@pytest.mark.slow
+def test_profile_on_cpu(tmp_path):
+    """The profile's table at batch 2 (3 ticks): the full loop, a data ablation, a program
+    ablation and raw MJX, plus the controller's parts and a jax.profiler trace."""
+    out = tmp_path / "p.json"
+    run_bench(out, stages=("profile",), profile_batches=(2,), profile_duration_s=0.09,
+              profile_variants=("no_push", "no_records", "raw"), compile_workers=2,
+              trace_dir=tmp_path / "trace", quiet=True)
+    on_disk = json.loads(out.read_text())
+    assert [s["status"] for s in on_disk["stages"]] == ["done"]
+    (p,) = on_disk["profile"]
+    assert p["batch"] == 2 and p["n_ticks"] == 3
+    rows = {r["variant"]: r for r in p["rows"]}
+    assert set(rows) == {"full", "no_push", "no_records", "raw"}
+    assert rows["full"]["cost_ms_per_tick"] == 0.0 and rows["full"]["share_of_full"] == 0.0
+    assert all(r["ms_per_tick"] > 0 for r in rows.values())
+    parts = {c["part"] for c in p["controller_parts"]}
+    assert {"kalman", "detection", "cpg", "ik", "controller_step"} <= parts
+    assert any((tmp_path / "trace").rglob("*.xplane.pb"))
+    md = out.with_suffix(".md").read_text()
+    assert "Closed-loop profile at batch 2" in md and "| no_records |" in md
+
+
+def test_gradient_bench_spec_parses():
+    """The gradient benchmarks' tune spec is accepted (TUNABLE's recovery extensions start on
+    their range bounds, which a spec refuses: the paper's 8 are benchmarked), and the rollout
+    options reach the TuneProblem's RolloutConfig."""
+    from tkujax.studies.tune.benchmark import bench_spec
+    from tkujax.studies.tune.problem import TuneProblem
+    from tkujax.studies.tune.reparam import PAPER_TUNABLE
+
+    for jitter in (False, True):
+        spec = bench_spec(8, 0.45, "tick_nocse", jitter=jitter)
+        assert spec.reparam().size == len(PAPER_TUNABLE) == 8
+    problem = TuneProblem(spec.reparam(), spec.base_params(), spec.loss, 0.45, "tick_nocse",
+                          rollout_options=dict(unroll_substeps=3))
+    assert problem.config.remat == "tick_nocse" and problem.config.unroll_substeps == 3
+
+
+@pytest.mark.parametrize("variant", ["raw", "physics_only", "shared_model", "no_controller"])
+def test_profile_variants_step_every_robot(variant):
+    """Under vmap a variant whose output does not depend on the record would step one robot
+    and broadcast it: every variant's physics carries the batch axis."""
+    import jax
+
+    from tkujax.bench import _push_batch, traced_paper_params
+    from tkujax.bench_profile import _loop_fn
+    from tkujax.sim import physics
+
+    batch, nq = 3, physics.host_model().nq
+    recs = _push_batch(batch)
+    keys = jax.random.split(jax.random.PRNGKey(0), batch)
+    text = str(jax.make_jaxpr(_loop_fn(variant, 0.06))(recs, keys, traced_paper_params()))
+    assert f"f32[{batch},{nq}]" in text
+
+
+def test_profile_rows_written_as_measured(tmp_path, monkeypatch):
+    """The profile stage's JSON holds each row as soon as it is measured (fakes: no compile)."""
+    from tkujax import bench_profile
+
+    out = tmp_path / "p.json"
+    seen = []
+
+    def fake_profile(batch, duration_s, repeats, variants, workers, trace_dir, log, into,
+                     on_update):
+        into.update(batch=batch, duration_s=duration_s, n_ticks=10, substeps=15,
+                    repeats=repeats, rows=[])
+        for i, v in enumerate(("full", "raw")):
+            into["rows"].append(dict(variant=v, seconds=1.0 - 0.5 * i, ms_per_tick=100 - 50 * i,
+                                     cost_ms_per_tick=50.0 * i, share_of_full=0.5 * i))
+            on_update()
+            seen.append([r["variant"] for r in json.loads(out.read_text())["profile"][0]["rows"]])
+        raise RuntimeError("cut short")
+
+    monkeypatch.setattr(bench_profile, "profile_closed_loop", fake_profile)
+    run_bench(out, stages=("profile",), profile_batches=(8,), quiet=True)
+    assert seen == [["full"], ["full", "raw"]]
+    on_disk = json.loads(out.read_text())
+    assert on_disk["stages"][0]["status"] == "failed"
+    assert "| raw | 50.000 | +50.000 | +50.0 % |" in out.with_suffix(".md").read_text()

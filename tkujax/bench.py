@@ -5,18 +5,29 @@
   c. the CPU peer: MuJoCo C physics across all cores with the JAX controller between ticks
      (when tkujax.sim.rollout_mujoco is available);
   d. one tuning gradient step (when tkujax.studies.tune is available): time and peak device memory;
-  e. compile time of (b), cold (empty persistent cache) and from the persistent cache.
+  e. compile time of (b), cold (empty persistent cache) and from the persistent cache;
+  f. compile time of the tuning gradient, per variant of its program (remat, unrolling);
+  g. the profile of (b): what each part costs per control tick (`tkujax.bench_profile`).
 Each figure is the median of `repeats` timed runs after a warm-up; the ratios b/a and b/c are
 printed. Speeds are reported, never asserted.
+
+Two sizes (MODES): "default" (a, b at 1,024 and 65,536, c, e: a few minutes on one GPU) and
+"full" (a, b at four batches, c, d, e, f and the multi-device scaling). Every stage is timed;
+progress goes to stderr, and the JSON and its .md are rewritten after each stage with
+`stages` (name, status, wall_s), `total_wall_s` and `complete`, so a run cut short keeps what
+finished.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import platform
 import statistics
+import sys
 import tempfile
 import time
+import traceback
 from pathlib import Path
 
 import jax
@@ -60,9 +71,11 @@ def raw_stepping(batch: int, n_steps: int, repeats: int) -> dict:
     return dict(batch=batch, steps=n_steps, seconds=sec, physics_steps_per_s=batch * n_steps / sec)
 
 
-def closed_loop(batch: int, duration_s: float, repeats: int) -> dict:
+def closed_loop(batch: int, duration_s: float, repeats: int, compiled=None) -> dict:
+    """`compiled`: the chunk's executable for this batch (the compile stage's), else compiled
+    here on the warm-up call."""
     params = traced_params(ControllerParams.paper())
-    fn = make_chunk_fn((), duration_s)
+    fn = compiled or make_chunk_fn((), duration_s)
     recs = _push_batch(batch)
     keys = jax.random.split(jax.random.PRNGKey(0), batch)
     sec = _timed(lambda: fn(recs, keys, params), repeats)
@@ -71,23 +84,44 @@ def closed_loop(batch: int, duration_s: float, repeats: int) -> dict:
                 physics_steps_per_s=batch * steps / sec)
 
 
-def compile_times(batch: int, duration_s: float) -> dict:
-    """Cold compile into an empty persistent cache, then again from that cache."""
+@contextlib.contextmanager
+def fresh_compilation_cache():
+    """A persistent compilation cache in an empty temporary folder for the block, then the
+    previous one again. JAX reads the cache folder once, at its first compile: the cache is
+    reset on both sides, or the change would be ignored (and "cold" read the old cache)."""
+    from jax.experimental.compilation_cache import compilation_cache as cc
+
+    old_dir = jax.config.jax_compilation_cache_dir
+    old_min = jax.config.jax_persistent_cache_min_compile_time_secs
+    try:
+        with tempfile.TemporaryDirectory() as cache:
+            jax.config.update("jax_compilation_cache_dir", cache)
+            jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
+            cc.reset_cache()
+            yield cache
+    finally:
+        jax.config.update("jax_compilation_cache_dir", old_dir)
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", old_min)
+        cc.reset_cache()
+
+
+def compile_times(batch: int, duration_s: float, keep: dict | None = None) -> dict:
+    """Cold compile into an empty persistent cache, then again from that cache. `keep`: a dict
+    that receives {batch: the executable} (the closed-loop stage at that batch runs it instead
+    of compiling again)."""
     params = traced_params(ControllerParams.paper())
     recs = _push_batch(batch)
     keys = jax.random.split(jax.random.PRNGKey(0), batch)
-    old_dir = jax.config.jax_compilation_cache_dir
-    with tempfile.TemporaryDirectory() as cache:
-        jax.config.update("jax_compilation_cache_dir", cache)
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
-        out = {}
+    out = {}
+    with fresh_compilation_cache():
         for label in ("cold_s", "cached_s"):
             jax.clear_caches()
             fn = make_chunk_fn((), duration_s)
             t0 = time.perf_counter()
-            fn.lower(recs, keys, params).compile()
+            exe = fn.lower(recs, keys, params).compile()
             out[label] = time.perf_counter() - t0
-    jax.config.update("jax_compilation_cache_dir", old_dir)
+    if keep is not None:
+        keep[batch] = exe
     return out
 
 
@@ -130,55 +164,213 @@ def cpu_peer(batch: int, duration_s: float, repeats: int) -> dict | None:
                 physics_steps_per_s=batch * steps / sec)
 
 
-def gradient_step(batch: int, duration_s: float, repeats: int) -> dict | None:
+def gradient_step(batch: int, duration_s: float, repeats: int,
+                  rollout_options: dict | None = None) -> dict | None:
     try:
         from tkujax.studies.tune import benchmark_gradient_step
     except ImportError:
         return None
-    return benchmark_gradient_step(batch, duration_s, repeats)
+    return benchmark_gradient_step(batch, duration_s, repeats, rollout_options=rollout_options)
 
 
-def gradient_compile(batch: int, duration_s: float) -> list[dict]:
-    """Cold and cached compile of the tuning gradient, with XLA's defaults and, on a GPU, with
-    autotuning off (MJX's matrices are tiny: autotuning their kernels buys little run time and
-    costs compile time)."""
+def parse_grad_variants(text: str) -> list[dict]:
+    """"remat=tick;remat=nested,unroll_substeps=3;autotune=0" -> one dict per variant (keys:
+    remat, unroll_ticks, unroll_substeps, autotune; see gradient_compile)."""
+    out = []
+    for part in filter(None, (p.strip() for p in text.split(";"))):
+        v = {}
+        for item in filter(None, (i.strip() for i in part.split(","))):
+            key, eq, val = item.partition("=")
+            if not eq or key not in ("remat", "unroll_ticks", "unroll_substeps", "autotune"):
+                raise ValueError(f"gradient variant item {item!r}: expected remat=MODE, "
+                                 f"unroll_ticks=K, unroll_substeps=K or autotune=LEVEL")
+            if key == "remat":
+                from tkujax.sim.rollout_mjx import REMAT_MODES
+
+                if val not in REMAT_MODES:
+                    raise ValueError(f"remat={val!r}: one of {REMAT_MODES[2:]}")
+                v[key] = val
+            else:
+                if not val.isdigit():
+                    raise ValueError(f"{key}={val!r}: a non-negative integer")
+                v[key] = int(val)
+        out.append(v)
+    return out
+
+
+def gradient_compile(batch: int, duration_s: float, variants: list[dict] | None = None,
+                     cached: bool = True) -> list[dict]:
+    """Cold (and, with `cached`, from the persistent cache) compile of the tuning gradient, per
+    variant: {"remat": RolloutConfig.remat mode (default "tick", the tuner's), "unroll_ticks",
+    "unroll_substeps": scan unrolling, "autotune": xla_gpu_autotune_level (GPU only)}.
+    Default: the tuner's program with XLA's defaults and, on a GPU, with autotuning off (MJX's
+    matrices are tiny: autotuning their kernels buys little run time and costs compile time)."""
     from tkujax.studies.tune.benchmark import gradient_compile_times
 
-    variants = [None]
-    if jax.default_backend() == "gpu":
-        variants.append({"xla_gpu_autotune_level": 0})
-    return [gradient_compile_times(batch, duration_s, compiler_options=v) for v in variants]
+    gpu = jax.default_backend() == "gpu"
+    if variants is None:
+        variants = [{}] + ([{"autotune": 0}] if gpu else [])
+    out = []
+    for v in variants:
+        v = dict(v)
+        level = v.pop("autotune", None)
+        if level is not None and not gpu:
+            out.append(dict(variant=dict(v, autotune=level), skipped="autotune: GPU only"))
+            continue
+        opts = {"xla_gpu_autotune_level": level} if level is not None else None
+        row = gradient_compile_times(batch, duration_s, compiler_options=opts,
+                                     rollout_options=v, cached=cached)
+        out.append(dict(row, variant=dict(v, **({"autotune": level} if opts else {}))))
+    return out
 
 
-def run_bench(out: str | Path, batches=(1024, 4096, 16384, 65536), duration_s: float = 1.5,
-              raw_steps: int = 300, repeats: int = 3, cpu_batch: int | None = 256,
-              grad_batch: int | None = 1024, compile_batch: int = 1024,
-              scaling_batch: int | None = None, grad_compile_batch: int = 0) -> dict:
+def traced_paper_params() -> ControllerParams:
+    return traced_params(ControllerParams.paper())
+
+
+# Sizes of the two modes. "default" finishes in a few minutes on one GPU (the closed-loop /
+# raw-MJX ratio at 1,024 and 65,536, the closed loop's compile, the CPU peer); "full" adds
+# the middle batches, the gradient step and its compile, and the multi-device scaling.
+MODES = {
+    "default": dict(batches=(1024, 65536), repeats=2, cpu_batch=256, grad_batch=None,
+                    compile_batch=1024, scaling_batch=None, grad_compile_batch=0),
+    "full": dict(batches=(1024, 4096, 16384, 65536), repeats=3, cpu_batch=256, grad_batch=1024,
+                 compile_batch=1024, scaling_batch=65536, grad_compile_batch=256),
+}
+STAGE_GROUPS = ("compile", "throughput", "multi_device", "cpu_peer", "profile", "gradient_step",
+                "gradient_compile")
+
+
+class _Stages:
+    """Runs the bench's stages one by one: progress on stderr, each stage's wall time and
+    status in result["stages"], the JSON (and .md) rewritten after each stage, so that a run
+    cut short keeps what finished. A failing stage is recorded and the next one runs; with
+    `budget_s`, a stage that would start after the budget is recorded as skipped."""
+
+    def __init__(self, out: Path, result: dict, budget_s: float | None, quiet: bool):
+        self.out, self.result, self.budget_s, self.quiet = out, result, budget_s, quiet
+        self.t0 = time.perf_counter()
+        result["stages"] = []
+
+    def log(self, msg: str) -> None:
+        if not self.quiet:
+            print(f"[bench {time.perf_counter() - self.t0:7.1f} s] {msg}", file=sys.stderr,
+                  flush=True)
+
+    def run(self, name: str, fn) -> None:
+        rec = dict(name=name)
+        elapsed = time.perf_counter() - self.t0
+        if self.budget_s is not None and elapsed > self.budget_s:
+            rec.update(status="skipped", why=f"budget {self.budget_s:g} s spent")
+            self.log(f"{name}: skipped (budget {self.budget_s:g} s spent)")
+        else:
+            self.log(f"{name}: start")
+            t = time.perf_counter()
+            try:
+                fn()
+                rec["status"] = "done"
+            except Exception as err:  # noqa: BLE001 - recorded; the next stage runs
+                rec.update(status="failed", error=f"{type(err).__name__}: {err}"[:2000])
+                self.log(f"{name}: FAILED {type(err).__name__}: {err}")
+                traceback.print_exc(file=sys.stderr)
+            rec["wall_s"] = round(time.perf_counter() - t, 2)
+            self.log(f"{name}: {rec['status']} in {rec['wall_s']:.1f} s")
+        self.result["stages"].append(rec)
+        self.write()
+
+    def write(self, complete: bool = False) -> None:
+        self.result["total_wall_s"] = round(time.perf_counter() - self.t0, 2)
+        self.result["complete"] = complete
+        _write(self.out, self.result)
+
+
+def run_bench(out: str | Path, batches=MODES["default"]["batches"], duration_s: float = 1.5,
+              raw_steps: int = 300, repeats: int = MODES["default"]["repeats"],
+              cpu_batch: int | None = 256, grad_batch: int | None = None,
+              compile_batch: int = 1024, scaling_batch: int | None = None,
+              grad_compile_batch: int = 0, *, mode: str = "default",
+              stages: tuple[str, ...] | None = None, profile_batches=(),
+              profile_duration_s: float = 0.3, profile_repeats: int = 1,
+              profile_variants=None, compile_workers: int | None = None,
+              trace_dir: str | Path | None = None, grad_variants: list[dict] | None = None,
+              grad_cached: bool = True, budget_s: float | None = None,
+              quiet: bool = False) -> dict:
+    """The bench (module docstring). The size arguments default to the "default" mode (MODES);
+    `stages`: the STAGE_GROUPS to run (None: those the sizes enable, plus "profile" when
+    `profile_batches` is given). Returns the result, also written to `out` (JSON) and its .md."""
+    from tkujax import bench_profile
+
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
+    if stages is None:
+        stages = tuple(g for g, on in (
+            ("compile", compile_batch), ("throughput", batches),
+            ("multi_device", scaling_batch and jax.local_device_count() > 1),
+            ("cpu_peer", cpu_batch), ("profile", profile_batches),
+            ("gradient_step", grad_batch), ("gradient_compile", grad_compile_batch)) if on)
+    unknown = set(stages) - set(STAGE_GROUPS)
+    if unknown:
+        raise ValueError(f"unknown bench stage(s) {sorted(unknown)}; known: {STAGE_GROUPS}")
+    if "profile" in stages:
+        for v in profile_variants or ():
+            if v != "no_push":
+                bench_profile._variant_config(v)        # fail before any stage runs
     dev = jax.devices()[0]
-    result = dict(device=str(dev), device_kind=getattr(dev, "device_kind", dev.platform),
+    result = dict(mode=mode, stages_requested=list(stages), device=str(dev),
+                  device_kind=getattr(dev, "device_kind", dev.platform),
                   n_devices=jax.device_count(), platform=platform.platform(),
                   versions=package_versions(("jax", "jaxlib", "mujoco", "mujoco-mjx")),
                   repeats=repeats, duration_s=duration_s, raw=[], closed_loop=[])
-    if compile_batch:
-        result["compile"] = compile_times(compile_batch, duration_s)
-    for b in batches:
-        result["raw"].append(raw_stepping(b, raw_steps, repeats))
-        result["closed_loop"].append(closed_loop(b, duration_s, repeats))
-        _write(out, result)
-    if scaling_batch and jax.local_device_count() > 1:
-        result["multi_device"] = multi_device(scaling_batch, duration_s, repeats)
-        _write(out, result)
-    if cpu_batch:
-        result["cpu_peer"] = cpu_peer(cpu_batch, duration_s, repeats)
-        _write(out, result)   # each stage is written as it finishes: a killed run keeps them
-    if grad_batch:
-        result["gradient_step"] = gradient_step(grad_batch, duration_s, repeats)
-        _write(out, result)
-    if grad_compile_batch:
-        result["gradient_compile"] = gradient_compile(grad_compile_batch, duration_s)
-    _write(out, result)
+    run = _Stages(out, result, budget_s, quiet)
+    compiled = {}
+
+    if "compile" in stages and compile_batch:
+        def stage_compile():
+            result["compile"] = compile_times(compile_batch, duration_s, keep=compiled)
+        run.run("compile", stage_compile)
+    if "throughput" in stages:
+        for b in batches:
+            run.run(f"raw_{b}", lambda b=b: result["raw"].append(
+                raw_stepping(b, raw_steps, repeats)))
+            run.run(f"closed_loop_{b}", lambda b=b: result["closed_loop"].append(
+                closed_loop(b, duration_s, repeats, compiled.get(b))))
+    if "multi_device" in stages and scaling_batch:
+        def stage_multi():
+            result["multi_device"] = multi_device(scaling_batch, duration_s, repeats)
+        run.run("multi_device", stage_multi)
+    if "cpu_peer" in stages and cpu_batch:
+        def stage_cpu():
+            result["cpu_peer"] = cpu_peer(cpu_batch, duration_s, repeats)
+        run.run("cpu_peer", stage_cpu)
+    if "profile" in stages:
+        result["profile"] = []
+        variants = tuple(profile_variants or bench_profile.DEFAULT_VARIANTS)
+        for b in profile_batches:
+            def stage_profile(b=b):
+                p = {}
+                result["profile"].append(p)     # filled, and written, row by row
+                bench_profile.profile_closed_loop(
+                    b, profile_duration_s, profile_repeats, variants,
+                    compile_workers or bench_profile.DEFAULT_COMPILE_WORKERS, trace_dir,
+                    log=run.log, into=p, on_update=run.write)
+                run.write()
+                p["controller_parts"] = bench_profile.profile_controller_parts(
+                    b, profile_duration_s, profile_repeats)
+            run.run(f"profile_{b}", stage_profile)
+    if "gradient_step" in stages and grad_batch:
+        def stage_grad():
+            result["gradient_step"] = gradient_step(grad_batch, duration_s, repeats)
+        run.run("gradient_step", stage_grad)
+    if "gradient_compile" in stages and grad_compile_batch:
+        result["gradient_compile"] = []
+        gpu = jax.default_backend() == "gpu"
+        variants = grad_variants if grad_variants is not None else (
+            [{}] + ([{"autotune": 0}] if gpu else []))
+        for i, v in enumerate(variants):
+            run.run(f"gradient_compile_{i}", lambda v=v: result["gradient_compile"].extend(
+                gradient_compile(grad_compile_batch, duration_s, [v], grad_cached)))
+    run.write(complete=True)
+    run.log(f"total {result['total_wall_s']:.1f} s; wrote {out} and {out.with_suffix('.md')}")
     return result
 
 
@@ -189,39 +381,74 @@ def _write(out: Path, result: dict) -> None:
 
 def summary_markdown(r: dict) -> str:
     lines = [f"# tkujax bench on {r['device_kind']} ({r['n_devices']} device(s))", "",
-             f"Versions: {r['versions']}. Median of {r['repeats']} runs; closed loop = "
-             f"{r['duration_s']} s pushes with controller, sensors and metrics.", "",
-             "| batch | raw MJX steps/s (a) | closed-loop steps/s (b) | pushes/s | b/a |",
-             "|---|---|---|---|---|"]
-    for a, b in zip(r["raw"], r["closed_loop"]):
-        lines.append(f"| {a['batch']} | {a['physics_steps_per_s']:.3g} | "
-                     f"{b['physics_steps_per_s']:.3g} | {b['pushes_per_s']:.3g} | "
-                     f"{b['physics_steps_per_s'] / a['physics_steps_per_s']:.2f} |")
+             f"Mode: {r.get('mode', 'default')}. Versions: {r['versions']}. Median of "
+             f"{r['repeats']} runs; closed loop = {r['duration_s']} s pushes with controller, "
+             f"sensors and metrics.", ""]
+    if r["raw"] or r["closed_loop"]:
+        lines += ["| batch | raw MJX steps/s (a) | closed-loop steps/s (b) | pushes/s | b/a |",
+                  "|---|---|---|---|---|"]
+        raw = {a["batch"]: a for a in r["raw"]}
+        for b in r["closed_loop"]:
+            a = raw.get(b["batch"])
+            lines.append(f"| {b['batch']} | {a['physics_steps_per_s']:.3g} | " if a else
+                         f"| {b['batch']} | - | ")
+            lines[-1] += (f"{b['physics_steps_per_s']:.3g} | {b['pushes_per_s']:.3g} | " +
+                          (f"{b['physics_steps_per_s'] / a['physics_steps_per_s']:.2f} |" if a
+                           else "- |"))
+        for a in r["raw"]:
+            if all(b["batch"] != a["batch"] for b in r["closed_loop"]):
+                lines.append(f"| {a['batch']} | {a['physics_steps_per_s']:.3g} | - | - | - |")
     c = r.get("cpu_peer")
-    if c:
+    if c and r["closed_loop"]:
         best = max(r["closed_loop"], key=lambda x: x["physics_steps_per_s"])
         lines += ["", f"CPU peer (MuJoCo C, batch {c['batch']}): {c['physics_steps_per_s']:.3g} "
                   f"steps/s, {c['pushes_per_s']:.3g} pushes/s; b/c = "
                   f"{best['physics_steps_per_s'] / c['physics_steps_per_s']:.1f}x"]
+    elif c:
+        lines += ["", f"CPU peer (MuJoCo C, batch {c['batch']}): {c['physics_steps_per_s']:.3g} "
+                  f"steps/s, {c['pushes_per_s']:.3g} pushes/s"]
     g = r.get("gradient_step")
     if g:
         lines += ["", f"Gradient step (reverse mode through the closed loop, batch {g['batch']} x "
                   f"{g['duration_s']} s, {g['n_params']} parameters, remat {g['remat']}, float64 "
                   f"{g['float64']}): {g['seconds']:.2f} s per step = {g['pushes_per_s']:.3g} "
                   f"pushes/s, first call (compile) {g['first_call_s']:.0f} s, peak device memory "
-                  f"{g['peak_device_bytes'] / 2**30:.2f} GiB, gradient finite: {g['grad_finite']}."]
+                  + (f"{g['peak_device_bytes'] / 2**30:.2f} GiB" if g['peak_device_bytes']
+                     else "n/a") + f", gradient finite: {g['grad_finite']}."]
     md = r.get("multi_device")
     if md:
         base = md[0]["pushes_per_s"]
         lines += ["", "| devices | batch | pushes/s | speed-up |", "|---|---|---|---|"]
         lines += [f"| {m['n_devices']} | {m['batch']} | {m['pushes_per_s']:.3g} | "
                   f"{m['pushes_per_s'] / base:.2f}x |" for m in md]
-    for gc in r.get("gradient_compile", []):
-        lines += ["", f"Compile of the tuning gradient (batch {gc['batch']}, options "
-                  f"{gc['compiler_options'] or 'XLA defaults'}): cold {gc['cold_s']:.1f} s, from "
-                  f"the persistent cache {gc['cached_s']:.1f} s."]
+    gcs = r.get("gradient_compile") or []
+    if gcs:
+        lines += ["", "Compile of the tuning gradient (cold: empty persistent cache; includes "
+                  "tracing and lowering):", "",
+                  "| batch | variant | lower s | cold s | cached s | HLO chars |",
+                  "|---|---|---|---|---|---|"]
+        for gc in gcs:
+            v = gc.get("variant", gc.get("compiler_options")) or "tuner defaults"
+            if "skipped" in gc:
+                lines.append(f"| - | {v} | skipped: {gc['skipped']} | | | |")
+                continue
+            lines.append(f"| {gc['batch']} | {v} | {gc.get('lower_s', '-')} | "
+                         f"{gc['cold_s']:.1f} | {gc.get('cached_s', '-')} | "
+                         f"{gc.get('hlo_chars', '-')} |")
     comp = r.get("compile")
     if comp:
         lines += ["", f"Compile of the closed loop: cold {comp['cold_s']:.1f} s, "
                   f"from the persistent cache {comp['cached_s']:.1f} s."]
+    for p in r.get("profile") or []:
+        from tkujax.bench_profile import profile_markdown
+
+        lines += [""] + profile_markdown(p)
+    if r.get("stages"):
+        lines += ["", "| stage | status | wall s |", "|---|---|---|"]
+        lines += [f"| {s['name']} | {s['status']}"
+                  + (f" ({s['error'][:120]})" if s.get("error") else "")
+                  + f" | {s.get('wall_s', '-')} |" for s in r["stages"]]
+        lines += ["", f"Total wall time: {r.get('total_wall_s', 0):.1f} s"
+                  + ("" if r.get("complete") else " (incomplete: the run was cut short or is "
+                     "still going)") + "."]
     return "\n".join(lines) + "\n"

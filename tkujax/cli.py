@@ -210,18 +210,47 @@ def _cmd_fpga(args) -> int:
 
 
 def _cmd_bench(args) -> int:
-    from tkujax.bench import run_bench
+    from tkujax.bench import MODES, parse_grad_variants, run_bench, summary_markdown
 
-    batches = tuple(int(b) for b in args.batches.split(","))
-    result = run_bench(args.out, batches=batches, duration_s=args.duration, repeats=args.repeats,
-                       raw_steps=args.raw_steps, cpu_batch=args.cpu_batch or None,
-                       grad_batch=args.grad_batch or None, compile_batch=args.compile_batch,
-                       scaling_batch=args.scaling_batch or None,
-                       grad_compile_batch=args.grad_compile_batch)
-    from tkujax.bench import summary_markdown
-
+    mode = "full" if args.full else "default"
+    sizes = dict(MODES[mode])
+    ints = lambda text: tuple(int(b) for b in text.split(",") if b.strip())  # noqa: E731
+    if args.batches is not None:
+        sizes["batches"] = ints(args.batches)
+    for key in ("repeats", "cpu_batch", "grad_batch", "compile_batch", "scaling_batch",
+                "grad_compile_batch"):
+        if getattr(args, key) is not None:
+            sizes[key] = getattr(args, key)
+    stages = tuple(x.strip() for x in args.stages.split(",") if x.strip()) if args.stages \
+        else None
+    profile_batches = ints(args.profile_batches) if (args.profile or (
+        stages and "profile" in stages)) else ()
+    if args.profile and stages and "profile" not in stages:
+        stages = stages + ("profile",)
+    grad_variants = parse_grad_variants(args.grad_variants) if args.grad_variants else None
+    # A stage asked for by name (or gradient variants) whose size the mode leaves at 0: the
+    # full mode's size.
+    named = set(stages or ()) | ({"gradient_compile"} if grad_variants else set())
+    for stage, key in (("compile", "compile_batch"), ("cpu_peer", "cpu_batch"),
+                       ("gradient_step", "grad_batch"), ("multi_device", "scaling_batch"),
+                       ("gradient_compile", "grad_compile_batch")):
+        if stage in named and not sizes[key]:
+            sizes[key] = MODES["full"][key]
+    run_bench(args.out, batches=sizes["batches"], duration_s=args.duration,
+              repeats=sizes["repeats"], raw_steps=args.raw_steps,
+              cpu_batch=sizes["cpu_batch"] or None, grad_batch=sizes["grad_batch"] or None,
+              compile_batch=sizes["compile_batch"], scaling_batch=sizes["scaling_batch"] or None,
+              grad_compile_batch=sizes["grad_compile_batch"] or 0, mode=mode, stages=stages,
+              profile_batches=profile_batches, profile_duration_s=args.profile_duration,
+              profile_repeats=args.profile_repeats,
+              profile_variants=tuple(v.strip() for v in args.profile_variants.split(";")
+                                     if v.strip()) if args.profile_variants else None,
+              compile_workers=args.compile_workers, trace_dir=args.trace,
+              grad_variants=grad_variants, grad_cached=not args.grad_cold_only,
+              budget_s=args.budget_s)
+    result = json.loads(Path(args.out).read_text())
     print(summary_markdown(result))
-    return 0
+    return 0 if all(st["status"] != "failed" for st in result["stages"]) else 1
 
 
 def _cmd_calibrate(args) -> int:
@@ -438,19 +467,53 @@ def _add_sweep_commands(sub) -> None:
 
 def _add_study_commands(sub) -> None:
     """bench, tune, calibrate, refine."""
-    p = sub.add_parser("bench", help="throughput: raw MJX vs closed loop vs MuJoCo C, compile")
-    p.add_argument("--out", default="results/bench/bench.json")
-    p.add_argument("--batches", default="1024,4096,16384,65536")
+    p = sub.add_parser("bench", help="throughput: raw MJX vs closed loop vs MuJoCo C, compile, "
+                                     "profile of the closed loop, gradient compile")
+    p.add_argument("--out", default="results/bench/bench.json",
+                   help="the JSON (rewritten after every stage) and a .md beside it")
+    p.add_argument("--full", action="store_true",
+                   help="the long version: batches 1024,4096,16384,65536, 3 repeats, the "
+                        "gradient step and its compile, multi-device scaling (the default: "
+                        "batches 1024,65536, 2 repeats, compile of the closed loop, CPU peer)")
+    p.add_argument("--stages", default=None,
+                   help="comma list of stages to run instead of the mode's: compile, "
+                        "throughput, multi_device, cpu_peer, profile, gradient_step, "
+                        "gradient_compile")
+    p.add_argument("--batches", default=None, help="closed-loop / raw batches (mode default)")
     p.add_argument("--duration", type=float, default=1.5, help="simulated seconds per push")
     p.add_argument("--raw-steps", type=int, default=300)
-    p.add_argument("--repeats", type=int, default=3)
-    p.add_argument("--cpu-batch", type=int, default=256, help="0 skips the MuJoCo C peer")
-    p.add_argument("--grad-batch", type=int, default=1024, help="0 skips the gradient step")
-    p.add_argument("--compile-batch", type=int, default=1024, help="0 skips the compile timing")
-    p.add_argument("--scaling-batch", type=int, default=65536,
+    p.add_argument("--repeats", type=int, default=None, help="timed runs per figure (median)")
+    p.add_argument("--cpu-batch", type=int, default=None, help="0 skips the MuJoCo C peer")
+    p.add_argument("--grad-batch", type=int, default=None, help="0 skips the gradient step")
+    p.add_argument("--compile-batch", type=int, default=None,
+                   help="0 skips the closed loop's compile timing")
+    p.add_argument("--scaling-batch", type=int, default=None,
                    help="global batch for the 1-vs-all-local-devices scaling run (0 skips)")
-    p.add_argument("--grad-compile-batch", type=int, default=256,
+    p.add_argument("--grad-compile-batch", type=int, default=None,
                    help="batch of the cold/cached tuning-gradient compile timing (0 skips)")
+    p.add_argument("--grad-variants", default=None,
+                   help="gradient compile variants, ';'-separated, each a ','-list of "
+                        "remat=none|tick|tick_nocse|tick_dots|substep|nested, unroll_ticks=K, "
+                        "unroll_substeps=K, autotune=LEVEL (GPU); e.g. "
+                        "'remat=tick;remat=tick_nocse;remat=nested'")
+    p.add_argument("--grad-cold-only", action="store_true",
+                   help="gradient compile: the cold compile only (not the cached one)")
+    p.add_argument("--profile", action="store_true",
+                   help="add the closed-loop profile (ablations and controller parts)")
+    p.add_argument("--profile-batches", default="1024,65536")
+    p.add_argument("--profile-duration", type=float, default=0.3,
+                   help="simulated seconds per push in the profile")
+    p.add_argument("--profile-repeats", type=int, default=1)
+    p.add_argument("--profile-variants", default=None,
+                   help="';'-list (default: all of tkujax.bench_profile.DEFAULT_VARIANTS); also "
+                        "unroll_substeps=K, unroll_ticks=K")
+    p.add_argument("--compile-workers", type=int, default=None,
+                   help="threads compiling the profile's variants in parallel (default: "
+                        "min(8, CPU cores))")
+    p.add_argument("--trace", default=None,
+                   help="folder for a jax.profiler trace of the full loop (profile stage)")
+    p.add_argument("--budget-s", type=float, default=None,
+                   help="skip the stages that would start after this many seconds")
     p.set_defaults(func=_cmd_bench)
 
     p = sub.add_parser("tune", help="tune T, gamma, H_Sup, eps_1, eps_2 (...) by CMA-ES, "

@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from tkujax.sim import physics
-from tkujax.control.controller import StepOverride, controller_init
+from tkujax.control.controller import ControllerOutput, StepOverride, controller_init
 from tkujax.control.fixed import (FixedPointConfig, check_supported, controller_init_fx,
                                   servo_switch_substep)
 from tkujax.control.params import ControllerParams
@@ -45,13 +45,49 @@ class RolloutConfig:
     control_period_s: float = CONTROL_PERIOD_S
     quantise_targets: bool = True
     record_qpos: bool = False      # add the full qpos to the series (for rendering)
-    remat: bool = False            # jax.checkpoint the control tick (less memory under grad)
+    # jax.checkpoint (less memory under grad): False / "none": off; True / "tick": each control
+    # tick (the program True always gave); "tick_nocse": the same with prevent_cse=False (JAX's
+    # advice inside scan); "tick_dots": each tick, saving the results of matrix products
+    # (jax.checkpoint_policies.dots_with_no_batch_dims_saveable); "substep": each physics
+    # substep instead; "nested": each tick and each substep. See REMAT_MODES.
+    remat: bool | str = False
     # The FPGA twin of the controller (issue 15); None: the float controller (its program is
     # unchanged by this field: the choice is a Python branch on None at trace time).
     fixed: FixedPointConfig | None = None
+    # lax.scan unrolling of the control-tick scan and of each tick's physics-substep scan
+    # (1: a rolled loop, the default program). Same arithmetic, another loop structure.
+    unroll_ticks: int = 1
+    unroll_substeps: int = 1
+    # Benchmark-only stand-ins (`tkujax bench --profile`; () everywhere else), each a Python
+    # branch at trace time, see ABLATIONS: "noise": no sensor-noise draws; "controller": no
+    # controller, the leg targets hold the stand pose; "wrench": no push wrench (xfrc_applied
+    # stays 0); "records": no Series, the rollout returns the pelvis height per tick instead.
+    ablate: tuple[str, ...] = ()
 
 
 _quantise = quantise_targets   # the name the C backend and older code use
+
+REMAT_MODES = (False, True, "none", "tick", "tick_nocse", "tick_dots", "substep", "nested")
+ABLATIONS = ("noise", "controller", "wrench", "records")
+
+
+def _checkpoints(remat: bool | str):
+    """(wrap for the tick function, wrap for the substep function) of a RolloutConfig.remat."""
+    if remat not in REMAT_MODES:
+        raise ValueError(f"RolloutConfig.remat must be one of {REMAT_MODES}, got {remat!r}")
+    same = lambda f: f   # noqa: E731
+    if remat in (False, "none"):
+        return same, same
+    if remat in (True, "tick"):
+        return jax.checkpoint, same
+    if remat == "tick_nocse":
+        return functools.partial(jax.checkpoint, prevent_cse=False), same
+    if remat == "tick_dots":
+        return functools.partial(
+            jax.checkpoint, policy=jax.checkpoint_policies.dots_with_no_batch_dims_saveable), same
+    if remat == "substep":
+        return same, functools.partial(jax.checkpoint, prevent_cse=False)
+    return jax.checkpoint, functools.partial(jax.checkpoint, prevent_cse=False)   # nested
 
 
 def _push_wrench(idx: ModelIndex, d: mjx.Data, push: Push) -> jax.Array:
@@ -63,11 +99,24 @@ def _push_wrench(idx: ModelIndex, d: mjx.Data, push: Push) -> jax.Array:
     return jnp.zeros_like(d.xfrc_applied).at[idx.chest_body].set(jnp.concatenate([force, torque]))
 
 
+def _runs(ids) -> list[tuple[int, int]]:
+    """Static ids as (start, stop) runs of consecutive ids, in order."""
+    runs: list[tuple[int, int]] = []
+    for i in (int(i) for i in ids):
+        if runs and runs[-1][1] == i:
+            runs[-1] = (runs[-1][0], i + 1)
+        else:
+            runs.append((i, i + 1))
+    return runs
+
+
 def _rows(x: jax.Array, ids) -> jax.Array:
-    """x[ids] for static ids, as static slices: no integer index array is traced, so nothing
-    depends on the x64 mode (index arrays traced under x64 after being cached under x32 gave
-    int32/int64 mismatches)."""
-    return jnp.stack([x[int(i)] for i in ids])
+    """x[ids] for static ids, as static slices, one per run of consecutive ids (the eight sole
+    sensors are one slice): no integer index array is traced, so nothing depends on the x64
+    mode (index arrays traced under x64 after being cached under x32 gave int32/int64
+    mismatches)."""
+    parts = [x[a:b] for a, b in _runs(ids)]
+    return parts[0] if len(parts) == 1 else jnp.concatenate(parts)
 
 
 def _lowest_body_point(idx: ModelIndex, d: mjx.Data) -> jax.Array:
@@ -126,43 +175,66 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
         raise ValueError("commanded steps (override) have no fixed-point controller twin; "
                          "use RolloutConfig(fixed=None)")
     switch = 0 if fixed is None else servo_switch_substep(fixed, substeps)
+    ablate = frozenset(config.ablate)
+    if not ablate <= set(ABLATIONS):
+        raise ValueError(f"RolloutConfig.ablate: unknown {sorted(ablate - set(ABLATIONS))}; "
+                         f"allowed {ABLATIONS}")
+    wrap_tick, wrap_substep = _checkpoints(config.remat)
+    scan_substeps = functools.partial(jax.lax.scan, unroll=config.unroll_substeps)
 
     def physics_step(d, _):
-        d = d.replace(xfrc_applied=_push_wrench(idx, d, push))
-        return mjx.step(model, d), None
+        if "wrench" not in ablate:
+            with jax.named_scope("push_wrench"):
+                d = d.replace(xfrc_applied=_push_wrench(idx, d, push))
+        with jax.named_scope("mjx_step"):
+            return mjx.step(model, d), None
+
+    physics_step = wrap_substep(physics_step)
 
     def tick(carry, tick_key):
         d, ctrl_state = carry
-        gyro = d.sensordata[idx.gyro_adr:idx.gyro_adr + 3]
-        accel = d.sensordata[idx.accel_adr:idx.accel_adr + 3]
-        kg, ka = jax.random.split(tick_key)
-        gyro = gyro + gyro_noise_std * jax.random.normal(kg, (3,), dtype)
-        accel = accel + accel_noise_std * jax.random.normal(ka, (3,), dtype)
-        if fixed is None:
-            ctrl_state, legs, out = control_tick(ctrl_state, gyro, accel, params, enabled,
-                                                 config.quantise_targets, override)
-        else:
-            ctrl_state, legs, prev, out = control_tick_fx(ctrl_state, gyro, accel, params,
-                                                          enabled, config.quantise_targets, fixed)
-            # Fractional latency: the previous command holds until the static switch substep.
-            if switch > 0:
+        with jax.named_scope("sensors"):
+            gyro = d.sensordata[idx.gyro_adr:idx.gyro_adr + 3]
+            accel = d.sensordata[idx.accel_adr:idx.accel_adr + 3]
+            if "noise" not in ablate:
+                kg, ka = jax.random.split(tick_key)
+                gyro = gyro + gyro_noise_std * jax.random.normal(kg, (3,), dtype)
+                accel = accel + accel_noise_std * jax.random.normal(ka, (3,), dtype)
+        with jax.named_scope("controller"):
+            if "controller" in ablate:
+                legs = stand_ctrl[legs_slice]
+                zero = jnp.zeros((), dtype)
+                out = ControllerOutput(legs, zero, zero, zero, zero, zero)
+            elif fixed is None:
+                ctrl_state, legs, out = control_tick(ctrl_state, gyro, accel, params, enabled,
+                                                     config.quantise_targets, override)
+            else:
+                ctrl_state, legs, prev, out = control_tick_fx(ctrl_state, gyro, accel, params,
+                                                              enabled, config.quantise_targets,
+                                                              fixed)
+        with jax.named_scope("physics"):
+            if fixed is not None and switch > 0:
+                # Fractional latency: the previous command holds until the static switch substep.
                 d = d.replace(ctrl=stand_ctrl.at[legs_slice].set(prev.astype(dtype)))
-                d, _ = jax.lax.scan(physics_step, d, None, length=switch)
-        d = d.replace(ctrl=stand_ctrl.at[legs_slice].set(legs.astype(dtype)))
-        d, _ = jax.lax.scan(physics_step, d, None, length=substeps - switch)
-        pitch, roll = physics.pitch_roll_from_quat(d.qpos[3:7])
-        zmp, fsr_total = _zmp(idx, d)
-        series = recording.tick_series(
-            t=d.time, pitch=pitch, roll=roll, zmp_xy=zmp, fsr_total=fsr_total,
-            com=d.subtree_com[1], r_ankle=d.site_xpos[r_ankle], l_ankle=d.site_xpos[l_ankle],
-            pelvis_z=d.qpos[2], lowest_body_z=_lowest_body_point(idx, d), out=out,
-            ctrl_state=ctrl_state, qpos=d.qpos if config.record_qpos else None)
+                d, _ = scan_substeps(physics_step, d, None, length=switch)
+            d = d.replace(ctrl=stand_ctrl.at[legs_slice].set(legs.astype(dtype)))
+            d, _ = scan_substeps(physics_step, d, None, length=substeps - switch)
+        if "records" in ablate:
+            return (d, ctrl_state), d.qpos[2]
+        with jax.named_scope("records"):
+            pitch, roll = physics.pitch_roll_from_quat(d.qpos[3:7])
+            zmp, fsr_total = _zmp(idx, d)
+            series = recording.tick_series(
+                t=d.time, pitch=pitch, roll=roll, zmp_xy=zmp, fsr_total=fsr_total,
+                com=d.subtree_com[1], r_ankle=d.site_xpos[r_ankle], l_ankle=d.site_xpos[l_ankle],
+                pelvis_z=d.qpos[2], lowest_body_z=_lowest_body_point(idx, d), out=out,
+                ctrl_state=ctrl_state, qpos=d.qpos if config.record_qpos else None)
         return (d, ctrl_state), series
 
     carry = (state, controller_init(params, dtype) if fixed is None else
              controller_init_fx(params, fixed, dtype))
-    tick_fn = jax.checkpoint(tick) if config.remat else tick
-    _, series = jax.lax.scan(tick_fn, carry, jax.random.split(key, n_ticks))
+    _, series = jax.lax.scan(wrap_tick(tick), carry, jax.random.split(key, n_ticks),
+                             unroll=config.unroll_ticks)
     return series
 
 

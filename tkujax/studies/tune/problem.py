@@ -41,11 +41,14 @@ class TuneProblem:
                  loss_cfg: LossConfig = LossConfig(),
                  duration_s: float = 1.2, remat: bool = True, float64: bool = False,
                  model_params=None, compiler_options: dict | None = None,
-                 quantise_targets: bool = True):
+                 quantise_targets: bool = True, rollout_options: dict | None = None):
         self.reparam, self.base, self.loss_cfg = reparam, base, loss_cfg
         self.float64 = float64
+        # rollout_options: further static RolloutConfig fields (unroll_ticks, unroll_substeps;
+        # remat may be a RolloutConfig remat mode): `tkujax bench --grad-variants`.
         self.config = RolloutConfig(duration_s=duration_s, remat=remat,
-                                    quantise_targets=quantise_targets)
+                                    quantise_targets=quantise_targets,
+                                    **(rollout_options or {}))
         host, self.model, self.index, self.state = init(model_params, float64=float64)
         self.dtype = jnp.float64 if float64 else jnp.float32
         self.n_ticks = int(round(duration_s / self.config.control_period_s))

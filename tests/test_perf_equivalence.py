@@ -1,0 +1,106 @@
+"""The performance work keeps the closed loop's results: the sweeps' chunk (make_chunk_fn) gives
+the outcomes stored below, computed with the code before it (commit 694af53, CPU, float32), and
+the bench's profile loop, the remat modes and the scan unrolling give the same outcomes.
+
+Batch 4 x 1.5 s, the shape of tests/test_sweep.py's tiny sweep: the chunk's program is shared
+through the persistent cache. The four pushes: a small forward push that recovers, a large one
+without control (falls), a backward push with a heavier robot, a sideways push with softer
+servos and sensor noise."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from tkujax.control.params import ControllerParams
+from tkujax.studies.sweep import make_chunk_fn, traced_params
+
+N = 4
+RECORDS = dict(impulse_ns=[0.4, 2.5, 1.6, 2.5], azimuth_deg=[0.0, 0.0, 180.0, 90.0],
+               height_m=[0.36] * N, duration_s=[0.02] * N, onset_s=[0.3] * N,
+               control=[1.0, 0.0, 1.0, 1.0], link_mass_scale=[1.0, 1.0, 1.1, 1.0],
+               torso_com_offset_x_m=[0.0] * N, floor_friction=[-1.0] * N,
+               servo_kp_scale=[1.0, 1.0, 1.0, 0.9], gyro_noise_std=[0.0, 0.02, 0.0, 0.02],
+               accel_noise_std=[0.0, 0.1, 0.0, 0.0])
+nan = math.nan
+# make_chunk_fn((), 1.5) at commit 694af53 on the CPU (keys: PRNGKey(3) split 4 ways).
+STORED = {
+    "capture_point_m": [0.0, 0.0, -0.07216040790081024, 0.0],
+    "capture_point_y_m": [0.0, 0.0, 0.0, 0.0],
+    "diverged": [0.0, 0.0, 0.0, 0.0],
+    "fell": [0.0, 1.0, 0.0, 1.0],
+    "peak_incl_deg": [2.694120168685913, 202.85546875, 15.588810920715332, 142.61505126953125],
+    "recovery_time_s": [0.5699958801269531, nan, nan, nan],
+    "step_length_m": [0.00012799352407455444, 0.09710676968097687, -0.022447504103183746,
+                      0.00032892078161239624],
+    "step_width_m": [0.0, 1.1175870895385742e-08, -0.018259095028042793, 0.10227169096469879],
+    "zmp_excursion_m": [0.025744300335645676, 0.04164246469736099, 0.14176900684833527,
+                        0.15175911784172058],
+}
+
+
+def _inputs():
+    recs = {k: jnp.asarray(v, jnp.float32) for k, v in RECORDS.items()}
+    return recs, jax.random.split(jax.random.PRNGKey(3), N), traced_params(ControllerParams.paper())
+
+
+def _assert_outcomes(out, expected, exact: bool):
+    """exact: bit for bit (NaN where NaN); else the booleans exactly, the floats to 1e-5."""
+    assert set(out) == set(expected)
+    for k, v in expected.items():
+        got = np.asarray(out[k], np.float64)
+        want = np.asarray(np.asarray(v, np.float32), np.float64)
+        if exact or k in ("fell", "diverged"):
+            np.testing.assert_array_equal(got, want, err_msg=k)
+        else:
+            np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6, err_msg=k)
+
+
+@pytest.mark.slow
+def test_sweep_chunk_outcomes_unchanged():
+    """Float tolerance rather than bits, so that another CPU or jax release passes; on this
+    project's CPU the outcomes were bit-identical when the work landed."""
+    _assert_outcomes(make_chunk_fn((), 1.5)(*_inputs()), STORED, exact=False)
+
+
+@pytest.mark.slow
+def test_profile_loop_is_the_sweep_chunk():
+    """The bench profile's `full` variant is the sweeps' program: the same outcomes, exactly."""
+    from tkujax.bench_profile import loop_fn
+
+    args = _inputs()
+    ref = {k: np.asarray(v) for k, v in make_chunk_fn((), 1.5)(*args).items()}
+    _assert_outcomes(loop_fn(1.5)(*args), ref, exact=True)
+
+
+@pytest.mark.slow
+def test_loop_options_keep_the_outcomes():
+    """Checkpointing (a no-op without a gradient) and scan unrolling change the program, not
+    the arithmetic: the outcomes agree to float tolerance."""
+    from tkujax.bench_profile import loop_fn
+
+    args = _inputs()
+    ref = {k: np.asarray(v) for k, v in make_chunk_fn((), 1.5)(*args).items()}
+    out = loop_fn(1.5, dict(remat="nested", unroll_substeps=3, unroll_ticks=2))(*args)
+    _assert_outcomes(out, ref, exact=False)
+
+
+def test_rollout_config_checks_its_options():
+    from tkujax.sim.rollout_mjx import RolloutConfig, _checkpoints, rollout
+
+    with pytest.raises(ValueError, match="remat"):
+        _checkpoints("sometimes")
+    for mode in (False, True, "none", "tick", "tick_nocse", "tick_dots", "substep", "nested"):
+        _checkpoints(mode)
+    from tkujax.sim.push import Push
+    from tkujax.sim.setup import init
+
+    _, model, index, state = init()
+    push = Push(*(jnp.float32(v) for v in (1.0, 0.0, 0.36, 0.02, 0.3)))
+    with pytest.raises(ValueError, match="ablate"):
+        jax.eval_shape(lambda: rollout(model, state, push, ControllerParams.paper(), 1.0,
+                                       jax.random.PRNGKey(0),
+                                       config=RolloutConfig(duration_s=0.06, ablate=("x",)),
+                                       index=index))
