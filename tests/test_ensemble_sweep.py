@@ -101,13 +101,14 @@ def test_the_ensemble_content_enters_the_hash_and_both_backends_take_it(tmp_path
     assert choose_backend("mjx", spec) == "mjx"
 
 
-def test_the_cpu_spec_parses(tmp_path, monkeypatch):
-    """sweeps/ensemble_cpu.toml, pointed at a 2-member ensemble written here."""
-    monkeypatch.chdir(tmp_path)
-    (tmp_path / "results" / "calibration").mkdir(parents=True)
-    _ensemble(tmp_path / "results" / "calibration" / "ensemble.json")
-    spec = load_spec(ROOT / "sweeps" / "ensemble_cpu.toml")
-    assert spec.ensemble.n == 2 and "robot_id" in spec.records()
+def test_the_shipped_specs_parse(monkeypatch):
+    """sweeps/ensemble_cpu.toml and ensemble_map.toml with the committed 39-member ensemble of
+    results/calibration/expected (paths relative to the repository root)."""
+    monkeypatch.chdir(ROOT)
+    for name in ("ensemble_cpu", "ensemble_map"):
+        spec = load_spec(ROOT / "sweeps" / f"{name}.toml")
+        ids = spec.records()["robot_id"]
+        assert spec.ensemble.n == 39 and ids.min() >= 0 and ids.max() < 39
 
 
 # --- Running: the MJX sweep against each member alone (compiles 3 MJX programs: minutes) ---
