@@ -304,3 +304,21 @@ def test_ensemble_spec_errors():
         _spec({"contact_times_ms": [1]}, {"max_evals": 2})
     with pytest.raises(SpecError, match="search.backend"):
         _spec({}, {"max_evals": 2, "backend": "gpu"})
+
+
+def test_criterion_shortfall_by_hand():
+    """The 'done when' penalty: 0.8 minus the probability of the paper's outcome where
+    positive, plus for the stepping rows P(stand and step against the paper's way)."""
+    from tkujax.studies.calibrate.run import criterion_shortfall
+
+    exp = {"/".join(k): {"p_paper": 1.0} for k in T.ROWS}
+    exp["back/volleyball/on"] = {"p_paper": 0.7, "p_step_wrong_way": 0.0}     # 0.1
+    exp["front/volleyball/on"] = {"p_paper": 0.9, "p_step_wrong_way": 0.5}    # 0 + 0.45
+    exp["front/baseball/on"] = {"p_paper": 0.5}                               # 0.3, no step
+    assert math.isclose(criterion_shortfall(exp, T.ROWS), 0.1 + 0.45 + 0.3)
+    assert math.isclose(criterion_shortfall(exp, T.TABLE4), 0.1)
+    a = _spec({"criterion_weight": 50}, {"max_evals": 2})
+    b = _spec({}, {"max_evals": 2})
+    assert a.criterion_weight == 50 and a.fit_digest() != b.fit_digest()
+    with pytest.raises(SpecError, match="fit.criterion_weight"):
+        _spec({"criterion_weight": -1}, {"max_evals": 2})

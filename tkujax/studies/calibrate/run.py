@@ -33,6 +33,7 @@ from tkujax.studies.calibrate.spec import CalibrateSpec, load_calibrate_spec
 from tkujax.studies.spec import SpecError
 
 OBJECTIVE_ROWS = {"ALL": T.ROWS, "T4": T.TABLE4}
+CRITERION_P = 0.8                     # issue 21: the paper's outcome in >= 80 % of the trials
 FAILED_LOSS = 1e3                     # an invalid candidate (the model refused it): a penalty
 
 # evaluator(x: dict, readings, hit_phases_ms) -> {phase: {reading: {row key: sim dict}}}
@@ -62,19 +63,36 @@ def expected_rows(res: dict, samples, reading: str) -> dict:
             sign = 1.0 if key[0] == "back" else -1.0
             e.update(step_mean_cm=float(np.mean([r["step_cm"] for r in stood])),
                      p_step_paper_way=float(np.mean([sign * r["step_cm"] >= 0.5
+                                                      for r in stood])),
+                     p_step_wrong_way=float(np.mean([sign * r["step_cm"] <= -0.5
                                                       for r in stood])))
         out[_rowkey(key)] = e
     return out
 
 
+def criterion_shortfall(expected: dict, rows) -> float:
+    """The issue's 'done when' as a penalty (sum over `rows`): per row, how far the probability
+    of the paper's fall outcome is below 0.8; for the rows where the paper steps, the
+    probability of standing and stepping (>= 5 mm) *against* the paper's way (every step must
+    go the paper's way; a missing step is the table loss's business)."""
+    total = 0.0
+    for key in rows:
+        e = expected[_rowkey(key)]
+        total += max(0.0, CRITERION_P - e["p_paper"])
+        if T.PAPER_TABLE[key][1] is not None:
+            total += e["p_paper"] * e.get("p_step_wrong_way", 0.0)
+    return total
+
+
 def score(x: dict, readings, hit_phases_ms, evaluator: Evaluator | None = None,
-          results: dict | Exception | None = None) -> dict:
+          results: dict | Exception | None = None, criterion_weight: float = 0.0) -> dict:
     """Simulate candidate x (all names) and score it: the archive record.
 
     hit_phases_ms: the samples (hit phases in ms, or evaluate.Sample with a contact time).
     loss[objective][reading] = mean over samples of (stand-lean penalty + table loss): the
-    expected loss of a trial at an unknown hit phase and contact time. results: the
-    evaluation, already made (a batched backend); None: made here with `evaluator`."""
+    expected loss of a trial at an unknown hit phase and contact time; plus criterion_weight x
+    criterion_shortfall (0: none). results: the evaluation, already made (a batched backend);
+    None: made here with `evaluator`."""
     evaluator = evaluator or E.evaluate_phases
     samples = tuple(hit_phases_ms)
     try:
@@ -92,8 +110,12 @@ def score(x: dict, readings, hit_phases_ms, evaluator: Evaluator | None = None,
         for o, rows in OBJECTIVE_ROWS.items():
             for r in readings:
                 loss[o][r] += (pen + T.table_loss(res[ph][r], rows)[0]) / len(samples)
-    return dict(x=x, loss=loss, stand_penalty=float(np.mean(pens)),
-                expected={r: expected_rows(res, samples, r) for r in readings},
+    expected = {r: expected_rows(res, samples, r) for r in readings}
+    if criterion_weight:
+        for o, rows in OBJECTIVE_ROWS.items():
+            for r in readings:
+                loss[o][r] += criterion_weight * criterion_shortfall(expected[r], rows)
+    return dict(x=x, loss=loss, stand_penalty=float(np.mean(pens)), expected=expected,
                 rows={_phase_key(ph): {r: {_rowkey(k): _compact(v)
                                            for k, v in res[ph][r].items()}
                                        for r in readings} for ph in samples})
@@ -220,7 +242,7 @@ def run_calibrate(spec: CalibrateSpec | str | Path, out: str | Path, *,
         os.environ.setdefault("TKUJAX_CAL_THREADS", "1")   # one MuJoCo thread per worker
         pool = mp.get_context("spawn").Pool(spec.workers)
     scorer = functools.partial(score, readings=spec.readings, hit_phases_ms=spec.samples,
-                               evaluator=evaluator)
+                               evaluator=evaluator, criterion_weight=spec.criterion_weight)
     counts = dict(evals=0, simulated=0)
     t0 = time.time()
 
@@ -319,8 +341,10 @@ def _score_many(spec: CalibrateSpec, xs: list[dict], readings, evaluator: Evalua
         from tkujax.studies.calibrate import evaluate_mjx
         results = evaluate_mjx.evaluate_many(xs, tuple(readings), spec.samples, spec.params,
                                              spec.robots_per_call)
-        return [score(x, readings, spec.samples, results=r) for x, r in zip(xs, results)]
-    return [score(x, readings, spec.samples, evaluator) for x in xs]
+        return [score(x, readings, spec.samples, results=r,
+                      criterion_weight=spec.criterion_weight) for x, r in zip(xs, results)]
+    return [score(x, readings, spec.samples, evaluator, criterion_weight=spec.criterion_weight)
+            for x in xs]
 
 
 def _sensitivities(spec: CalibrateSpec, x: dict, reading: str, objective: str,

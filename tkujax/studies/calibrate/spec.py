@@ -7,6 +7,8 @@ readings = [...]          subset of params.READINGS (default: all): one fit per 
 rows = "all"              "all" (8 rows) or "table4" (pushes from behind only)
 heldout = true            with rows = "all": also fit on Table 4 alone and predict Table 5
 hit_phases_ms = [0]       hit phases after the 30 ms controller tick
+criterion_weight = 0      > 0: add this x the shortfall below 80 % of each row's paper outcome
+                          and the probability of a step against the paper's way (run.py)
 contact_times_ms = [20]   ball contact times (the push's half-sine duration); the loss is the
                           mean over every (hit phase, contact time): an expected loss
 [fit.bounds]              name = [lo, hi]: narrower bounds (never wider than params.py's)
@@ -54,6 +56,7 @@ class CalibrateSpec:
     heldout: bool
     hit_phases_ms: tuple[float, ...]
     contact_times_ms: tuple[float, ...]
+    criterion_weight: float
     budget_s: float | None
     max_evals: int | None
     popsize: int
@@ -88,6 +91,8 @@ class CalibrateSpec:
                    readings=self.readings, hit_phases_ms=self.hit_phases_ms)
         if self.contact_times_ms != (DEFAULT_CONTACT_MS,):   # fits of one contact time: as before
             key["contact_times_ms"] = self.contact_times_ms
+        if self.criterion_weight:
+            key["criterion_weight"] = self.criterion_weight
         return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -118,7 +123,8 @@ def parse_calibrate_spec(data: dict) -> CalibrateSpec:
     _table("top level", data, {"fit", "search", "report"})
     fit = _table("fit", data.get("fit", {}), {"name", "description", "params", "readings",
                                               "rows", "heldout", "hit_phases_ms",
-                                              "contact_times_ms", "bounds", "start"})
+                                              "contact_times_ms", "criterion_weight",
+                                              "bounds", "start"})
     for k in ("name", "description"):
         if k in fit and not isinstance(fit[k], str):
             raise SpecError(f"fit.{k}: expected a string, got {fit[k]!r}")
@@ -144,6 +150,8 @@ def parse_calibrate_spec(data: dict) -> CalibrateSpec:
                         f"[{CONTACT_RANGE_MS[0]:g}, {CONTACT_RANGE_MS[1]:g}] ms, got {contacts!r}")
     contacts = tuple(_number(f"fit.contact_times_ms[{i}]", v, *CONTACT_RANGE_MS, "ms")
                      for i, v in enumerate(contacts))
+
+    criterion = _number("fit.criterion_weight", fit.get("criterion_weight", 0.0), 0.0, 1e4)
 
     bounds = {p.name: (p.lo, p.hi) for p in P.PARAMS}
     for key, value in _table("fit.bounds", fit.get("bounds", {}), P.NAMES).items():
@@ -212,7 +220,8 @@ def parse_calibrate_spec(data: dict) -> CalibrateSpec:
                         f"{'' if tol is not None else ' without ensemble_tolerance'}")
     return CalibrateSpec(name=fit.get("name", "calibrate"), params=names, bounds=bounds,
                          start=start, readings=readings, rows=rows, heldout=heldout,
-                         hit_phases_ms=phases, contact_times_ms=contacts, budget_s=budget,
+                         hit_phases_ms=phases, contact_times_ms=contacts,
+                         criterion_weight=criterion, budget_s=budget,
                          max_evals=max_evals,
                          popsize=popsize, restarts=restarts, workers=workers, seed=seed,
                          sigma0=sigma0, sensitivity=sens, backend=backend,
