@@ -20,12 +20,10 @@ finished.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import platform
 import statistics
 import sys
-import tempfile
 import time
 import traceback
 from pathlib import Path
@@ -37,6 +35,7 @@ import numpy as np
 from tkujax.sim import physics
 from tkujax.sim.setup import init
 from tkujax.control.params import ControllerParams
+from tkujax.studies.compile_cache import fresh_compilation_cache
 from tkujax.studies.provenance import package_versions
 from tkujax.studies.sweep import make_chunk_fn, traced_params
 
@@ -82,27 +81,6 @@ def closed_loop(batch: int, duration_s: float, repeats: int, compiled=None) -> d
     steps = int(round(duration_s / physics.host_model().opt.timestep))
     return dict(batch=batch, duration_s=duration_s, seconds=sec, pushes_per_s=batch / sec,
                 physics_steps_per_s=batch * steps / sec)
-
-
-@contextlib.contextmanager
-def fresh_compilation_cache():
-    """A persistent compilation cache in an empty temporary folder for the block, then the
-    previous one again. JAX reads the cache folder once, at its first compile: the cache is
-    reset on both sides, or the change would be ignored (and "cold" read the old cache)."""
-    from jax.experimental.compilation_cache import compilation_cache as cc
-
-    old_dir = jax.config.jax_compilation_cache_dir
-    old_min = jax.config.jax_persistent_cache_min_compile_time_secs
-    try:
-        with tempfile.TemporaryDirectory() as cache:
-            jax.config.update("jax_compilation_cache_dir", cache)
-            jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
-            cc.reset_cache()
-            yield cache
-    finally:
-        jax.config.update("jax_compilation_cache_dir", old_dir)
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", old_min)
-        cc.reset_cache()
 
 
 def compile_times(batch: int, duration_s: float, keep: dict | None = None) -> dict:

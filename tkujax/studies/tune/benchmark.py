@@ -73,7 +73,7 @@ def gradient_compile_times(batch: int, duration_s: float, remat: bool | str = Tr
     RolloutConfig fields (remat overrides `remat`; unroll_ticks, unroll_substeps). Also the
     time to trace and lower (lower_s, part of the cold figure) and the size of the lowered
     program (hlo_chars), which compile time grows with."""
-    from tkujax.bench import fresh_compilation_cache
+    from tkujax.studies.compile_cache import fresh_compilation_cache
 
     opts = dict(rollout_options or {})
     remat = opts.pop("remat", remat)
