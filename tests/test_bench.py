@@ -27,8 +27,9 @@ def test_bench_end_to_end(tmp_path):
     assert on_disk["versions"]["mujoco"] and on_disk["device"]
     assert [s["name"] for s in on_disk["stages"]] == ["raw_4", "closed_loop_4", "cpu_peer"]
     assert all(s["status"] == "done" and s["wall_s"] > 0 for s in on_disk["stages"])
+    # each wall is rounded to 0.01 s: the sum may pass the total by that much per stage
     assert on_disk["complete"] and on_disk["total_wall_s"] >= sum(
-        s["wall_s"] for s in on_disk["stages"])
+        s["wall_s"] for s in on_disk["stages"]) - 0.01 * len(on_disk["stages"])
     md = out.with_suffix(".md").read_text()
     assert "| 4 |" in md and "CPU peer" in md and "Total wall time" in md
 
