@@ -69,7 +69,7 @@ def select(runs: list[tuple[str, str, int]], only: list[str] | None):
 
 def _write_json(path: Path, obj) -> None:
     """Atomic: a run cut mid-write leaves no half file (which would count as finished)."""
-    tmp = path.with_name(path.name + ".tmp")
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")   # processes may share out_dir
     tmp.write_text(json.dumps(obj, indent=1, default=_default))
     os.replace(tmp, path)
 
