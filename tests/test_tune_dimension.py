@@ -183,6 +183,7 @@ def test_dimension_specs_parse():
     ({"tune": {"schedule": ["accel_gate"], "params": ["accel_gate", "cp_gain"]}},
      "tune.schedule"),
     ({"tune": {"sharpness": 0.0}}, "tune.sharpness"),
+    ({"tune": {"schedule": []}}, r"tune.schedule: study.policies\[1\] = 'sectors2'"),
     ({"study": {"policies": ["scalars", "mlp0"]}}, r"study.policies\[1\]"),
     ({"study": {"methods": ["cma", "adam"]}}, "study.methods"),
     ({"study": {"seeds": [0, 0]}}, "study.seeds"),

@@ -132,15 +132,18 @@ def _parse_tune(data: dict) -> dict:
     if out["popsize"] % 2 == 0:
         raise SpecError(f"tune.popsize: expected an odd number, got {out['popsize']}")
     out["policy"] = _policy("tune.policy", tune.get("policy", "scalars"))
-    schedule = tune.get("schedule", list(DEFAULT_SCHEDULE))
-    if (not isinstance(schedule, list) or not schedule or len(set(schedule)) != len(schedule)
+    # Default: the fields of DEFAULT_SCHEDULE that are tuned (checked non-empty only when a
+    # policy schedules, in parse_tune_spec).
+    schedule = tune.get("schedule", [f for f in DEFAULT_SCHEDULE if f in params])
+    if (not isinstance(schedule, list) or len(set(schedule)) != len(schedule)
             or any(f not in params for f in schedule)):
-        raise SpecError(f"tune.schedule: expected a non-empty list of distinct names from "
+        raise SpecError(f"tune.schedule: expected a list of distinct names from "
                         f"tune.params {list(params)}, got {schedule!r}")
-    try:
-        PolicyReparam.make(Reparam.make(params, out["ranges"]), "sectors4", schedule)
-    except ValueError as e:
-        raise SpecError(f"tune.schedule: {e}") from None
+    if schedule:
+        try:
+            PolicyReparam.make(Reparam.make(params, out["ranges"]), "sectors2", schedule)
+        except ValueError as e:
+            raise SpecError(f"tune.schedule: {e}") from None
     out["schedule"] = tuple(schedule)
     out["sharpness"] = _number("tune.sharpness", tune.get("sharpness", 4.0), 0.1, 100.0)
     return out
@@ -255,7 +258,11 @@ def parse_tune_spec(data: dict) -> TuneSpec:
                     randomize=randomize, **baseline, **evaluate, raw=data, compare=compare,
                     shift=shift, study=study)
     # Start values must lie strictly inside the ranges (their latents are finite).
-    spec.policy_reparam()            # the layout of tune.policy is buildable (checked above)
+    for key, policy in [("tune.policy", spec.policy)] + [
+            (f"study.policies[{i}]", p) for i, p in enumerate((study or {}).get("policies", []))]:
+        if policy != "scalars" and not spec.schedule:
+            raise SpecError(f"tune.schedule: {key} = {policy!r} schedules fields, but none of "
+                            f"tune.params is scheduled (set tune.schedule)")
     rep, start_params = spec.reparam(), spec.base_params()
     for f, (a, b) in rep.user_ranges().items():
         v = float(getattr(start_params, f)) / _user_factor(f)
