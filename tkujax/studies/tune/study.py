@@ -195,8 +195,11 @@ def study_markdown(rows: list[dict], spec=None) -> str:
         if not agg:
             continue
         methods = sorted({m for ms in agg.values() for m in ms})
+        # The start once per policy and seed (every run of a seed evaluates it on the same
+        # pushes).
+        firsts = {(r["policy"], r["seed"]): r for r in rows}
         start = aggregate([dict(r, method="start", **{key: r.get("start_" + key)})
-                           for r in rows], key)
+                           for r in firsts.values()], key)
         lines += [f"## {title}", "", "mean ± sd over seeds (n); start = the hand-designed "
                   "controller on the same pushes.", "",
                   "| policy | n_params | start | " + " | ".join(methods) + " |",
