@@ -265,9 +265,9 @@ def test_study_resumes_and_summarises(tmp_path):
 def test_study_deadline_starts_no_run_that_would_overrun(tmp_path):
     spec = parse_tune_spec(_spec_dict())
     runner = _FakeRunner()
-    # budget 3 s + margin 5 s (x 2 uncompiled) > 10 s: nothing starts.
+    # budget 3 s + margin 5 s + compile 5 s > 10 s: nothing starts.
     rec = run_study(spec, tmp_path, runner=runner, quiet=True, deadline_s=10.0,
-                    compiled=lambda p: False)
+                    compiled=lambda p, m: False)
     assert runner.calls == [] and rec["stopped"] == "scalars-cma-s0"
     rec = run_study(spec, tmp_path, runner=runner, quiet=True, deadline_s=10.0,
                     only=["policy=mlp2", "method=es"])

@@ -307,7 +307,7 @@ def _parse_compare(raw, batch: int) -> dict:
 
 STUDY_FIELDS = {"policies", "methods", "seeds", "budget_s", "popsize", "sigma0", "zo_sigma",
                 "groups", "learning_rate", "temperature_deg", "eval_n", "above_impulse_ns",
-                "sep_cma_from", "margin_s"}
+                "sep_cma_from", "margin_s", "compile_s"}
 
 
 def _parse_study(raw, batch: int) -> dict:
@@ -357,7 +357,8 @@ def _parse_study(raw, batch: int) -> dict:
                                 1e-3, 30.0, "deg"),
         eval_n=_int("study.eval_n", c.get("eval_n", 4 * batch), 1, 10_000_000),
         sep_cma_from=_int("study.sep_cma_from", c.get("sep_cma_from", 64), 1, 1_000_000),
-        margin_s=_number("study.margin_s", c.get("margin_s", 60.0), 0.0, 86400.0, "s"))
+        margin_s=_number("study.margin_s", c.get("margin_s", 60.0), 0.0, 86400.0, "s"),
+        compile_s=_number("study.compile_s", c.get("compile_s", 180.0), 0.0, 86400.0, "s"))
 
 
 def _parse_shift(raw) -> dict:

@@ -7,8 +7,8 @@ Resumable: each finished run writes `runs/<policy>-<method>-s<seed>.json` (atomi
 convergence curve and best latent); a rerun skips the runs whose file exists, so a call cut by a
 device time limit loses only the run it was in. `only` filters select runs ("policy=mlp",
 "method=cma,es", "seed=0"; filters on different keys must all hold), and a deadline starts no
-run that would end after it (the estimate: study.budget_s + study.margin_s, twice the margin
-when the policy's functions are not compiled yet in this process).
+run that would end after it (the estimate: study.budget_s + study.margin_s, plus
+study.compile_s when the run's functions are not compiled yet in this process).
 
 After every run, `summary.json` (one row per finished run: method, policy, n_params, seed,
 heldout_fall, shifted_fall, above_fall, wall_s, ...), `study.md`, `study.png` (held-out fall
@@ -45,9 +45,10 @@ def run_name(policy: str, method: str, seed: int) -> str:
 
 
 def plan(study: dict) -> list[tuple[str, str, int]]:
-    """Every (policy, method, seed), grouped by policy (one compile per policy and process)."""
-    return [(p, m, s) for p in study["policies"] for s in study["seeds"]
-            for m in study["methods"]]
+    """Every (policy, method, seed), grouped by policy, then method: a call that runs several
+    seeds of one method compiles its functions once."""
+    return [(p, m, s) for p in study["policies"] for m in study["methods"]
+            for s in study["seeds"]]
 
 
 def parse_only(only: list[str] | None) -> dict[str, set[str]]:
@@ -89,13 +90,13 @@ Runner = Callable[[str, str, int], dict]
 
 def run_study(spec, out_dir, only: list[str] | None = None, deadline_s: float | None = None,
               quiet: bool = False, compiler_options: dict | None = None,
-              runner: Runner | None = None, compiled: Callable[[str], bool] | None = None
-              ) -> dict:
+              runner: Runner | None = None,
+              compiled: Callable[[str, str], bool] | None = None) -> dict:
     """Run the spec's [study] (the runs not finished yet), then rewrite the summary.
 
     runner(policy, method, seed) -> run record (a dict with at least the summary row's keys);
-    default: the MJX search and evaluation (`StudyRunner`). compiled(policy): whether that
-    policy's functions are already compiled (for the deadline's estimate)."""
+    default: the MJX search and evaluation (`StudyRunner`). compiled(policy, method): whether
+    the functions that run uses are already compiled (for the deadline's estimate)."""
     out = Path(out_dir)
     (out / "runs").mkdir(parents=True, exist_ok=True)
     log = (lambda s: None) if quiet else (lambda s: print(s, file=sys.stderr, flush=True))
@@ -104,7 +105,7 @@ def run_study(spec, out_dir, only: list[str] | None = None, deadline_s: float | 
     if runner is None:
         sr = StudyRunner(spec, log, compiler_options)
         runner, compiled = sr, sr.compiled
-    compiled = compiled or (lambda p: True)
+    compiled = compiled or (lambda p, m: True)
     t0 = time.perf_counter()
     done, skipped, stopped = [], [], None
     for policy, method, seed in todo:
@@ -113,7 +114,8 @@ def run_study(spec, out_dir, only: list[str] | None = None, deadline_s: float | 
         if path.exists():
             skipped.append(name)
             continue
-        est = study["budget_s"] + study["margin_s"] * (1 if compiled(policy) else 2)
+        est = (study["budget_s"] + study["margin_s"]
+               + (0.0 if compiled(policy, method) else study["compile_s"]))
         if deadline_s is not None and time.perf_counter() - t0 + est > deadline_s:
             stopped = name
             log(f"study: stopping before {name}: {time.perf_counter() - t0:.0f} s + ~{est:.0f} "
@@ -268,6 +270,15 @@ def plot_study(out: Path, rows: list[dict], runs: list[dict]) -> None:
     plt.close(fig)
 
 
+def _uses(method: str) -> set[str]:
+    out = {"forward"}
+    if method in ("cma", "sepcma", "hybrid"):
+        out.add("population")
+    if method in ("gradient", "hybrid"):
+        out.add("gradient")
+    return out
+
+
 class StudyRunner:
     """The real runs: one TuneProblem per policy (compiled once per process), run_search, and
     the hard-gate evaluation of the start and the best latent on the evaluation sets."""
@@ -275,10 +286,14 @@ class StudyRunner:
     def __init__(self, spec, log, compiler_options=None):
         self.spec, self.log, self.opts = spec, log, compiler_options
         self.problems: dict = {}
+        self.done: dict[str, set[str]] = {}
         self.base = spec.base_params()
 
-    def compiled(self, policy: str) -> bool:
-        return policy in self.problems
+    def compiled(self, policy: str, method: str) -> bool:
+        """Whether this process has compiled what `method` calls for this policy (run_search
+        compiles the forward, the population call (cma, sepcma, hybrid) and the grouped
+        gradient (gradient, hybrid) before its clock starts)."""
+        return _uses(method) <= self.done.get(policy, set())
 
     def problem(self, policy: str):
         from tkujax.studies.tune.problem import TuneProblem
@@ -334,6 +349,7 @@ class StudyRunner:
             train = sample_pushes(spec, spec.batch, spec.seed + seed)
             keys = jax.random.split(jax.random.PRNGKey(spec.seed + seed), spec.batch)
             r = run_search(m, problem, z0, train, keys, cfg, seed=seed, log=self.log)
+            self.done.setdefault(policy, set()).update(_uses(method))
             row = dict(method=method, policy=policy, n_params=rep.size, seed=seed,
                        cma_variant=variant, budget_s=st["budget_s"],
                        wall_s=r["curve"][-1]["wall_s"], best_loss=r["best_loss"],
