@@ -290,7 +290,13 @@ def _cmd_tune(args) -> int:
     from tkujax.studies.tune import run_tune
 
     record = run_tune(args.spec, args.out, iterations=args.iterations,
-                      compare=not args.no_compare, evaluation=not args.no_eval)
+                      compare=not args.no_compare, evaluation=not args.no_eval,
+                      only=args.only, deadline_s=args.deadline_s)
+    if "summary" in record and "left" in record:          # a [study] spec
+        print(Path(args.out, "study.md").read_text())
+        print(f"study: {len(record['left'])} run(s) left"
+              + (f"; stopped before {record['stopped']}" if record["stopped"] else ""))
+        return 0
     print(Path(args.out, "summary.md").read_text())
     print(f"recommendation: {record['recommendation']['reason']} "
           f"({Path(args.out, 'params_after.json')})")
@@ -526,6 +532,12 @@ def _add_study_commands(sub) -> None:
     p.add_argument("--no-compare", action="store_true",
                    help="skip the spec's [compare] study (methods x seeds at one budget)")
     p.add_argument("--no-eval", action="store_true", help="skip the held-out evaluation")
+    p.add_argument("--only", action="append", default=None, metavar="KEY=V1[,V2]",
+                   help="[study] specs: run only these runs (KEY: policy, method or seed; "
+                        "repeat for AND), e.g. --only policy=mlp --only seed=0,1")
+    p.add_argument("--deadline-s", type=float, default=None,
+                   help="[study] specs: start no run that would end after this many seconds "
+                        "(finished runs are kept; rerun to resume)")
     p.set_defaults(func=_cmd_tune)
 
     p = sub.add_parser("calibrate", help="fit the model's unknown parameters to the paper's "

@@ -45,6 +45,7 @@ from tkujax.control.cpg import _unit_oscillators, cpg_feet, cpg_feet_lateral
 from tkujax.control.kalman import (KalmanState, accel_to_angle, accel_variance, gyro_to_rates,
                                    kalman_init, kalman_step)
 from tkujax.control.params import ControllerParams
+from tkujax.control.policy import Schedule, scheduled_params
 from tkujax.control.solve import solve_legs
 
 # Before a step starts its start time is "far in the future": finite so that sin() of the
@@ -165,11 +166,14 @@ def stand_leg_targets(params: ControllerParams) -> jax.Array:
 
 
 def controller_step(state: ControllerState, sensors: Sensors, params: ControllerParams,
-                    enabled: jax.Array = 1.0, override: StepOverride | None = None
+                    enabled: jax.Array = 1.0, override: StepOverride | None = None,
+                    schedule: Schedule | None = None
                     ) -> tuple[ControllerState, ControllerOutput]:
     """One control period. `enabled` (scalar, 0 or 1) switches the balance strategy on (it
     gates detection and stance feedback). `override`: a commanded step (see `StepOverride`);
-    None = the controller's own."""
+    None = the controller's own. `schedule`: gains and thresholds as functions of the filtered
+    state (`tkujax.control.policy`); None = the fields of `params` (a Python branch at trace
+    time: the program without a schedule is unchanged)."""
     # accel_variance is kalman_r exactly when accel_gate = 0 (the paper's mode).
     kalman = kalman_step(state.kalman, gyro_to_rates(sensors.gyro), accel_to_angle(sensors.accel),
                          params, accel_variance(sensors.accel, params))
@@ -177,6 +181,10 @@ def controller_step(state: ControllerState, sensors: Sensors, params: Controller
     psi = -kalman.phi[..., 1]                            # lateral lean, positive toward +y
     rates = gyro_to_rates(sensors.gyro)
     pitch_rate, psi_rate = rates[..., 0], -rates[..., 1]
+    if schedule is not None:
+        # After the Kalman step (which the schedule cannot change): this period's estimate.
+        params = scheduled_params(schedule, params, phi - params.standing_lean, pitch_rate,
+                                  kalman.phi[..., 1], rates[..., 1])
     enabled = jnp.asarray(enabled, phi.dtype)
     det = _detect(phi, psi, pitch_rate, psi_rate, params)
     # Either detector triggers the (first) step: 1 - (1 - a)(1 - b) is "a or b" for 0/1 gates.

@@ -141,7 +141,8 @@ def _zmp(idx: ModelIndex, d: mjx.Data) -> tuple[jax.Array, jax.Array]:
 def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerParams,
             enabled: jax.Array, key: jax.Array, gyro_noise_std: jax.Array = 0.0,
             accel_noise_std: jax.Array = 0.0, config: RolloutConfig = RolloutConfig(),
-            index: ModelIndex | None = None, override: StepOverride | None = None) -> Series:
+            index: ModelIndex | None = None, override: StepOverride | None = None,
+            schedule=None) -> Series:
     """Simulate one robot under one push with the controller in the loop.
 
     Args:
@@ -152,6 +153,9 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
       config: static settings. index: static model indices (default model when None).
       override: a commanded recovery step (tkujax.control.StepOverride; its onset_s is taken
         from the push); None = the controller's own step.
+      schedule: gains and thresholds as functions of the filtered state
+        (`tkujax.control.policy.Schedule`, traced leaves); None = the plain controller (a
+        Python branch at trace time: the default program is unchanged).
     Returns:
       the Series (tkujax.sim.records), fields (n_ticks, ...), sampled at the end of each
       control period.
@@ -171,6 +175,9 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
     assert np.array_equal(idx.leg_actuators, np.arange(first, first + len(idx.leg_actuators)))
     legs_slice = slice(first, first + len(idx.leg_actuators))
     fixed = config.fixed
+    if fixed is not None and schedule is not None:
+        raise ValueError("scheduled parameters have no fixed-point controller twin; "
+                         "use RolloutConfig(fixed=None)")
     if fixed is not None and override is not None:
         raise ValueError("commanded steps (override) have no fixed-point controller twin; "
                          "use RolloutConfig(fixed=None)")
@@ -207,7 +214,8 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
                 out = ControllerOutput(legs, zero, zero, zero, zero, zero)
             elif fixed is None:
                 ctrl_state, legs, out = control_tick(ctrl_state, gyro, accel, params, enabled,
-                                                     config.quantise_targets, override)
+                                                     config.quantise_targets, override,
+                                                     schedule)
             else:
                 ctrl_state, legs, prev, out = control_tick_fx(ctrl_state, gyro, accel, params,
                                                               enabled, config.quantise_targets,

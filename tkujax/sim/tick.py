@@ -36,13 +36,14 @@ def quantise_targets(q: jax.Array) -> jax.Array:
 
 def control_tick(ctrl_state: ControllerState, gyro: jax.Array, accel: jax.Array,
                  params: ControllerParams, enabled, quantise: bool,
-                 override: StepOverride | None = None):
-    """One controller update for one robot from its (noisy) IMU reading.
+                 override: StepOverride | None = None, schedule=None):
+    """One controller update for one robot from its (noisy) IMU reading. `schedule`: an
+    optional `tkujax.control.policy.Schedule` (None: the plain controller).
 
     Returns (new controller state, leg targets (12,) rad as the servos receive them, the
     controller's output)."""
     ctrl_state, out = controller_step(ctrl_state, Sensors(gyro, accel), params, enabled,
-                                      override)
+                                      override, schedule)
     legs = quantise_targets(out.leg_targets) if quantise else out.leg_targets
     return ctrl_state, legs, out
 

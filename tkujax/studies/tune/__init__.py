@@ -5,6 +5,11 @@ zeroth-order gradients), or the (1+1)-ES baseline; a spec's [compare] runs sever
 over seeds at one wall-clock budget. The result is evaluated with the hard controller on
 held-out (and shifted) pushes.
 
+Parameterisations (`tune.policy`, tkujax.studies.tune.policy): "scalars" (the default: the
+fields of `tune.params`), "sectorsN" and "mlp[H]" (the scalars plus corrections of the
+`tune.schedule` fields as functions of the controller's filtered state, tkujax.control.policy).
+A [study] table runs the dimension study (policies x methods x seeds, tkujax.studies.tune.study).
+
 Tuned (the spec's `tune.params` chooses; ControllerParams field names):
   step_period (T, s), double_support_ratio (gamma), lift_height (H_Sup, m), eps_forward and
   eps_backward (epsilon_1, epsilon_2, rad), and optionally cp_gain, kalman_q, kalman_r.
@@ -65,11 +70,13 @@ from tkujax.studies.tune.loss import LOSS_FIELDS, LossConfig, push_loss
 from tkujax.studies.tune.methods import (evolution_baseline, make_optimizer, optimise,
                                          temperature_schedule)
 from tkujax.studies.tune.benchmark import benchmark_gradient_step
+from tkujax.studies.tune.policy import PolicyReparam, parse_policy
 from tkujax.studies.tune.problem import RECORD_KEYS, TuneProblem
 from tkujax.studies.tune.reparam import (DEFAULT_RANGES, DEFAULT_TUNED, DEG, TUNABLE, Reparam)
 from tkujax.studies.tune.report import summary_markdown
 from tkujax.studies.tune.search import METHODS, SearchConfig, alpha_order_mix, run_search
 from tkujax.studies.tune.run import run_tune
+from tkujax.studies.tune.study import run_study
 from tkujax.studies.tune.spec import (TuneSpec, grid_pushes, load_tune_spec, parse_tune_spec,
                                       sample_pushes)
 
@@ -78,4 +85,4 @@ __all__ = ["DEFAULT_RANGES", "DEFAULT_TUNED", "DEG", "LOSS_FIELDS", "RECORD_KEYS
            "evaluate", "evolution_baseline", "grid_pushes", "load_tune_spec", "make_optimizer",
            "optimise", "params_json", "parse_tune_spec", "push_loss", "run_tune",
            "sample_pushes", "summary_markdown", "temperature_schedule", "METHODS", "SearchConfig",
-           "alpha_order_mix", "run_search"]
+           "alpha_order_mix", "run_search", "PolicyReparam", "parse_policy", "run_study"]

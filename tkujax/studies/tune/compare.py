@@ -52,7 +52,7 @@ def paired(a: np.ndarray, b: np.ndarray) -> tuple[float, float, int]:
 def run_compare(spec: TuneSpec, out: Path, problem: TuneProblem,
                 log: Callable[[str], None] = print) -> dict:
     c = spec.compare
-    reparam, base = spec.reparam(), spec.base_params()
+    reparam, base = spec.policy_reparam(), spec.base_params()
     z0 = reparam.latent_of(base)
     cfg = SearchConfig(budget_s=c["budget_s"], popsize=c["popsize"], sigma0=c["sigma0"],
                        zo_sigma=c["zo_sigma"], groups=c["groups"],

@@ -33,8 +33,10 @@ class TuneProblem:
 
     All jitted functions are traced and called inside this problem's float64 context when
     `float64` is set (the MJX model and state are put on the device in float64 too).
-    `loss(z, temperature, batch, keys)` -> (loss, aux); `value_and_grad` and `forward` are its
-    jitted gradient and forward-only versions (one compile each per batch size).
+    reparam: a Reparam (scalars) or a PolicyReparam (tkujax.studies.tune.policy: scalars plus
+    a state-dependent schedule). `loss(z, temperature, batch, keys)` -> (loss, aux);
+    `value_and_grad` and `forward` are its jitted gradient and forward-only versions (one
+    compile each per batch size).
     """
 
     def __init__(self, reparam: Reparam, base: ControllerParams,
@@ -71,6 +73,9 @@ class TuneProblem:
     def loss(self, z, temperature, batch: dict, keys):
         params = dataclasses.replace(self.reparam.apply(self.base, z),
                                      gate_temperature=temperature)
+        # A PolicyReparam (tune.policy other than "scalars") also schedules some fields on the
+        # filtered state; a plain Reparam has no schedule (the default program).
+        schedule = self.reparam.schedule(z) if hasattr(self.reparam, "schedule") else None
         idx, cfg = self.index, self.loss_cfg
 
         def one(rec, key):
@@ -82,7 +87,7 @@ class TuneProblem:
                                     friction=rec["floor_friction"],
                                     kp_scale=rec["servo_kp_scale"])
             series = rollout(model, self.state, push, params, 1.0, key, rec["gyro_noise_std"],
-                             rec["accel_noise_std"], self.config, idx)
+                             rec["accel_noise_std"], self.config, idx, schedule=schedule)
             out = outcomes(series, push.onset_s)
             return push_loss(series, push.onset_s, cfg), {k: out[k] for k in EVAL_KEYS}
 

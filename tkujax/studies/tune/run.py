@@ -27,11 +27,14 @@ from tkujax.studies.tune.spec import (TuneSpec, grid_pushes, load_tune_spec, par
 
 def run_tune(spec: TuneSpec | dict | str | Path, out_dir: str | Path, quiet: bool = False,
              iterations: int | None = None, compiler_options: dict | None = None,
-             evaluation: bool = True, compare: bool = True) -> dict:
+             evaluation: bool = True, compare: bool = True, only: list[str] | None = None,
+             deadline_s: float | None = None) -> dict:
     """Tune with the spec's method, evaluate, and write the outputs into out_dir.
 
     spec: a TuneSpec, a parsed TOML dict, or a path. iterations overrides tune.iterations.
     compare: also run the spec's [compare] study when it has one. Returns the record.
+    A spec with a [study] table runs the dimension study instead (tkujax.studies.tune.study;
+    only: its run filters, deadline_s: start no run that would end after it).
     """
     if isinstance(spec, dict):
         spec = parse_tune_spec(spec)
@@ -39,6 +42,11 @@ def run_tune(spec: TuneSpec | dict | str | Path, out_dir: str | Path, quiet: boo
         spec = load_tune_spec(spec)
     if iterations is not None:
         spec = dataclasses.replace(spec, iterations=int(iterations))
+    if spec.study is not None:
+        from tkujax.studies.tune.study import run_study
+
+        return run_study(spec, out_dir, only=only, deadline_s=deadline_s, quiet=quiet,
+                         compiler_options=compiler_options)
     with _x64(spec.float64):       # the optimiser's latents in the problem's precision too
         return _run_tune(spec, Path(out_dir), quiet, compiler_options, evaluation, compare)
 
@@ -48,7 +56,7 @@ def _run_tune(spec: TuneSpec, out: Path, quiet: bool, compiler_options: dict | N
     out.mkdir(parents=True, exist_ok=True)
     log = (lambda s: None) if quiet else (lambda s: print(s, file=sys.stderr, flush=True))
     t_start = time.perf_counter()
-    reparam, base = spec.reparam(), spec.base_params()
+    reparam, base = spec.policy_reparam(), spec.base_params()
     z0 = reparam.latent_of(base)
     problem = TuneProblem(reparam, base, spec.loss, spec.duration_s, spec.remat, spec.float64,
                           compiler_options=compiler_options,
@@ -98,6 +106,9 @@ def _run_tune(spec: TuneSpec, out: Path, quiet: bool, compiler_options: dict | N
     chosen = decision["recommended"]
     note = {"recommended_from": ("tuned" if decision["verified"] else "tuned (unchecked)")
             if chosen == "after" else "start"}
+    if reparam.kind != "scalars":      # the schedule has no ControllerParams form
+        (out / "policy.json").write_text(json.dumps(
+            {n: reparam.describe(z) for n, z in cands.items()}, indent=1))
     for name, payload in (("params_before.json", params_json(params["before"].validate())),
                           ("params_tuned.json", params_json(params["after"].validate())),
                           ("params_after.json", params_json(params[chosen].validate()) | note)):

@@ -14,6 +14,7 @@ from tkujax.studies.spec import (CONTROLLER_FIELDS, PUSH_FIELDS, RANDOMIZE_DEFAU
                                  _number, _table, _uniform, _values, controller_value,
                                  parse_randomize, read_toml)
 from tkujax.studies.tune.loss import LOSS_FIELDS, LossConfig
+from tkujax.studies.tune.policy import DEFAULT_SCHEDULE, PolicyReparam, parse_policy
 from tkujax.studies.tune.problem import RECORD_KEYS
 from tkujax.studies.tune.reparam import DEFAULT_TUNED, TUNABLE, Reparam, _user_factor
 from tkujax.studies.tune.search import METHODS
@@ -52,9 +53,18 @@ class TuneSpec:
     popsize: int = 9                                 # CMA-ES population (odd)
     compare: dict | None = None                      # [compare]: methods x seeds, one budget
     shift: dict | None = None                        # [evaluate.shift]: model/push shift
+    policy: str = "scalars"                          # tune.policy (tkujax.studies.tune.policy)
+    schedule: tuple[str, ...] = DEFAULT_SCHEDULE     # tune.schedule: the scheduled fields
+    sharpness: float = 4.0                           # tune.sharpness: sector softmax
+    study: dict | None = None                        # [study]: policies x methods x seeds
 
     def reparam(self) -> Reparam:
         return Reparam.make(self.params, self.ranges)
+
+    def policy_reparam(self, policy: str | None = None) -> PolicyReparam:
+        """The latent layout of tune.policy (or of `policy`): scalars plus a schedule."""
+        return PolicyReparam.make(self.reparam(), policy or self.policy, self.schedule,
+                                  self.sharpness)
 
     def base_params(self) -> ControllerParams:
         return controller_params_from(ControllerParams.paper(), self.controller).validate()
@@ -65,7 +75,7 @@ TUNE_FIELDS = {"name": str, "description": str, "seed": int, "iterations": int, 
                "clip_norm": (int, float), "params": list, "float64": bool, "remat": bool,
                "quantise_targets": bool,
                "anneal": dict, "loss": dict, "ranges": dict, "method": str,
-               "popsize": int}
+               "popsize": int, "policy": str, "schedule": list, "sharpness": (int, float)}
 TUNE_PUSH_FIELDS = set(PUSH_FIELDS) | {"azimuth_jitter_deg"}
 
 
@@ -121,7 +131,30 @@ def _parse_tune(data: dict) -> dict:
     out["popsize"] = _int("tune.popsize", tune.get("popsize", 9), 3, 4096)
     if out["popsize"] % 2 == 0:
         raise SpecError(f"tune.popsize: expected an odd number, got {out['popsize']}")
+    out["policy"] = _policy("tune.policy", tune.get("policy", "scalars"))
+    # Default: the fields of DEFAULT_SCHEDULE that are tuned (checked non-empty only when a
+    # policy schedules, in parse_tune_spec).
+    schedule = tune.get("schedule", [f for f in DEFAULT_SCHEDULE if f in params])
+    if (not isinstance(schedule, list) or len(set(schedule)) != len(schedule)
+            or any(f not in params for f in schedule)):
+        raise SpecError(f"tune.schedule: expected a list of distinct names from "
+                        f"tune.params {list(params)}, got {schedule!r}")
+    if schedule:
+        try:
+            PolicyReparam.make(Reparam.make(params, out["ranges"]), "sectors2", schedule)
+        except ValueError as e:
+            raise SpecError(f"tune.schedule: {e}") from None
+    out["schedule"] = tuple(schedule)
+    out["sharpness"] = _number("tune.sharpness", tune.get("sharpness", 4.0), 0.1, 100.0)
     return out
+
+
+def _policy(key: str, value) -> str:
+    try:
+        parse_policy(value)
+    except ValueError as e:
+        raise SpecError(f"{key}: {e}") from None
+    return value
 
 
 def _parse_ranges(tune: dict) -> dict[str, tuple[float, float]]:
@@ -208,7 +241,7 @@ def _parse_evaluate(ev: dict, seed: int, batch: int, duration: float) -> dict:
 def parse_tune_spec(data: dict) -> TuneSpec:
     """Validate a parsed tune TOML document (SpecError names the key and the allowed range)."""
     _table("top level", data, {"tune", "push", "controller", "randomize", "baseline", "evaluate",
-                               "compare"})
+                               "compare", "study"})
     tune = _parse_tune(data)
     push, jitter = _parse_push(data, tune["duration_s"])
     ctrl_raw = _table("controller", data.get("controller", {}), CONTROLLER_FIELDS)
@@ -220,10 +253,16 @@ def parse_tune_spec(data: dict) -> TuneSpec:
     evaluate = _parse_evaluate(ev, tune["seed"], tune["batch"], tune["duration_s"])
     compare = _parse_compare(data["compare"], tune["batch"]) if "compare" in data else None
     shift = _parse_shift(ev["shift"]) if "shift" in ev else None
+    study = _parse_study(data["study"], tune["batch"]) if "study" in data else None
     spec = TuneSpec(**tune, push=push, azimuth_jitter_deg=jitter, controller=controller,
                     randomize=randomize, **baseline, **evaluate, raw=data, compare=compare,
-                    shift=shift)
+                    shift=shift, study=study)
     # Start values must lie strictly inside the ranges (their latents are finite).
+    for key, policy in [("tune.policy", spec.policy)] + [
+            (f"study.policies[{i}]", p) for i, p in enumerate((study or {}).get("policies", []))]:
+        if policy != "scalars" and not spec.schedule:
+            raise SpecError(f"tune.schedule: {key} = {policy!r} schedules fields, but none of "
+                            f"tune.params is scheduled (set tune.schedule)")
     rep, start_params = spec.reparam(), spec.base_params()
     for f, (a, b) in rep.user_ranges().items():
         v = float(getattr(start_params, f)) / _user_factor(f)
@@ -264,6 +303,62 @@ def _parse_compare(raw, batch: int) -> dict:
         temperature_deg=_number("compare.temperature_deg", c.get("temperature_deg", 0.5),
                                 1e-3, 30.0, "deg"),
         eval_n=_int("compare.eval_n", c.get("eval_n", 4 * batch), 1, 10_000_000))
+
+
+STUDY_FIELDS = {"policies", "methods", "seeds", "budget_s", "popsize", "sigma0", "zo_sigma",
+                "groups", "learning_rate", "temperature_deg", "eval_n", "above_impulse_ns",
+                "sep_cma_from", "margin_s", "compile_s"}
+
+
+def _parse_study(raw, batch: int) -> dict:
+    """[study]: every policy x method x seed at one budget (tkujax.studies.tune.study)."""
+    c = _table("study", raw, STUDY_FIELDS)
+    policies = c.get("policies", ["scalars", "sectors4", "sectors8", "mlp"])
+    if not isinstance(policies, list) or not policies or len(set(policies)) != len(policies):
+        raise SpecError(f"study.policies: expected a list of distinct policy names, "
+                        f"got {policies!r}")
+    for i, p in enumerate(policies):
+        _policy(f"study.policies[{i}]", p)
+    methods = c.get("methods", list(METHODS))
+    if (not isinstance(methods, list) or not methods or any(m not in METHODS for m in methods)
+            or len(set(methods)) != len(methods)):
+        raise SpecError(f"study.methods: expected distinct names from {list(METHODS)}, "
+                        f"got {methods!r}")
+    seeds = c.get("seeds", [0, 1, 2])
+    if not isinstance(seeds, list) or not seeds or len(set(seeds)) != len(seeds) or any(
+            isinstance(x, bool) or not isinstance(x, int) or x < 0 for x in seeds):
+        raise SpecError(f"study.seeds: expected a list of distinct non-negative integers, "
+                        f"got {seeds!r}")
+    groups = _int("study.groups", c.get("groups", 4), 1, 1024)
+    if batch % groups:
+        raise SpecError(f"study.groups: {groups} must divide tune.batch = {batch}")
+    popsize = _int("study.popsize", c.get("popsize", 15), 3, 4096)
+    if popsize % 2 == 0:
+        raise SpecError(f"study.popsize: expected an odd number (centre + antithetic pairs), "
+                        f"got {popsize}")
+    above = c.get("above_impulse_ns")
+    if above is not None:
+        lo, hi, _, unit = PUSH_FIELDS["impulse_ns"]
+        if not (isinstance(above, list) and len(above) == 2):
+            raise SpecError(f"study.above_impulse_ns: expected [lo, hi] in N·s, got {above!r}")
+        a = _number("study.above_impulse_ns[0]", above[0], lo, hi, unit)
+        b = _number("study.above_impulse_ns[1]", above[1], lo, hi, unit)
+        if not a < b:
+            raise SpecError(f"study.above_impulse_ns: lower bound {a} must be below {b}")
+        above = (a, b)
+    return dict(
+        policies=list(policies), methods=list(methods), seeds=list(seeds), groups=groups,
+        popsize=popsize, above_impulse_ns=above,
+        budget_s=_number("study.budget_s", c.get("budget_s", 120.0), 0.1, 86400.0, "s"),
+        sigma0=_number("study.sigma0", c.get("sigma0", 0.5), 1e-3, 10.0, "(latent)"),
+        zo_sigma=_number("study.zo_sigma", c.get("zo_sigma", 0.3), 1e-3, 10.0, "(latent)"),
+        learning_rate=_number("study.learning_rate", c.get("learning_rate", 0.1), 1e-5, 10.0),
+        temperature_deg=_number("study.temperature_deg", c.get("temperature_deg", 0.5),
+                                1e-3, 30.0, "deg"),
+        eval_n=_int("study.eval_n", c.get("eval_n", 4 * batch), 1, 10_000_000),
+        sep_cma_from=_int("study.sep_cma_from", c.get("sep_cma_from", 64), 1, 1_000_000),
+        margin_s=_number("study.margin_s", c.get("margin_s", 60.0), 0.0, 86400.0, "s"),
+        compile_s=_number("study.compile_s", c.get("compile_s", 180.0), 0.0, 86400.0, "s"))
 
 
 def _parse_shift(raw) -> dict:

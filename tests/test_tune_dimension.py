@@ -1,0 +1,305 @@
+"""The dimension study (issue 23): parameterisations of growing size (tkujax.control.policy,
+tkujax.studies.tune.policy), their exact start at the hand-designed controller, the gradient
+with respect to schedule parameters, the [study] spec and its resume logic.
+
+The controller-level checks run the controller alone over a fixed synthetic IMU sequence
+(20 periods, no physics: seconds on a CPU). One `slow` test compiles a tiny MJX batch."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from tkujax.control.controller import Sensors, controller_init, controller_step
+from tkujax.control.params import RECOMMENDED, ControllerParams
+from tkujax.studies.spec import SpecError
+from tkujax.studies.tune import Reparam, parse_tune_spec
+from tkujax.studies.tune.policy import PolicyReparam, parse_policy
+from tkujax.studies.tune.study import parse_only, plan, run_study, select
+from tkujax.studies.spec import read_toml
+
+FIELDS = ("step_period", "cp_gain", "cp_trigger_forward_m", "cp_trigger_backward_m",
+          "stance_ankle_kp", "stance_hip_kp", "stance_roll_kp", "accel_gate")
+RANGES = dict(step_period=(0.1, 0.5), cp_gain=(0.5, 4.0), cp_trigger_backward_m=(0.02, 0.3),
+              stance_ankle_kp=(-0.5, 1.0), stance_hip_kp=(-1.0, 1.0),
+              stance_roll_kp=(-0.5, 1.0))
+SCHEDULE = ("cp_gain", "stance_ankle_kp", "stance_hip_kp", "stance_roll_kp")
+POLICIES = ("scalars", "sectors4", "sectors8", "mlp")
+
+
+def _rep(policy: str) -> PolicyReparam:
+    return PolicyReparam.make(Reparam.make(FIELDS, RANGES), policy, SCHEDULE)
+
+
+def _imu(n=20, seed=0):
+    """A forward-and-sideways fall as the IMU would report it, with noise."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n)
+    gyro = np.stack([0.8 + 0.3 * np.sin(t), -0.4 + 0.2 * np.cos(t), 0.0 * t], -1)
+    gyro = gyro + rng.normal(0, 0.1, (n, 3))
+    accel = np.array([0.0, 0.0, 9.81]) + rng.normal(0, 0.5, (n, 3))
+    return jnp.asarray(gyro), jnp.asarray(accel)
+
+
+def _targets(rep: PolicyReparam, base, z, scheduled=True, dtype=jnp.float32):
+    """(n, 12) leg targets of the controller alone over the synthetic IMU sequence."""
+    gyro, accel = _imu()
+    params = rep.apply(base, z)
+    schedule = rep.schedule(z) if scheduled else None
+    state = controller_init(params, dtype)
+
+    def body(s, x):
+        s, out = controller_step(s, Sensors(x[0].astype(dtype), x[1].astype(dtype)), params,
+                                 1.0, None, schedule)
+        return s, out.leg_targets
+
+    return jax.lax.scan(body, state, (gyro, accel))[1]
+
+
+def test_parse_policy_names():
+    assert parse_policy("scalars") == ("scalars", 0)
+    assert parse_policy("sectors3") == ("sectors", 3)
+    assert parse_policy("mlp") == ("mlp", 8)
+    assert parse_policy("mlp16") == ("mlp", 16)
+    for bad in ("sectors1", "sectors17", "mlp0", "mlp65", "tables", 4):
+        with pytest.raises(ValueError):
+            parse_policy(bad)
+
+
+def test_sizes_and_latent_round_trip():
+    base = ControllerParams.recommended()
+    k, F = len(FIELDS), len(SCHEDULE)
+    expect = {"scalars": k, "sectors4": k + 4 * F, "sectors8": k + 8 * F,
+              "mlp": k + 5 * 8 + 9 * F}
+    for policy in POLICIES:
+        rep = _rep(policy)
+        assert rep.size == expect[policy]
+        z0 = rep.latent_of(base)
+        assert z0.shape == (rep.size,)
+        # The scalar part round-trips to the recommended values.
+        np.testing.assert_allclose(rep.values_np(z0), [getattr(base, f) for f in FIELDS],
+                                   rtol=1e-12, atol=1e-15)
+        z = np.random.default_rng(1).normal(size=rep.size).astype(np.float32).astype(float)
+        assert rep.describe(z)["latent"] == z.tolist()
+        sched = rep.schedule(jnp.asarray(z))
+        if policy == "scalars":
+            assert sched is None
+            continue
+        assert sched.fields == SCHEDULE
+        np.testing.assert_array_equal(np.asarray(sched.z_base),
+                                      z[[FIELDS.index(f) for f in SCHEDULE]])
+        if policy.startswith("sectors"):
+            np.testing.assert_array_equal(np.asarray(sched.table).ravel(), z[k:])
+            # At the start every correction is exactly zero.
+            assert not np.any(z0[k:])
+        else:
+            parts = [sched.w1, sched.b1, sched.w2, sched.b2]
+            np.testing.assert_array_equal(np.concatenate([np.ravel(p) for p in parts]), z[k:])
+            s0 = rep.schedule(jnp.asarray(z0))
+            assert not np.any(np.asarray(s0.w2)) and not np.any(np.asarray(s0.b2))
+            assert np.any(np.asarray(s0.w1))                # a live hidden layer
+
+
+def test_scheduled_fields_must_be_tuned_and_schedulable():
+    with pytest.raises(ValueError, match="must be tuned too"):
+        PolicyReparam.make(Reparam.make(FIELDS, RANGES), "sectors4", ("lift_height",))
+    with pytest.raises(ValueError, match="cannot schedule 'accel_gate'"):
+        PolicyReparam.make(Reparam.make(FIELDS, RANGES), "sectors4", ("accel_gate",))
+
+
+@pytest.mark.parametrize("policy", POLICIES[1:])
+def test_start_reproduces_the_unscheduled_controller(policy):
+    """At the start latent the scheduled controller is the plain one: within float32 rounding
+    (the two programs fuse differently; measured <= 1 ulp, 7.5e-9 rad), and after a change of
+    a schedule parameter it is not."""
+    base = ControllerParams.recommended()
+    rep = _rep(policy)
+    z0 = jnp.asarray(rep.latent_of(base), jnp.float32)
+    plain = jax.jit(lambda z: _targets(rep, base, z, scheduled=False))(z0)
+    sched = jax.jit(lambda z: _targets(rep, base, z))(z0)
+    np.testing.assert_allclose(np.asarray(sched), np.asarray(plain), rtol=0, atol=1e-7)
+    j = SCHEDULE.index("stance_ankle_kp")    # sector 0's correction / an MLP output weight
+    z1 = z0.at[rep.k + (j if policy.startswith("sectors") else 5 * rep.width + j)].add(2.0)
+    moved = jax.jit(lambda z: _targets(rep, base, z))(z1)
+    assert float(jnp.max(jnp.abs(moved - plain))) > 1e-4
+
+
+@pytest.mark.parametrize("policy", ["sectors4", "mlp"])
+def test_schedule_gradient_matches_finite_differences(policy):
+    """d(sum of weighted leg targets)/d(one schedule parameter): jax.grad against central
+    differences (float64, h = 1e-6; tolerance 1e-5 relative) on the controller alone. The
+    parameter is an ankle-pitch gain correction (smooth: the stance feedback) in a sector the
+    fall points into, or the MLP output weight of that gain."""
+    base = ControllerParams.recommended()
+    rep = _rep(policy)
+    F = len(SCHEDULE)
+    j = SCHEDULE.index("stance_ankle_kp")
+    i = rep.k + (j if policy == "sectors4" else 5 * rep.width + 2 * F + j)
+    w = jnp.linspace(0.5, 1.5, 12)
+    with jax.enable_x64(True):
+        z0 = jnp.asarray(rep.latent_of(base), jnp.float64)
+        if policy == "mlp":
+            z0 = z0.at[rep.k + 5 * rep.width:].set(0.05)    # away from the all-zero start
+
+        def f(zi):
+            z = z0.at[i].set(zi)
+            return jnp.sum(_targets(rep, base, z, dtype=jnp.float64) * w)
+
+        g = float(jax.jit(jax.grad(f))(z0[i]))
+        h = 1e-6
+        fd = float((jax.jit(f)(z0[i] + h) - jax.jit(f)(z0[i] - h)) / (2 * h))
+    assert abs(g) > 1e-6, g
+    assert abs(g - fd) <= 1e-5 * abs(fd), (g, fd)
+
+
+# --- The spec ---------------------------------------------------------------------------------
+
+def _spec_dict() -> dict:
+    return read_toml("sweeps/tune_dimension_cpu.toml")
+
+
+def test_dimension_specs_parse():
+    spec = parse_tune_spec(read_toml("sweeps/tune_dimension.toml"))
+    sizes = [spec.policy_reparam(p).size for p in spec.study["policies"]]
+    assert max(sizes) >= 64 and len(set(sizes)) >= 3
+    assert set(spec.study["methods"]) == {"cma", "gradient", "hybrid", "es"}
+    assert len(spec.study["seeds"]) >= 3 and spec.study["budget_s"] >= 120
+    # It starts at the recommended controller.
+    base = spec.base_params()
+    for k, v in RECOMMENDED.items():
+        assert float(getattr(base, k)) == v, k
+    small = parse_tune_spec(_spec_dict())
+    assert small.study["budget_s"] <= 5
+
+
+@pytest.mark.parametrize("patch, match", [
+    ({"tune": {"policy": "sectors1"}}, "tune.policy"),
+    ({"tune": {"schedule": ["lift_height"]}}, "tune.schedule"),
+    ({"tune": {"schedule": ["accel_gate"], "params": ["accel_gate", "cp_gain"]}},
+     "tune.schedule"),
+    ({"tune": {"sharpness": 0.0}}, "tune.sharpness"),
+    ({"tune": {"schedule": []}}, r"tune.schedule: study.policies\[1\] = 'sectors2'"),
+    ({"study": {"policies": ["scalars", "mlp0"]}}, r"study.policies\[1\]"),
+    ({"study": {"methods": ["cma", "adam"]}}, "study.methods"),
+    ({"study": {"seeds": [0, 0]}}, "study.seeds"),
+    ({"study": {"groups": 3}}, "study.groups"),
+    ({"study": {"popsize": 4}}, "study.popsize"),
+    ({"study": {"budget_s": -1.0}}, "study.budget_s"),
+    ({"study": {"above_impulse_ns": [3.0, 2.0]}}, "study.above_impulse_ns"),
+    ({"study": {"bogus": 1}}, "unknown key"),
+])
+def test_spec_validation_names_the_key(patch, match):
+    data = _spec_dict()
+    for table, values in patch.items():
+        data[table] = {**data[table], **values}
+    with pytest.raises(SpecError, match=match):
+        parse_tune_spec(data)
+
+
+# --- The study's bookkeeping, with a stand-in runner --------------------------------------------
+
+def test_only_filters():
+    runs = plan(dict(policies=["scalars", "mlp"], methods=["cma", "es"], seeds=[0, 1]))
+    assert len(runs) == 8
+    assert select(runs, ["policy=mlp", "seed=1"]) == [("mlp", "cma", 1), ("mlp", "es", 1)]
+    assert len(select(runs, ["method=cma,es"])) == 8
+    with pytest.raises(ValueError, match="KEY"):
+        parse_only(["colour=red"])
+
+
+class _FakeRunner:
+    """Stand-in for the MJX runs: a row from the names; optionally dies on one run (a device
+    time limit cutting a call)."""
+
+    def __init__(self, die_on=None):
+        self.calls, self.die_on = [], die_on
+
+    def __call__(self, policy, method, seed):
+        if (policy, method, seed) == self.die_on:
+            raise KeyboardInterrupt("cut")
+        self.calls.append((policy, method, seed))
+        n = {"scalars": 6, "sectors2": 10, "mlp2": 22}[policy]
+        fall = 0.1 + 0.01 * seed + (0.05 if method == "es" else 0.0)
+        return dict(method=method, policy=policy, n_params=n, seed=seed, heldout_fall=fall,
+                    shifted_fall=fall + 0.02, above_fall=fall + 0.3,
+                    start_heldout_fall=0.2, start_shifted_fall=0.22, start_above_fall=0.5,
+                    wall_s=3.0, budget_s=3.0, best_loss=1.0, start_loss=2.0, iterations=4,
+                    compile_s=0.1, cma_variant=None, device="fake",
+                    curve=[dict(wall_s=0.0, pushes=4, best_loss=2.0),
+                           dict(wall_s=3.0, pushes=8, best_loss=1.0)], z_best=[0.0] * n)
+
+
+def test_study_resumes_and_summarises(tmp_path):
+    spec = parse_tune_spec(_spec_dict())
+    n_runs = len(plan(spec.study))
+    die = ("sectors2", "gradient", 0)
+    first = _FakeRunner(die_on=die)
+    with pytest.raises(KeyboardInterrupt):
+        run_study(spec, tmp_path, runner=first, quiet=True)
+    done_first = len(first.calls)
+    assert done_first == 4 + 1            # every scalars run, then sectors2-cma, then the cut
+    rows = json.loads((tmp_path / "summary.json").read_text())
+    assert len(rows) == done_first
+    assert not list((tmp_path / "runs").glob("*.tmp"))
+    second = _FakeRunner()
+    rec = run_study(spec, tmp_path, runner=second, quiet=True)
+    assert die in second.calls and not set(first.calls) & set(second.calls)
+    assert len(rec["skipped"]) == done_first and rec["left"] == []
+    rows = json.loads((tmp_path / "summary.json").read_text())
+    assert len(rows) == n_runs
+    assert {"method", "n_params", "seed", "heldout_fall", "wall_s"} <= set(rows[0])
+    assert [r["n_params"] for r in rows] == sorted(r["n_params"] for r in rows)
+    md = (tmp_path / "study.md").read_text()
+    assert "| 22 | cma |" in md or "| 22 | gradient |" in md    # a method per size
+    assert (tmp_path / "study.png").exists() and (tmp_path / "convergence.png").exists()
+    third = _FakeRunner()
+    run_study(spec, tmp_path, runner=third, quiet=True)
+    assert third.calls == []
+
+
+def test_study_deadline_starts_no_run_that_would_overrun(tmp_path):
+    spec = parse_tune_spec(_spec_dict())
+    runner = _FakeRunner()
+    # budget 3 s + margin 5 s + compile 5 s > 10 s: nothing starts.
+    rec = run_study(spec, tmp_path, runner=runner, quiet=True, deadline_s=10.0,
+                    compiled=lambda p, m: False)
+    assert runner.calls == [] and rec["stopped"] == "scalars-cma-s0"
+    rec = run_study(spec, tmp_path, runner=runner, quiet=True, deadline_s=10.0,
+                    only=["policy=mlp2", "method=es"])
+    assert runner.calls == [("mlp2", "es", 0)] and rec["stopped"] is None
+
+
+@pytest.mark.slow
+def test_mjx_start_reproduces_the_recommended_controller():
+    """A tiny MJX batch (the CPU smoke spec's 4 pushes x 0.6 s, so the persistent XLA cache of a
+    smoke run serves it): the sectors and MLP policies at their start give the outcomes of the
+    scalar parameterisation of ControllerParams.recommended() (measured: bit-equal losses;
+    asserted: outcomes equal, losses within 1e-6 relative); the scalar one runs the values of
+    recommended() up to the float32 rounding of their latents (asserted on the values)."""
+    from tkujax.studies.tune import TuneProblem
+    from tkujax.studies.tune.spec import sample_pushes
+
+    spec = parse_tune_spec(_spec_dict())
+    base = ControllerParams.recommended()
+    batch = sample_pushes(spec, spec.batch, spec.seed)
+    keys = jax.random.split(jax.random.PRNGKey(spec.seed), spec.batch)
+    losses, outs = {}, {}
+    for policy in ("scalars", "sectors2", "mlp2"):
+        rep = spec.policy_reparam(policy)
+        prob = TuneProblem(rep, base, spec.loss, spec.duration_s, spec.remat,
+                           quantise_targets=spec.quantise_targets)
+        losses[policy], aux = prob.forward(rep.latent_of(base), 0.0, batch, keys)
+        outs[policy] = aux["outcomes"]
+    rep = spec.policy_reparam("scalars")
+    vals = np.asarray(rep.values(jnp.asarray(rep.latent_of(base), jnp.float32)))
+    np.testing.assert_allclose(vals, [getattr(base, f) for f in rep.fields], rtol=2e-6)
+    for policy in ("sectors2", "mlp2"):
+        assert math.isclose(losses[policy], losses["scalars"], rel_tol=1e-6)
+        np.testing.assert_array_equal(outs[policy]["fell"], outs["scalars"]["fell"])
+        np.testing.assert_allclose(outs[policy]["peak_incl_deg"],
+                                   outs["scalars"]["peak_incl_deg"], rtol=1e-3)

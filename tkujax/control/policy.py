@@ -1,0 +1,131 @@
+"""Scheduled controller parameters: gains and thresholds that depend on the filtered state.
+
+A `Schedule` (optional, `controller_step(..., schedule=...)`; None = the controller of
+`ControllerParams` alone, whose program it leaves unchanged: a Python branch on None at trace
+time) replaces some ControllerParams fields each control period by a value computed from what
+the controller itself estimates: its filtered pitch deviation from the standing lean, its
+filtered roll and the gyro rates. Never from the push's true azimuth, which a robot does not know.
+
+Each scheduled field f is kept in its range [lo, hi] by the tuner's sigmoid map
+(`tkujax.studies.tune.reparam.Reparam.values`) of a latent value
+
+    z_f(state) = z_base_f + offset_f(state)
+
+where z_base_f is the latent of the scalar value and offset_f the schedule's correction:
+
+  sectors  offset = sum_s w_s(state) table[s, f]: one correction per push-direction sector,
+           blended by softmax weights w_s = softmax(sharpness * cos(theta - c_s)) with the
+           direction theta of the rate-aware capture point estimate (pitch deviation + rate *
+           sqrt(h/g), lateral lean + rate * sqrt(h/g)), sector centres c_s = 2 pi s / S
+           (s = 0: leaning forward, i.e. pushed from behind; counter-clockwise: toward +y). The
+           cosine is taken against a smoothed norm sqrt(|v|^2 + eps^2), so it tends to 0 at rest
+           (uniform weights) and the schedule stays differentiable everywhere.
+  mlp      offset = tanh(x W1 + b1) W2 + b2, x = [pitch deviation / 0.1 rad, pitch rate / 1
+           rad/s, roll / 0.1 rad, roll rate / 1 rad/s].
+
+With table = 0 (sectors) or W2 = b2 = 0 (mlp) every offset is exactly 0.0, z_f = z_base_f
+bit for bit, and the controller is exactly the unscheduled one with the scalar values.
+
+Not schedulable (`UNSCHEDULABLE`): the Kalman filter's noises and accelerometer gate (the
+filter runs before the state is known), the control period, the switches and the geometry.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+
+from tkujax.control.params import ControllerParams
+
+UNSCHEDULABLE = frozenset({"kalman_q", "kalman_r", "accel_gate", "control_period", "cp_excess",
+                           "lateral_steps", "cp_trigger", "max_steps", "gravity",
+                           "hip_offset_y", "hip_to_ankle_z", "thigh_length", "calf_length",
+                           "leg_length", "com_height", "gate_temperature", "standing_lean"})
+# Input scales of the MLP (rad, rad/s): pitch deviation, pitch rate, roll, roll rate.
+MLP_INPUT_SCALE = (0.1, 1.0, 0.1, 1.0)
+DIRECTION_EPS_RAD = 0.02
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class Schedule:
+    """kind: "sectors" or "mlp" (static). fields, lo, hi, log: the scheduled ControllerParams
+    fields and their SI ranges (static; log: the sigmoid interpolates log10). sharpness: the
+    sector softmax's inverse temperature (static). Data: z_base (F,); table (S, F) for
+    "sectors"; w1 (4, H), b1 (H,), w2 (H, F), b2 (F,) for "mlp" (None otherwise)."""
+
+    z_base: jax.Array
+    table: jax.Array | None = None
+    w1: jax.Array | None = None
+    b1: jax.Array | None = None
+    w2: jax.Array | None = None
+    b2: jax.Array | None = None
+    kind: str = dataclasses.field(default="sectors", metadata=dict(static=True))
+    fields: tuple[str, ...] = dataclasses.field(default=(), metadata=dict(static=True))
+    lo: tuple[float, ...] = dataclasses.field(default=(), metadata=dict(static=True))
+    hi: tuple[float, ...] = dataclasses.field(default=(), metadata=dict(static=True))
+    log: tuple[bool, ...] = dataclasses.field(default=(), metadata=dict(static=True))
+    sharpness: float = dataclasses.field(default=4.0, metadata=dict(static=True))
+
+
+def sector_weights(v_pitch, v_lat, n_sectors: int, sharpness: float) -> jax.Array:
+    """(..., S) softmax weights of the direction of (v_pitch, v_lat) against S sector centres."""
+    norm = jnp.sqrt(v_pitch * v_pitch + v_lat * v_lat + DIRECTION_EPS_RAD ** 2)
+    c = jnp.asarray([math.cos(2 * math.pi * s / n_sectors) for s in range(n_sectors)],
+                    v_pitch.dtype)
+    s = jnp.asarray([math.sin(2 * math.pi * s / n_sectors) for s in range(n_sectors)],
+                    v_pitch.dtype)
+    cos = (v_pitch[..., None] * c + v_lat[..., None] * s) / norm[..., None]
+    return jax.nn.softmax(sharpness * cos, axis=-1)
+
+
+def schedule_offsets(schedule: Schedule, pitch_dev, pitch_rate, roll, roll_rate,
+                     params: ControllerParams) -> jax.Array:
+    """(F,) latent offsets of the scheduled fields in this state."""
+    dtype = jnp.result_type(pitch_dev.dtype, float)
+    if schedule.kind == "sectors":
+        tau = jnp.sqrt(params.com_height / params.gravity)      # 1 / omega of the LIP
+        psi, psi_rate = -roll, -roll_rate                        # lateral lean toward +y
+        w = sector_weights(pitch_dev + tau * pitch_rate, psi + tau * psi_rate,
+                           schedule.table.shape[0], schedule.sharpness)
+        return w @ schedule.table.astype(dtype)
+    if schedule.kind == "mlp":
+        x = jnp.stack([pitch_dev, pitch_rate, roll, roll_rate], -1) / jnp.asarray(
+            MLP_INPUT_SCALE, dtype)
+        h = jnp.tanh(x @ schedule.w1.astype(dtype) + schedule.b1.astype(dtype))
+        return h @ schedule.w2.astype(dtype) + schedule.b2.astype(dtype)
+    raise ValueError(f"Schedule.kind must be 'sectors' or 'mlp', got {schedule.kind!r}")
+
+
+def latent_to_values(z, lo, hi, log) -> jax.Array:
+    """The tuner's bounded map (identical arithmetic to `Reparam.values`)."""
+    z = jnp.asarray(z)
+    dtype = jnp.result_type(z.dtype, float)
+    blo = jnp.asarray([math.log10(v) if g else v for v, g in zip(lo, log)], dtype)
+    bhi = jnp.asarray([math.log10(v) if g else v for v, g in zip(hi, log)], dtype)
+    u = jax.nn.sigmoid(z.astype(dtype))
+    x = blo * (1.0 - u) + bhi * u
+    x = jnp.where(jnp.asarray(log), jnp.power(10.0, x), x)
+    return jnp.clip(x, jnp.asarray(lo, dtype), jnp.asarray(hi, dtype))
+
+
+def scheduled_params(schedule: Schedule, params: ControllerParams, pitch_dev, pitch_rate, roll,
+                     roll_rate) -> ControllerParams:
+    """params with the scheduled fields replaced by their values in this state.
+
+    Written as value + (map(z_base + offset) - map(z_base)): mathematically map(z_base +
+    offset), and with a zero offset the difference is exactly 0.0, so the field keeps the bits
+    of params (which the tuner computed as map(z_base) in another fusion) while the gradient
+    with respect to the offset and z_base is the map's."""
+    off = schedule_offsets(schedule, pitch_dev, pitch_rate, roll, roll_rate, params)
+    z_base = schedule.z_base.astype(off.dtype)
+    v = (latent_to_values(z_base + off, schedule.lo, schedule.hi, schedule.log)
+         - latent_to_values(z_base, schedule.lo, schedule.hi, schedule.log))
+    lo = jnp.asarray(schedule.lo, off.dtype)
+    hi = jnp.asarray(schedule.hi, off.dtype)
+    return dataclasses.replace(params, **{
+        f: jnp.clip(jnp.asarray(getattr(params, f), off.dtype) + v[..., i], lo[i], hi[i])
+        for i, f in enumerate(schedule.fields)})

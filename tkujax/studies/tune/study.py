@@ -1,0 +1,368 @@
+"""`[study]`: the dimension study. Every parameterisation (`study.policies`, growing size) x
+search method x seed at one wall-clock budget per run, evaluated on held-out pushes of the
+training distribution, on the shifted set ([evaluate.shift]) and above the training impulses
+(`study.above_impulse_ns`).
+
+Resumable: each finished run writes `runs/<policy>-<method>-s<seed>.json` (atomically, with its
+convergence curve and best latent); a rerun skips the runs whose file exists, so a call cut by a
+device time limit loses only the run it was in. `only` filters select runs ("policy=mlp",
+"method=cma,es", "seed=0"; filters on different keys must all hold), and a deadline starts no
+run that would end after it (the estimate: study.budget_s + study.margin_s, plus
+study.compile_s when the run's functions are not compiled yet in this process).
+
+After every run, `summary.json` (one row per finished run: method, policy, n_params, seed,
+heldout_fall, shifted_fall, above_fall, wall_s, ...), `study.md`, `study.png` (held-out fall
+rate against parameter count per method) and `convergence.png` (best hard training loss
+against wall time, one panel per policy) are rewritten from all run files present.
+
+Seeds as in [compare]: training batch tune.seed + s, held-out evaluate.seed + s, shifted
+evaluate.seed + 1000 + s, above the training range evaluate.seed + 2000 + s. Each run also
+reports the start (the hand-designed controller, which every parameterisation reproduces at
+its start latent) on the same pushes, so differences are paired.
+
+`method = "cma"` runs separable CMA-ES (`sepcma`) from `study.sep_cma_from` parameters on; the
+row keeps method "cma" and says which in `cma_variant`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+RUN_KEYS = ("policy", "method", "seed")
+
+
+def run_name(policy: str, method: str, seed: int) -> str:
+    return f"{policy}-{method}-s{seed}"
+
+
+def plan(study: dict) -> list[tuple[str, str, int]]:
+    """Every (policy, method, seed), grouped by policy, then method: a call that runs several
+    seeds of one method compiles its functions once."""
+    return [(p, m, s) for p in study["policies"] for m in study["methods"]
+            for s in study["seeds"]]
+
+
+def parse_only(only: list[str] | None) -> dict[str, set[str]]:
+    """["policy=mlp,sectors8", "seed=0"] -> {"policy": {...}, "seed": {"0"}}."""
+    out: dict[str, set[str]] = {}
+    for item in only or []:
+        key, sep, values = item.partition("=")
+        key = key.strip()
+        if not sep or key not in RUN_KEYS or not values.strip():
+            raise ValueError(f"--only {item!r}: expected KEY=V1[,V2...] with KEY in {RUN_KEYS}")
+        out.setdefault(key, set()).update(v.strip() for v in values.split(",") if v.strip())
+    return out
+
+
+def select(runs: list[tuple[str, str, int]], only: list[str] | None):
+    f = parse_only(only)
+    return [r for r in runs if all(str(dict(zip(RUN_KEYS, r))[k]) in v for k, v in f.items())]
+
+
+def _write_json(path: Path, obj) -> None:
+    """Atomic: a run cut mid-write leaves no half file (which would count as finished)."""
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")   # processes may share out_dir
+    tmp.write_text(json.dumps(obj, indent=1, default=_default))
+    os.replace(tmp, path)
+
+
+def _default(x):
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, (np.floating, np.integer)):
+        return x.item()
+    if isinstance(x, tuple):
+        return list(x)
+    return str(x)
+
+
+Runner = Callable[[str, str, int], dict]
+
+
+def run_study(spec, out_dir, only: list[str] | None = None, deadline_s: float | None = None,
+              quiet: bool = False, compiler_options: dict | None = None,
+              runner: Runner | None = None,
+              compiled: Callable[[str, str], bool] | None = None) -> dict:
+    """Run the spec's [study] (the runs not finished yet), then rewrite the summary.
+
+    runner(policy, method, seed) -> run record (a dict with at least the summary row's keys);
+    default: the MJX search and evaluation (`StudyRunner`). compiled(policy, method): whether
+    the functions that run uses are already compiled (for the deadline's estimate)."""
+    out = Path(out_dir)
+    (out / "runs").mkdir(parents=True, exist_ok=True)
+    log = (lambda s: None) if quiet else (lambda s: print(s, file=sys.stderr, flush=True))
+    study = spec.study
+    todo = select(plan(study), only)
+    if runner is None:
+        sr = StudyRunner(spec, log, compiler_options)
+        runner, compiled = sr, sr.compiled
+    compiled = compiled or (lambda p, m: True)
+    t0 = time.perf_counter()
+    done, skipped, stopped = [], [], None
+    for policy, method, seed in todo:
+        name = run_name(policy, method, seed)
+        path = out / "runs" / f"{name}.json"
+        if path.exists():
+            skipped.append(name)
+            continue
+        est = (study["budget_s"] + study["margin_s"]
+               + (0.0 if compiled(policy, method) else study["compile_s"]))
+        if deadline_s is not None and time.perf_counter() - t0 + est > deadline_s:
+            stopped = name
+            log(f"study: stopping before {name}: {time.perf_counter() - t0:.0f} s + ~{est:.0f} "
+                f"s would pass the deadline of {deadline_s:g} s (rerun to resume)")
+            break
+        log(f"study: {name} (budget {study['budget_s']:g} s) ...")
+        rec = runner(policy, method, seed)
+        _write_json(path, rec)
+        done.append(name)
+        write_summary(out, spec)
+    summary = write_summary(out, spec)
+    left = [run_name(*r) for r in plan(study)
+            if not (out / "runs" / f"{run_name(*r)}.json").exists()]
+    log(f"study: {len(done)} run(s) done now, {len(skipped)} already done, "
+        f"{len(left)} of {len(plan(study))} left" + (f" (stopped before {stopped})"
+                                                     if stopped else ""))
+    return dict(summary=summary, done=done, skipped=skipped, left=left, stopped=stopped)
+
+
+ROW_KEYS = ("method", "policy", "n_params", "seed", "heldout_fall", "shifted_fall",
+            "above_fall", "start_heldout_fall", "start_shifted_fall", "start_above_fall",
+            "wall_s", "budget_s", "best_loss", "start_loss", "iterations", "compile_s",
+            "cma_variant", "device")
+
+
+def load_runs(out: Path) -> list[dict]:
+    runs = []
+    for p in sorted((Path(out) / "runs").glob("*.json")):
+        try:
+            runs.append(json.loads(p.read_text()))
+        except json.JSONDecodeError:      # never written atomically by this module
+            continue
+    return runs
+
+
+def write_summary(out: Path, spec=None) -> list[dict]:
+    """summary.json (rows of every finished run), study.md and the plots."""
+    out = Path(out)
+    runs = load_runs(out)
+    rows = sorted(({k: r.get(k) for k in ROW_KEYS} for r in runs),
+                  key=lambda r: (r["n_params"], r["method"], r["seed"]))
+    _write_json(out / "summary.json", rows)
+    (out / "study.md").write_text(study_markdown(rows, spec))
+    if runs:
+        plot_study(out, rows, runs)
+    return rows
+
+
+def aggregate(rows: list[dict], key: str = "heldout_fall") -> dict:
+    """{(n_params, policy): {method: (mean, sd, n)}} over seeds."""
+    agg: dict = {}
+    for r in rows:
+        v = r.get(key)
+        if v is None or not math.isfinite(v):
+            continue
+        agg.setdefault((r["n_params"], r["policy"]), {}).setdefault(r["method"], []).append(v)
+    return {k: {m: (float(np.mean(v)), float(np.std(v, ddof=1)) if len(v) > 1 else 0.0,
+                    len(v)) for m, v in ms.items()} for k, ms in sorted(agg.items())}
+
+
+def recommend_methods(rows: list[dict], key: str = "heldout_fall") -> dict[int, str]:
+    """Per parameter count: the method with the lowest mean fall rate over seeds."""
+    return {n: min(ms, key=lambda m: ms[m][0]) for (n, _), ms in aggregate(rows, key).items()}
+
+
+def study_markdown(rows: list[dict], spec=None) -> str:
+    devices = sorted({r["device"] for r in rows if r.get("device")})
+    lines = ["# tkujax tune: dimension study", ""]
+    if spec is not None:
+        s = spec.study
+        lines += [f"Spec {spec.name}: policies {s['policies']}, methods {s['methods']}, seeds "
+                  f"{s['seeds']}, {s['budget_s']:g} s of wall clock per run (compile "
+                  f"excluded), batch {spec.batch} pushes x {spec.duration_s} s.", ""]
+    lines += [f"Devices: {', '.join(devices) or '-'}. Runs finished: {len(rows)}.", ""]
+    for key, title in (("heldout_fall", "Held-out fall rate (training distribution)"),
+                       ("shifted_fall", "Shifted held-out fall rate"),
+                       ("above_fall", "Fall rate above the training impulses")):
+        agg = aggregate(rows, key)
+        if not agg:
+            continue
+        methods = sorted({m for ms in agg.values() for m in ms})
+        # The start once per policy and seed (every run of a seed evaluates it on the same
+        # pushes).
+        firsts = {(r["policy"], r["seed"]): r for r in rows}
+        start = aggregate([dict(r, method="start", **{key: r.get("start_" + key)})
+                           for r in firsts.values()], key)
+        lines += [f"## {title}", "", "mean ± sd over seeds (n); start = the hand-designed "
+                  "controller on the same pushes.", "",
+                  "| policy | n_params | start | " + " | ".join(methods) + " |",
+                  "|---|---|---|" + "---|" * len(methods)]
+        for (n, pol), ms in agg.items():
+            st = start.get((n, pol), {}).get("start")
+            cell = lambda v: (f"{100 * v[0]:.1f} ± {100 * v[1]:.1f} % ({v[2]})"  # noqa: E731
+                              if v else "-")
+            lines.append(f"| {pol} | {n} | {cell(st)} | "
+                         + " | ".join(cell(ms.get(m)) for m in methods) + " |")
+        lines.append("")
+    rec = recommend_methods(rows)
+    if rec:
+        lines += ["## Method per size (lowest mean held-out fall rate)", "",
+                  "| n_params | method |", "|---|---|"]
+        lines += [f"| {n} | {m} |" for n, m in rec.items()]
+        lines.append("")
+    return "\n".join(lines)
+
+
+def plot_study(out: Path, rows: list[dict], runs: list[dict]) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    methods = sorted({r["method"] for r in rows})
+    colors = {m: f"C{i}" for i, m in enumerate(methods)}
+    fig, ax = plt.subplots(figsize=(6, 4.2))
+    for key, style in (("heldout_fall", "-o"), ("shifted_fall", "--s")):
+        agg = aggregate(rows, key)
+        for m in methods:
+            pts = sorted((n, v[m][0], v[m][1]) for (n, _), v in agg.items() if m in v)
+            if pts:
+                n, y, e = map(np.array, zip(*pts))
+                ax.errorbar(n, 100 * y, 100 * e, fmt=style, color=colors[m], capsize=3,
+                            label=f"{m} ({key.split('_')[0]})")
+    ax.set_xscale("log")
+    ax.set_xlabel("parameters tuned")
+    ax.set_ylabel("fall rate (%)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / "study.png", dpi=90)
+    plt.close(fig)
+
+    policies = list(dict.fromkeys(r["policy"] for r in sorted(runs, key=lambda r: r["n_params"])))
+    fig, axes = plt.subplots(1, len(policies), figsize=(4 * len(policies), 3.6), squeeze=False)
+    for ax, pol in zip(axes[0], policies):
+        seen = set()
+        for r in runs:
+            if r["policy"] != pol or not r.get("curve"):
+                continue
+            t = [p["wall_s"] for p in r["curve"]]
+            y = [p["best_loss"] for p in r["curve"]]
+            ax.step(t, y, where="post", color=colors.get(r["method"], "k"), alpha=0.8,
+                    label=None if r["method"] in seen else r["method"])
+            seen.add(r["method"])
+        ax.set_title(f"{pol} ({next(r['n_params'] for r in runs if r['policy'] == pol)} "
+                     "params)", fontsize=9)
+        ax.set_xlabel("wall clock (s, compile excluded)")
+        ax.set_ylabel("best hard training loss")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / "convergence.png", dpi=90)
+    plt.close(fig)
+
+
+def _uses(method: str) -> set[str]:
+    out = {"forward"}
+    if method in ("cma", "sepcma", "hybrid"):
+        out.add("population")
+    if method in ("gradient", "hybrid"):
+        out.add("gradient")
+    return out
+
+
+class StudyRunner:
+    """The real runs: one TuneProblem per policy (compiled once per process), run_search, and
+    the hard-gate evaluation of the start and the best latent on the evaluation sets."""
+
+    def __init__(self, spec, log, compiler_options=None):
+        self.spec, self.log, self.opts = spec, log, compiler_options
+        self.problems: dict = {}
+        self.done: dict[str, set[str]] = {}
+        self.base = spec.base_params()
+
+    def compiled(self, policy: str, method: str) -> bool:
+        """Whether this process has compiled what `method` calls for this policy (run_search
+        compiles the forward, the population call (cma, sepcma, hybrid) and the grouped
+        gradient (gradient, hybrid) before its clock starts)."""
+        return _uses(method) <= self.done.get(policy, set())
+
+    def problem(self, policy: str):
+        from tkujax.studies.tune.problem import TuneProblem
+
+        if policy not in self.problems:
+            spec = self.spec
+            self.problems[policy] = TuneProblem(
+                spec.policy_reparam(policy), self.base, spec.loss, spec.duration_s, spec.remat,
+                spec.float64, compiler_options=self.opts,
+                quantise_targets=spec.quantise_targets)
+        return self.problems[policy]
+
+    def eval_sets(self, seed: int) -> dict:
+        import jax
+
+        from tkujax.studies.tune.spec import sample_pushes, shifted
+
+        spec, st = self.spec, self.spec.study
+        sets = {"heldout": (spec, spec.eval_seed + seed)}
+        if spec.shift is not None:
+            sets["shifted"] = (shifted(spec), spec.eval_seed + 1000 + seed)
+        if st["above_impulse_ns"] is not None:
+            push = dict(spec.push, impulse_ns=tuple(st["above_impulse_ns"]))
+            sets["above"] = (dataclasses.replace(spec, push=push), spec.eval_seed + 2000 + seed)
+        out = {}
+        for label, (sp, es) in sets.items():
+            out[label] = (sample_pushes(sp, st["eval_n"], es),
+                          jax.random.split(jax.random.PRNGKey(es), st["eval_n"]))
+        return out
+
+    def __call__(self, policy: str, method: str, seed: int) -> dict:
+        import jax
+
+        from tkujax.studies.tune.compare import _fell_rates
+        from tkujax.studies.tune.problem import _x64
+        from tkujax.studies.tune.search import SearchConfig, run_search
+        from tkujax.studies.tune.spec import sample_pushes
+
+        spec, st = self.spec, self.spec.study
+        with _x64(spec.float64):
+            problem = self.problem(policy)
+            rep = problem.reparam
+            z0 = rep.latent_of(self.base)
+            variant = None
+            m = method
+            if method == "cma":
+                variant = "sep-CMA" if rep.size >= st["sep_cma_from"] else "CMA"
+                m = "sepcma" if variant == "sep-CMA" else "cma"
+            cfg = SearchConfig(budget_s=st["budget_s"], popsize=st["popsize"],
+                               sigma0=st["sigma0"], zo_sigma=st["zo_sigma"],
+                               groups=st["groups"], learning_rate=st["learning_rate"],
+                               clip_norm=spec.clip_norm, temperature_deg=st["temperature_deg"])
+            train = sample_pushes(spec, spec.batch, spec.seed + seed)
+            keys = jax.random.split(jax.random.PRNGKey(spec.seed + seed), spec.batch)
+            r = run_search(m, problem, z0, train, keys, cfg, seed=seed, log=self.log)
+            self.done.setdefault(policy, set()).update(_uses(method))
+            row = dict(method=method, policy=policy, n_params=rep.size, seed=seed,
+                       cma_variant=variant, budget_s=st["budget_s"],
+                       wall_s=r["curve"][-1]["wall_s"], best_loss=r["best_loss"],
+                       start_loss=r["curve"][0]["best_loss"], iterations=r["iterations"],
+                       compile_s=r["compile_s"], device=str(jax.devices()[0].device_kind))
+            for label, (recs, ekeys) in self.eval_sets(seed).items():
+                fell = _fell_rates(problem, {"start": z0, "best": np.asarray(r["z_best"])},
+                                   recs, ekeys, spec.batch)
+                row[f"{label}_fall"] = float(np.nanmean(fell["best"]))
+                row[f"start_{label}_fall"] = float(np.nanmean(fell["start"]))
+                row[f"{label}_diverged"] = int(np.sum(~np.isfinite(fell["best"])))
+            self.log(f"  {run_name(policy, method, seed)}: held-out {row['heldout_fall']:.3f} "
+                     f"(start {row['start_heldout_fall']:.3f}), {r['iterations']} iterations")
+        return dict(row, curve=r["curve"], z_best=r["z_best"], extra=r["extra"],
+                    policy_layout=rep.describe(r["z_best"]),
+                    devices=[str(d) for d in jax.devices()])
