@@ -76,14 +76,12 @@ def slice_points(x: dict, names, bounds, points: int) -> list[tuple[str, float, 
 def _run_around(values: np.ndarray, holds: np.ndarray, v0: float) -> tuple[float, float] | None:
     """The contiguous run of holding grid values around v0 (the grid value nearest it: v0
     itself in slice_points' slices)."""
-    i0 = int(np.argmin(np.abs(values - v0)))
-    if not holds[i0]:
+    from tkujax.studies.calibrate.islands import _island
+
+    run = _island(list(values), list(holds), int(np.argmin(np.abs(values - v0))))
+    if run is None:
         return None
-    lo = hi = i0
-    while lo > 0 and holds[lo - 1]:
-        lo -= 1
-    while hi < len(values) - 1 and holds[hi + 1]:
-        hi += 1
+    lo, hi = run
     return float(values[lo]), float(values[hi])
 
 

@@ -37,6 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
+from tkujax.studies.tune.compare import _default
+
 RUN_KEYS = ("policy", "method", "seed")
 
 
@@ -73,16 +75,6 @@ def _write_json(path: Path, obj) -> None:
     tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")   # processes may share out_dir
     tmp.write_text(json.dumps(obj, indent=1, default=_default))
     os.replace(tmp, path)
-
-
-def _default(x):
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, (np.floating, np.integer)):
-        return x.item()
-    if isinstance(x, tuple):
-        return list(x)
-    return str(x)
 
 
 Runner = Callable[[str, str, int], dict]
