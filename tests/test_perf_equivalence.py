@@ -47,15 +47,20 @@ def _inputs():
 
 
 def _assert_outcomes(out, expected, exact: bool):
-    """exact: bit for bit (NaN where NaN); else the booleans exactly, the floats to 1e-5."""
+    """exact: bit for bit (NaN where NaN). Else the booleans exactly, and the floats of the
+    pushes that stand to rtol 1e-3 (float32 over hundreds of physics steps, summed in another
+    order by another program); after a fall the motion is chaotic and its floats are not
+    compared."""
     assert set(out) == set(expected)
+    stood = ~np.asarray(expected["fell"], bool)
     for k, v in expected.items():
         got = np.asarray(out[k], np.float64)
         want = np.asarray(np.asarray(v, np.float32), np.float64)
         if exact or k in ("fell", "diverged"):
             np.testing.assert_array_equal(got, want, err_msg=k)
         else:
-            np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6, err_msg=k)
+            np.testing.assert_allclose(got[stood], want[stood], rtol=1e-3, atol=1e-4,
+                                       err_msg=k)
 
 
 @pytest.mark.slow
