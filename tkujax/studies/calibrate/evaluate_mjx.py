@@ -134,10 +134,11 @@ def _evaluate_chunk(xs, mps, readings, samples, ids, per, config) -> list:
     n_cases = len(E.CASES)
     n_push = n_cases * len(samples)
     pushes, enabled, table, param_row, robot_id, where = [], [], [], [], [], []
-    for j, (x, mp) in enumerate(list(zip(xs, mps)) + [(xs[-1], mps[-1])] * pad):
+    cps = [{r: P.controller_params(x, r, mp) for r in readings} for x, mp in zip(xs, mps)]
+    for j, (x, by_reading) in enumerate(list(zip(xs, cps)) + [(xs[-1], cps[-1])] * pad):
         ps = E.pushes_for(x, samples)                 # sample-major, CASES order
-        settings = [("off", 0.0, P.controller_params(x, readings[0], mp))]
-        settings += [(r, 1.0, P.controller_params(x, r, mp)) for r in readings]
+        settings = ([("off", 0.0, by_reading[readings[0]])]
+                    + [(r, 1.0, by_reading[r]) for r in readings])
         for setting, on, cp in settings:
             pushes.append(ps)
             enabled += [on] * n_push
@@ -151,13 +152,12 @@ def _evaluate_chunk(xs, mps, readings, samples, ids, per, config) -> list:
         jnp.asarray(robot_id, jnp.int32), push, jnp.asarray(enabled, jnp.float32),
         jnp.asarray(param_row, jnp.int32))
     out = {k: np.asarray(v) for k, v in out.items()}
-    return _collect(out, where, xs, mps, readings, samples)
+    return _collect(out, where, xs, cps, readings, samples)
 
 
-def _collect(out, where, xs, mps, readings, samples) -> list:
+def _collect(out, where, xs, cps, readings, samples) -> list:
     res = [{s: {r: {} for r in readings} for s in samples} for _ in xs]
     off_rows = [{s: {} for s in samples} for _ in xs]
-    cps = [{r: P.controller_params(x, r, mp) for r in readings} for x, mp in zip(xs, mps)]
     for n, (j, setting, si, ci) in enumerate(where):
         if j >= len(xs):
             continue                                  # padding
