@@ -276,33 +276,48 @@ COMPARE_FIELDS = {"methods", "seeds", "budget_s", "popsize", "sigma0", "zo_sigma
                   "learning_rate", "temperature_deg", "eval_n"}
 
 
-def _parse_compare(raw, batch: int) -> dict:
-    c = _table("compare", raw, COMPARE_FIELDS)
-    methods = c.get("methods", ["cma", "hybrid", "es"])
+def _methods(table: str, c: dict, default: list) -> list:
+    methods = c.get("methods", default)
     if (not isinstance(methods, list) or not methods or any(m not in METHODS for m in methods)
             or len(set(methods)) != len(methods)):
-        raise SpecError(f"compare.methods: expected distinct names from {list(METHODS)}, "
+        raise SpecError(f"{table}.methods: expected distinct names from {list(METHODS)}, "
                         f"got {methods!r}")
+    return list(methods)
+
+
+def _search_settings(table: str, c: dict, batch: int, popsize: int, budget_s: float,
+                     budget_min_s: float) -> dict:
+    """The settings a [compare] or [study] table shares: groups, popsize and the methods'
+    steps (defaults: popsize, budget_s; budget_s at least budget_min_s)."""
+    groups = _int(f"{table}.groups", c.get("groups", 4), 1, 1024)
+    if batch % groups:
+        raise SpecError(f"{table}.groups: {groups} must divide tune.batch = {batch}")
+    popsize = _int(f"{table}.popsize", c.get("popsize", popsize), 3, 4096)
+    if popsize % 2 == 0:
+        raise SpecError(f"{table}.popsize: expected an odd number (centre + antithetic pairs), "
+                        f"got {popsize}")
+    return dict(
+        groups=groups, popsize=popsize,
+        budget_s=_number(f"{table}.budget_s", c.get("budget_s", budget_s), budget_min_s,
+                         86400.0, "s"),
+        sigma0=_number(f"{table}.sigma0", c.get("sigma0", 0.5), 1e-3, 10.0, "(latent)"),
+        zo_sigma=_number(f"{table}.zo_sigma", c.get("zo_sigma", 0.3), 1e-3, 10.0, "(latent)"),
+        learning_rate=_number(f"{table}.learning_rate", c.get("learning_rate", 0.1), 1e-5,
+                              10.0),
+        temperature_deg=_number(f"{table}.temperature_deg", c.get("temperature_deg", 0.5),
+                                1e-3, 30.0, "deg"),
+        eval_n=_int(f"{table}.eval_n", c.get("eval_n", 4 * batch), 1, 10_000_000))
+
+
+def _parse_compare(raw, batch: int) -> dict:
+    c = _table("compare", raw, COMPARE_FIELDS)
+    methods = _methods("compare", c, ["cma", "hybrid", "es"])
     seeds = c.get("seeds", [0, 1, 2])
     if not isinstance(seeds, list) or not seeds or any(
             isinstance(x, bool) or not isinstance(x, int) or x < 0 for x in seeds):
         raise SpecError(f"compare.seeds: expected a list of non-negative integers, got {seeds!r}")
-    groups = _int("compare.groups", c.get("groups", 4), 1, 1024)
-    if batch % groups:
-        raise SpecError(f"compare.groups: {groups} must divide tune.batch = {batch}")
-    popsize = _int("compare.popsize", c.get("popsize", 9), 3, 4096)   # its own, may differ
-    if popsize % 2 == 0:
-        raise SpecError(f"compare.popsize: expected an odd number (centre + antithetic pairs), "
-                        f"got {popsize}")
-    return dict(
-        methods=list(methods), seeds=list(seeds), groups=groups, popsize=popsize,
-        budget_s=_number("compare.budget_s", c.get("budget_s", 60.0), 1.0, 86400.0, "s"),
-        sigma0=_number("compare.sigma0", c.get("sigma0", 0.5), 1e-3, 10.0, "(latent)"),
-        zo_sigma=_number("compare.zo_sigma", c.get("zo_sigma", 0.3), 1e-3, 10.0, "(latent)"),
-        learning_rate=_number("compare.learning_rate", c.get("learning_rate", 0.1), 1e-5, 10.0),
-        temperature_deg=_number("compare.temperature_deg", c.get("temperature_deg", 0.5),
-                                1e-3, 30.0, "deg"),
-        eval_n=_int("compare.eval_n", c.get("eval_n", 4 * batch), 1, 10_000_000))
+    return dict(methods=methods, seeds=list(seeds),
+                **_search_settings("compare", c, batch, 9, 60.0, 1.0))
 
 
 STUDY_FIELDS = {"policies", "methods", "seeds", "budget_s", "popsize", "sigma0", "zo_sigma",
@@ -319,23 +334,12 @@ def _parse_study(raw, batch: int) -> dict:
                         f"got {policies!r}")
     for i, p in enumerate(policies):
         _policy(f"study.policies[{i}]", p)
-    methods = c.get("methods", list(METHODS))
-    if (not isinstance(methods, list) or not methods or any(m not in METHODS for m in methods)
-            or len(set(methods)) != len(methods)):
-        raise SpecError(f"study.methods: expected distinct names from {list(METHODS)}, "
-                        f"got {methods!r}")
+    methods = _methods("study", c, list(METHODS))
     seeds = c.get("seeds", [0, 1, 2])
     if not isinstance(seeds, list) or not seeds or len(set(seeds)) != len(seeds) or any(
             isinstance(x, bool) or not isinstance(x, int) or x < 0 for x in seeds):
         raise SpecError(f"study.seeds: expected a list of distinct non-negative integers, "
                         f"got {seeds!r}")
-    groups = _int("study.groups", c.get("groups", 4), 1, 1024)
-    if batch % groups:
-        raise SpecError(f"study.groups: {groups} must divide tune.batch = {batch}")
-    popsize = _int("study.popsize", c.get("popsize", 15), 3, 4096)
-    if popsize % 2 == 0:
-        raise SpecError(f"study.popsize: expected an odd number (centre + antithetic pairs), "
-                        f"got {popsize}")
     above = c.get("above_impulse_ns")
     if above is not None:
         lo, hi, _, unit = PUSH_FIELDS["impulse_ns"]
@@ -347,15 +351,8 @@ def _parse_study(raw, batch: int) -> dict:
             raise SpecError(f"study.above_impulse_ns: lower bound {a} must be below {b}")
         above = (a, b)
     return dict(
-        policies=list(policies), methods=list(methods), seeds=list(seeds), groups=groups,
-        popsize=popsize, above_impulse_ns=above,
-        budget_s=_number("study.budget_s", c.get("budget_s", 120.0), 0.1, 86400.0, "s"),
-        sigma0=_number("study.sigma0", c.get("sigma0", 0.5), 1e-3, 10.0, "(latent)"),
-        zo_sigma=_number("study.zo_sigma", c.get("zo_sigma", 0.3), 1e-3, 10.0, "(latent)"),
-        learning_rate=_number("study.learning_rate", c.get("learning_rate", 0.1), 1e-5, 10.0),
-        temperature_deg=_number("study.temperature_deg", c.get("temperature_deg", 0.5),
-                                1e-3, 30.0, "deg"),
-        eval_n=_int("study.eval_n", c.get("eval_n", 4 * batch), 1, 10_000_000),
+        policies=list(policies), methods=methods, seeds=list(seeds), above_impulse_ns=above,
+        **_search_settings("study", c, batch, 15, 120.0, 0.1),
         sep_cma_from=_int("study.sep_cma_from", c.get("sep_cma_from", 64), 1, 1_000_000),
         margin_s=_number("study.margin_s", c.get("margin_s", 60.0), 0.0, 86400.0, "s"),
         compile_s=_number("study.compile_s", c.get("compile_s", 180.0), 0.0, 86400.0, "s"))
