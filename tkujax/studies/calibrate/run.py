@@ -250,10 +250,7 @@ def run_calibrate(spec: CalibrateSpec | str | Path, out: str | Path, *,
         new = [x for x in xs if _key(x) not in archive.cache]
         new = list({_key(x): x for x in new}.values())          # a generation may repeat one
         if spec.backend == "mjx" and evaluator is None and new:   # the generation in one batch
-            from tkujax.studies.calibrate import evaluate_mjx
-            results = evaluate_mjx.evaluate_many(new, spec.readings, spec.samples, spec.params,
-                                                 spec.robots_per_call)
-            recs = [scorer(x, results=r) for x, r in zip(new, results)]
+            recs = _score_many(spec, new, spec.readings, evaluator)
         else:
             recs = (pool.map(scorer, new) if (pool is not None and len(new) > 1)
                     else map(scorer, new))
