@@ -303,3 +303,111 @@ def test_mjx_start_reproduces_the_recommended_controller():
         np.testing.assert_array_equal(outs[policy]["fell"], outs["scalars"]["fell"])
         np.testing.assert_allclose(outs[policy]["peak_incl_deg"],
                                    outs["scalars"]["peak_incl_deg"], rtol=1e-3)
+
+
+# --- Seeds side by side (study.seeds_side_by_side) ----------------------------------------------
+
+def _side_spec(**study):
+    data = _spec_dict()
+    data["study"] = {**data["study"], "policies": ["scalars", "mlp2"], "methods": ["cma", "es"],
+                     "seeds": [0, 1, 2], "seeds_side_by_side": True, **study}
+    return parse_tune_spec(data)
+
+
+class _FakeGroupRunner(_FakeRunner):
+    """Stand-in for the lockstep runs: one call per (policy, method) group of seeds; optionally
+    dies on one group."""
+
+    def __init__(self, die_on=None):
+        super().__init__()
+        self.groups, self.die_on_group = [], die_on
+
+    def group(self, policy, method, seeds):
+        if (policy, method) == self.die_on_group:
+            raise KeyboardInterrupt("cut")
+        self.groups.append((policy, method, tuple(seeds)))
+        return [self(policy, method, s) for s in seeds]
+
+
+def test_side_by_side_spec_key():
+    assert _side_spec().study["seeds_side_by_side"] is True
+    assert parse_tune_spec(_spec_dict()).study["seeds_side_by_side"] is False
+    with pytest.raises(SpecError, match="study.seeds_side_by_side"):
+        _side_spec(seeds_side_by_side="yes")
+    gpu = parse_tune_spec(read_toml("sweeps/tune_dimension.toml")).study
+    assert gpu["seeds_side_by_side"] is True and len(gpu["seeds"]) == 3
+
+
+def test_study_side_by_side_groups_and_resumes(tmp_path):
+    spec = _side_spec()
+    first = _FakeGroupRunner(die_on=("mlp2", "cma"))
+    with pytest.raises(KeyboardInterrupt):
+        run_study(spec, tmp_path, group_runner=first.group, quiet=True)
+    assert first.groups == [("scalars", "cma", (0, 1, 2)), ("scalars", "es", (0, 1, 2))]
+    runs = tmp_path / "runs"
+    assert len(list(runs.glob("*.json"))) == 6
+    assert json.loads((runs / "scalars-es-s2.json").read_text())["side_by_side"] == 3
+    # A group done in part: only its missing seed reruns (alone now, and says so).
+    (runs / "scalars-es-s1.json").unlink()
+    second = _FakeGroupRunner()
+    rec = run_study(spec, tmp_path, group_runner=second.group, quiet=True)
+    assert second.groups == [("scalars", "es", (1,)), ("mlp2", "cma", (0, 1, 2)),
+                             ("mlp2", "es", (0, 1, 2))]
+    assert len(rec["skipped"]) == 5 and rec["left"] == [] and len(rec["done"]) == 7
+    rows = json.loads((tmp_path / "summary.json").read_text())
+    assert len(rows) == 12
+    share = {(r["policy"], r["method"], r["seed"]): r["side_by_side"] for r in rows}
+    assert share.pop(("scalars", "es", 1)) == 1 and set(share.values()) == {3}
+    md = (tmp_path / "study.md").read_text()
+    assert "side by side" in md and "11 run(s) shared it 3 ways" in md
+    assert "1 run(s) had the device alone" in md
+    third = _FakeGroupRunner()
+    run_study(spec, tmp_path, group_runner=third.group, quiet=True)
+    assert third.groups == []
+
+
+def test_study_side_by_side_filters_and_deadline(tmp_path):
+    spec = _side_spec()
+    runner = _FakeGroupRunner()
+    asked = []
+
+    def compiled(policy, method, S):
+        asked.append((policy, method, S))
+        return False
+
+    # One group counts as one run: budget 3 s + margin 5 s + compile 5 s > 10 s.
+    rec = run_study(spec, tmp_path, group_runner=runner.group, quiet=True, deadline_s=10.0,
+                    compiled=compiled)
+    assert runner.groups == [] and rec["stopped"] == "scalars-cma-s0+1+2"
+    assert asked == [("scalars", "cma", 3)]
+    rec = run_study(spec, tmp_path, group_runner=runner.group, quiet=True, deadline_s=10.0,
+                    only=["policy=mlp2", "seed=0,2"])
+    assert runner.groups == [("mlp2", "cma", (0, 2)), ("mlp2", "es", (0, 2))]
+    # Without a group runner the option cannot run.
+    with pytest.raises(ValueError, match="group runner"):
+        run_study(spec, tmp_path / "x", runner=_FakeRunner(), quiet=True)
+
+
+@pytest.mark.slow
+def test_mjx_study_side_by_side_evaluates_as_alone(tmp_path):
+    """The real StudyRunner on a tiny MJX study (scalars, (1+1)-ES, 2 seeds, 2 pushes x 0.3 s,
+    evaluation sets of 3 pushes: a padded chunk): the group's records have the per-seed
+    records' keys, and the start's fall rates (deterministic) equal those of the runs alone.
+    Its compiled shapes are those of tests/test_tune_lockstep.py's MJX test (persistent cache)."""
+    data = _spec_dict()
+    data["tune"] = dict(data["tune"], batch=2, duration_s=0.3)
+    data["study"] = {**data["study"], "policies": ["scalars"], "methods": ["es"],
+                     "seeds": [0, 1], "budget_s": 0.5, "groups": 1, "eval_n": 3}
+    alone = parse_tune_spec(data)
+    data["study"]["seeds_side_by_side"] = True
+    side = parse_tune_spec(data)
+    run_study(side, tmp_path / "side", quiet=True)
+    run_study(alone, tmp_path / "alone", quiet=True)
+    for seed in (0, 1):
+        a = json.loads((tmp_path / "alone" / "runs" / f"scalars-es-s{seed}.json").read_text())
+        s = json.loads((tmp_path / "side" / "runs" / f"scalars-es-s{seed}.json").read_text())
+        assert set(a) == set(s) and (a["side_by_side"], s["side_by_side"]) == (1, 2)
+        for label in ("heldout", "shifted", "above"):
+            assert s[f"start_{label}_fall"] == a[f"start_{label}_fall"], label
+        assert s["start_loss"] == pytest.approx(a["start_loss"], rel=1e-5)
+        assert s["iterations"] >= 1 and len(s["curve"]) == s["iterations"] + 1

@@ -8,7 +8,8 @@ held-out (and shifted) pushes.
 Parameterisations (`tune.policy`, tkujax.studies.tune.policy): "scalars" (the default: the
 fields of `tune.params`), "sectorsN" and "mlp[H]" (the scalars plus corrections of the
 `tune.schedule` fields as functions of the controller's filtered state, tkujax.control.policy).
-A [study] table runs the dimension study (policies x methods x seeds, tkujax.studies.tune.study).
+A [study] table runs the dimension study (policies x methods x seeds, tkujax.studies.tune.study;
+its seeds optionally side by side in one batch, tkujax.studies.tune.lockstep).
 
 Tuned (the spec's `tune.params` chooses; ControllerParams field names):
   step_period (T, s), double_support_ratio (gamma), lift_height (H_Sup, m), eps_forward and
@@ -72,6 +73,7 @@ from tkujax.studies.tune.methods import (evolution_baseline, make_optimizer, opt
 from tkujax.studies.tune.benchmark import benchmark_gradient_step
 from tkujax.studies.tune.policy import PolicyReparam, parse_policy
 from tkujax.studies.tune.problem import RECORD_KEYS, TuneProblem
+from tkujax.studies.tune.lockstep import run_search_lockstep
 from tkujax.studies.tune.reparam import (DEFAULT_RANGES, DEFAULT_TUNED, DEG, TUNABLE, Reparam)
 from tkujax.studies.tune.report import summary_markdown
 from tkujax.studies.tune.search import METHODS, SearchConfig, alpha_order_mix, run_search
@@ -85,4 +87,5 @@ __all__ = ["DEFAULT_RANGES", "DEFAULT_TUNED", "DEG", "LOSS_FIELDS", "RECORD_KEYS
            "evaluate", "evolution_baseline", "grid_pushes", "load_tune_spec", "make_optimizer",
            "optimise", "params_json", "parse_tune_spec", "push_loss", "run_tune",
            "sample_pushes", "summary_markdown", "temperature_schedule", "METHODS", "SearchConfig",
-           "alpha_order_mix", "run_search", "PolicyReparam", "parse_policy", "run_study"]
+           "alpha_order_mix", "run_search", "run_search_lockstep", "PolicyReparam",
+           "parse_policy", "run_study"]

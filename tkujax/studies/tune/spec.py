@@ -322,7 +322,7 @@ def _parse_compare(raw, batch: int) -> dict:
 
 STUDY_FIELDS = {"policies", "methods", "seeds", "budget_s", "popsize", "sigma0", "zo_sigma",
                 "groups", "learning_rate", "temperature_deg", "eval_n", "above_impulse_ns",
-                "sep_cma_from", "margin_s", "compile_s"}
+                "sep_cma_from", "margin_s", "compile_s", "seeds_side_by_side"}
 
 
 def _parse_study(raw, batch: int) -> dict:
@@ -355,7 +355,11 @@ def _parse_study(raw, batch: int) -> dict:
         **_search_settings("study", c, batch, 15, 120.0, 0.1),
         sep_cma_from=_int("study.sep_cma_from", c.get("sep_cma_from", 64), 1, 1_000_000),
         margin_s=_number("study.margin_s", c.get("margin_s", 60.0), 0.0, 86400.0, "s"),
-        compile_s=_number("study.compile_s", c.get("compile_s", 180.0), 0.0, 86400.0, "s"))
+        compile_s=_number("study.compile_s", c.get("compile_s", 180.0), 0.0, 86400.0, "s"),
+        # The seeds of one (policy, method) in lockstep, sharing every compiled call
+        # (tkujax.studies.tune.lockstep); false: one run after another, each alone.
+        seeds_side_by_side=_bool("study.seeds_side_by_side",
+                                 c.get("seeds_side_by_side", False)))
 
 
 def _parse_shift(raw) -> dict:

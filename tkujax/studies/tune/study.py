@@ -3,17 +3,31 @@ search method x seed at one wall-clock budget per run, evaluated on held-out pus
 training distribution, on the shifted set ([evaluate.shift]) and above the training impulses
 (`study.above_impulse_ns`).
 
+Seeds side by side (`study.seeds_side_by_side = true`): the seeds of one (policy, method) run
+together as one group, in lockstep (tkujax.studies.tune.lockstep.run_search_lockstep): each
+seed keeps its own training batch, optimiser and random numbers, but every compiled call
+serves all the group's seeds at once, and the group shares ONE budget_s of wall clock. Each
+seed then gets a share of the device (between about 1/S and 1/2 of it, S seeds, since one
+search alone leaves the GPU far from saturated at the study's batches), the same share for
+every method, so the comparison at equal wall clock stays fair. Every run record and summary
+row says how many ways the device was shared in `side_by_side` (1: the run had it alone).
+Without the option (the default) the runs go one after another, each with the device alone.
+
 Resumable: each finished run writes `runs/<policy>-<method>-s<seed>.json` (atomically, with its
 convergence curve and best latent); a rerun skips the runs whose file exists, so a call cut by a
-device time limit loses only the run it was in. `only` filters select runs ("policy=mlp",
-"method=cma,es", "seed=0"; filters on different keys must all hold), and a deadline starts no
-run that would end after it (the estimate: study.budget_s + study.margin_s, plus
-study.compile_s when the run's functions are not compiled yet in this process).
+device time limit loses only the run (or the side-by-side group) it was in. A group is skipped
+only when every seed's file exists; a group done in part reruns only its missing seeds, side by
+side. `only` filters select runs ("policy=mlp", "method=cma,es", "seed=0"; filters on different
+keys must all hold; with seeds side by side the group is the selected seeds), and a deadline
+starts no run (or group: a group counts as one run) that would end after it (the estimate:
+study.budget_s + study.margin_s, plus study.compile_s when the run's functions are not compiled
+yet in this process).
 
-After every run, `summary.json` (one row per finished run: method, policy, n_params, seed,
-heldout_fall, shifted_fall, above_fall, wall_s, ...), `study.md`, `study.png` (held-out fall
-rate against parameter count per method) and `convergence.png` (best hard training loss
-against wall time, one panel per policy) are rewritten from all run files present.
+After every run (group), `summary.json` (one row per finished run: method, policy, n_params,
+seed, heldout_fall, shifted_fall, above_fall, wall_s, side_by_side, ...), `study.md`,
+`study.png` (held-out fall rate against parameter count per method) and `convergence.png` (best
+hard training loss against wall time, one panel per policy) are rewritten from all run files
+present.
 
 Seeds as in [compare]: training batch tune.seed + s, held-out evaluate.seed + s, shifted
 evaluate.seed + 1000 + s, above the training range evaluate.seed + 2000 + s. Each run also
@@ -78,45 +92,76 @@ def _write_json(path: Path, obj) -> None:
 
 
 Runner = Callable[[str, str, int], dict]
+GroupRunner = Callable[[str, str, list[int]], list[dict]]
+
+
+def group_name(policy: str, method: str, seeds: list[int]) -> str:
+    return f"{policy}-{method}-s{'+'.join(str(s) for s in seeds)}"
+
+
+def groups(runs: list[tuple[str, str, int]]) -> list[tuple[str, str, list[int]]]:
+    """The runs as (policy, method, [seeds]) groups, in plan order."""
+    out: dict[tuple[str, str], list[int]] = {}
+    for policy, method, seed in runs:
+        out.setdefault((policy, method), []).append(seed)
+    return [(p, m, seeds) for (p, m), seeds in out.items()]
 
 
 def run_study(spec, out_dir, only: list[str] | None = None, deadline_s: float | None = None,
               quiet: bool = False, compiler_options: dict | None = None,
-              runner: Runner | None = None,
-              compiled: Callable[[str, str], bool] | None = None) -> dict:
+              runner: Runner | None = None, compiled: Callable[..., bool] | None = None,
+              group_runner: GroupRunner | None = None) -> dict:
     """Run the spec's [study] (the runs not finished yet), then rewrite the summary.
 
     runner(policy, method, seed) -> run record (a dict with at least the summary row's keys);
-    default: the MJX search and evaluation (`StudyRunner`). compiled(policy, method): whether
-    the functions that run uses are already compiled (for the deadline's estimate)."""
+    group_runner(policy, method, seeds) -> one such record per seed, the seeds run side by side
+    (used when study.seeds_side_by_side is set); default for both: the MJX search and
+    evaluation (`StudyRunner` and its `run_group`). compiled(policy, method) (seeds side by
+    side: compiled(policy, method, S)): whether the functions that run (group of S seeds) uses
+    are already compiled (for the deadline's estimate)."""
     out = Path(out_dir)
     (out / "runs").mkdir(parents=True, exist_ok=True)
     log = (lambda s: None) if quiet else (lambda s: print(s, file=sys.stderr, flush=True))
     study = spec.study
+    side = bool(study.get("seeds_side_by_side", False))
     todo = select(plan(study), only)
-    if runner is None:
+    if runner is None and group_runner is None:
         sr = StudyRunner(spec, log, compiler_options)
-        runner, compiled = sr, sr.compiled
-    compiled = compiled or (lambda p, m: True)
+        runner, group_runner, compiled = sr, sr.run_group, sr.compiled
+    if (group_runner if side else runner) is None:
+        raise ValueError("study.seeds_side_by_side = " + ("true needs a group runner" if side
+                                                         else "false needs a runner"))
+    compiled = compiled or (lambda *a: True)
+    units = groups(todo) if side else [(p, m, [s]) for p, m, s in todo]
     t0 = time.perf_counter()
     done, skipped, stopped = [], [], None
-    for policy, method, seed in todo:
-        name = run_name(policy, method, seed)
-        path = out / "runs" / f"{name}.json"
-        if path.exists():
-            skipped.append(name)
+    for policy, method, seeds in units:
+        paths = {s: out / "runs" / f"{run_name(policy, method, s)}.json" for s in seeds}
+        missing = [s for s in seeds if not paths[s].exists()]
+        skipped += [run_name(policy, method, s) for s in seeds if s not in missing]
+        if not missing:
             continue
-        est = (study["budget_s"] + study["margin_s"]
-               + (0.0 if compiled(policy, method) else study["compile_s"]))
+        name = group_name(policy, method, missing)
+        ready = compiled(policy, method, len(missing)) if side else compiled(policy, method)
+        est = study["budget_s"] + study["margin_s"] + (0.0 if ready else study["compile_s"])
         if deadline_s is not None and time.perf_counter() - t0 + est > deadline_s:
             stopped = name
             log(f"study: stopping before {name}: {time.perf_counter() - t0:.0f} s + ~{est:.0f} "
                 f"s would pass the deadline of {deadline_s:g} s (rerun to resume)")
             break
-        log(f"study: {name} (budget {study['budget_s']:g} s) ...")
-        rec = runner(policy, method, seed)
-        _write_json(path, rec)
-        done.append(name)
+        if side:
+            log(f"study: {name}, {len(missing)} seed(s) side by side (budget "
+                f"{study['budget_s']:g} s shared) ...")
+            recs = list(group_runner(policy, method, list(missing)))
+            got = [r.get("seed") for r in recs]
+            if got != missing:
+                raise RuntimeError(f"group runner returned seeds {got} for {missing}")
+        else:
+            log(f"study: {name} (budget {study['budget_s']:g} s) ...")
+            recs = [runner(policy, method, missing[0])]
+        for seed, rec in zip(missing, recs):
+            _write_json(paths[seed], dict(rec, side_by_side=len(missing) if side else 1))
+            done.append(run_name(policy, method, seed))
         write_summary(out, spec)
     summary = write_summary(out, spec)
     left = [run_name(*r) for r in plan(study)
@@ -130,7 +175,7 @@ def run_study(spec, out_dir, only: list[str] | None = None, deadline_s: float | 
 ROW_KEYS = ("method", "policy", "n_params", "seed", "heldout_fall", "shifted_fall",
             "above_fall", "start_heldout_fall", "start_shifted_fall", "start_above_fall",
             "wall_s", "budget_s", "best_loss", "start_loss", "iterations", "compile_s",
-            "cma_variant", "device")
+            "cma_variant", "device", "side_by_side")
 
 
 def load_runs(out: Path) -> list[dict]:
@@ -180,8 +225,23 @@ def study_markdown(rows: list[dict], spec=None) -> str:
         s = spec.study
         lines += [f"Spec {spec.name}: policies {s['policies']}, methods {s['methods']}, seeds "
                   f"{s['seeds']}, {s['budget_s']:g} s of wall clock per run (compile "
-                  f"excluded), batch {spec.batch} pushes x {spec.duration_s} s.", ""]
+                  f"excluded), batch {spec.batch} pushes x {spec.duration_s} s"
+                  + ("; the seeds of one policy and method side by side, sharing one device "
+                     "and one budget (study.seeds_side_by_side)." if s.get("seeds_side_by_side")
+                     else "; one run after another, each with the device alone."), ""]
     lines += [f"Devices: {', '.join(devices) or '-'}. Runs finished: {len(rows)}.", ""]
+    shares: dict[int, int] = {}
+    for r in rows:
+        k = int(r.get("side_by_side") or 1)       # rows from before the option: alone
+        shares[k] = shares.get(k, 0) + 1
+    if any(k > 1 for k in shares):
+        parts = [f"{c} run(s) " + ("had the device alone" if k == 1 else
+                                   f"shared it {k} ways ({k} seeds side by side)")
+                 for k, c in sorted(shares.items())]
+        lines += ["Device sharing (`side_by_side`): " + "; ".join(parts) + ". Seeds side by "
+                  "side run in lockstep in one batch and share one wall-clock budget, so each "
+                  "seed had a share of the device (about 1/S to 1/2 of it for S seeds), the same "
+                  "for every method of a group size: compare methods at equal sharing.", ""]
     for key, title in (("heldout_fall", "Held-out fall rate (training distribution)"),
                        ("shifted_fall", "Shifted held-out fall rate"),
                        ("above_fall", "Fall rate above the training impulses")):
@@ -272,20 +332,24 @@ def _uses(method: str) -> set[str]:
 
 
 class StudyRunner:
-    """The real runs: one TuneProblem per policy (compiled once per process), run_search, and
-    the hard-gate evaluation of the start and the best latent on the evaluation sets."""
+    """The real runs: one TuneProblem per policy (compiled once per process), run_search (or
+    run_search_lockstep for seeds side by side, `run_group`), and the hard-gate evaluation of
+    the start and the best latent on the evaluation sets."""
 
     def __init__(self, spec, log, compiler_options=None):
         self.spec, self.log, self.opts = spec, log, compiler_options
         self.problems: dict = {}
-        self.done: dict[str, set[str]] = {}
+        # {(policy, S): functions compiled}; S = 0: run_search's, S >= 1: the lockstep ones
+        # for S seeds side by side (another shape, another compile).
+        self.done: dict[tuple[str, int], set[str]] = {}
         self.base = spec.base_params()
 
-    def compiled(self, policy: str, method: str) -> bool:
+    def compiled(self, policy: str, method: str, side_by_side: int = 0) -> bool:
         """Whether this process has compiled what `method` calls for this policy (run_search
         compiles the forward, the population call (cma, sepcma, hybrid) and the grouped
-        gradient (gradient, hybrid) before its clock starts)."""
-        return _uses(method) <= self.done.get(policy, set())
+        gradient (gradient, hybrid) before its clock starts; side_by_side = S: the lockstep
+        versions for S seeds, which the group's evaluation uses too)."""
+        return _uses(method) <= self.done.get((policy, side_by_side), set())
 
     def problem(self, policy: str):
         from tkujax.studies.tune.problem import TuneProblem
@@ -316,45 +380,97 @@ class StudyRunner:
                           jax.random.split(jax.random.PRNGKey(es), st["eval_n"]))
         return out
 
-    def __call__(self, policy: str, method: str, seed: int) -> dict:
-        import jax
-
-        from tkujax.studies.tune.compare import _fell_rates
-        from tkujax.studies.tune.problem import _x64
-        from tkujax.studies.tune.search import SearchConfig, run_search
-        from tkujax.studies.tune.spec import sample_pushes
+    def _setup(self, policy: str, method: str):
+        """(problem, reparam, z0, cma variant, search method, SearchConfig)."""
+        from tkujax.studies.tune.search import SearchConfig
 
         spec, st = self.spec, self.spec.study
-        with _x64(spec.float64):
-            problem = self.problem(policy)
-            rep = problem.reparam
-            z0 = rep.latent_of(self.base)
-            variant = None
-            m = method
-            if method == "cma":
-                variant = "sep-CMA" if rep.size >= st["sep_cma_from"] else "CMA"
-                m = "sepcma" if variant == "sep-CMA" else "cma"
-            cfg = SearchConfig(budget_s=st["budget_s"], popsize=st["popsize"],
-                               sigma0=st["sigma0"], zo_sigma=st["zo_sigma"],
-                               groups=st["groups"], learning_rate=st["learning_rate"],
-                               clip_norm=spec.clip_norm, temperature_deg=st["temperature_deg"])
-            train = sample_pushes(spec, spec.batch, spec.seed + seed)
-            keys = jax.random.split(jax.random.PRNGKey(spec.seed + seed), spec.batch)
-            r = run_search(m, problem, z0, train, keys, cfg, seed=seed, log=self.log)
-            self.done.setdefault(policy, set()).update(_uses(method))
-            row = dict(method=method, policy=policy, n_params=rep.size, seed=seed,
-                       cma_variant=variant, budget_s=st["budget_s"],
-                       wall_s=r["curve"][-1]["wall_s"], best_loss=r["best_loss"],
-                       start_loss=r["curve"][0]["best_loss"], iterations=r["iterations"],
-                       compile_s=r["compile_s"], device=str(jax.devices()[0].device_kind))
-            for label, (recs, ekeys) in self.eval_sets(seed).items():
-                fell = _fell_rates(problem, {"start": z0, "best": np.asarray(r["z_best"])},
-                                   recs, ekeys, spec.batch)
-                row[f"{label}_fall"] = float(np.nanmean(fell["best"]))
-                row[f"start_{label}_fall"] = float(np.nanmean(fell["start"]))
-                row[f"{label}_diverged"] = int(np.sum(~np.isfinite(fell["best"])))
-            self.log(f"  {run_name(policy, method, seed)}: held-out {row['heldout_fall']:.3f} "
-                     f"(start {row['start_heldout_fall']:.3f}), {r['iterations']} iterations")
+        problem = self.problem(policy)
+        rep = problem.reparam
+        z0 = rep.latent_of(self.base)
+        variant, m = None, method
+        if method == "cma":
+            variant = "sep-CMA" if rep.size >= st["sep_cma_from"] else "CMA"
+            m = "sepcma" if variant == "sep-CMA" else "cma"
+        cfg = SearchConfig(budget_s=st["budget_s"], popsize=st["popsize"],
+                           sigma0=st["sigma0"], zo_sigma=st["zo_sigma"],
+                           groups=st["groups"], learning_rate=st["learning_rate"],
+                           clip_norm=spec.clip_norm, temperature_deg=st["temperature_deg"])
+        return problem, rep, z0, variant, m, cfg
+
+    def _train(self, seed: int):
+        """Seed s's training batch and keys (tune.seed + s)."""
+        import jax
+
+        from tkujax.studies.tune.spec import sample_pushes
+
+        spec = self.spec
+        return (sample_pushes(spec, spec.batch, spec.seed + seed),
+                jax.random.split(jax.random.PRNGKey(spec.seed + seed), spec.batch))
+
+    def _record(self, policy, method, seed, rep, variant, r, fell: dict) -> dict:
+        """The run record: the summary row's keys, the curve, the best latent.
+        fell: {label: (start fell (n,), best fell (n,))}."""
+        import jax
+
+        st = self.spec.study
+        row = dict(method=method, policy=policy, n_params=rep.size, seed=seed,
+                   cma_variant=variant, budget_s=st["budget_s"],
+                   wall_s=r["curve"][-1]["wall_s"], best_loss=r["best_loss"],
+                   start_loss=r["curve"][0]["best_loss"], iterations=r["iterations"],
+                   compile_s=r["compile_s"], device=str(jax.devices()[0].device_kind))
+        for label, (start, best) in fell.items():
+            row[f"{label}_fall"] = float(np.nanmean(best))
+            row[f"start_{label}_fall"] = float(np.nanmean(start))
+            row[f"{label}_diverged"] = int(np.sum(~np.isfinite(best)))
+        self.log(f"  {run_name(policy, method, seed)}: held-out {row['heldout_fall']:.3f} "
+                 f"(start {row['start_heldout_fall']:.3f}), {r['iterations']} iterations")
         return dict(row, curve=r["curve"], z_best=r["z_best"], extra=r["extra"],
                     policy_layout=rep.describe(r["z_best"]),
                     devices=[str(d) for d in jax.devices()])
+
+    def __call__(self, policy: str, method: str, seed: int) -> dict:
+        from tkujax.studies.tune.compare import _fell_rates
+        from tkujax.studies.tune.problem import _x64
+        from tkujax.studies.tune.search import run_search
+
+        spec = self.spec
+        with _x64(spec.float64):
+            problem, rep, z0, variant, m, cfg = self._setup(policy, method)
+            train, keys = self._train(seed)
+            r = run_search(m, problem, z0, train, keys, cfg, seed=seed, log=self.log)
+            self.done.setdefault((policy, 0), set()).update(_uses(method))
+            fell = {}
+            for label, (recs, ekeys) in self.eval_sets(seed).items():
+                f = _fell_rates(problem, {"start": z0, "best": np.asarray(r["z_best"])},
+                                recs, ekeys, spec.batch)
+                fell[label] = (f["start"], f["best"])
+        return self._record(policy, method, seed, rep, variant, r, fell)
+
+    def run_group(self, policy: str, method: str, seeds: list[int]) -> list[dict]:
+        """The seeds side by side: run_search_lockstep, then each seed's evaluation, all seeds
+        in one call per chunk (the lockstep forward at the training batch's shape, compiled
+        for the search already). One record per seed, as __call__'s."""
+        from tkujax.studies.tune.lockstep import fell_rates_lockstep, run_search_lockstep
+        from tkujax.studies.tune.problem import _x64
+
+        spec = self.spec
+        seeds = list(seeds)
+        with _x64(spec.float64):
+            problem, rep, z0, variant, m, cfg = self._setup(policy, method)
+            trains = [self._train(s) for s in seeds]
+            rs = run_search_lockstep(m, problem, z0, [t[0] for t in trains],
+                                     [t[1] for t in trains], cfg, seeds, log=self.log,
+                                     compiler_options=self.opts)
+            self.done.setdefault((policy, len(seeds)), set()).update(_uses(method))
+            sets = [self.eval_sets(s) for s in seeds]
+            latents = {"start": np.repeat(np.asarray(z0, float)[None], len(seeds), 0),
+                       "best": np.stack([np.asarray(r["z_best"], float) for r in rs])}
+            fell = {label: fell_rates_lockstep(problem, latents, [e[label][0] for e in sets],
+                                               [e[label][1] for e in sets], spec.batch,
+                                               self.opts)
+                    for label in sets[0]}
+        return [self._record(policy, method, s, rep, variant, r,
+                             {label: (f["start"][i], f["best"][i])
+                              for label, f in fell.items()})
+                for i, (s, r) in enumerate(zip(seeds, rs))]
