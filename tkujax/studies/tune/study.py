@@ -288,14 +288,11 @@ class StudyRunner:
         return _uses(method) <= self.done.get(policy, set())
 
     def problem(self, policy: str):
-        from tkujax.studies.tune.problem import TuneProblem
+        from tkujax.studies.tune.spec import make_problem
 
         if policy not in self.problems:
-            spec = self.spec
-            self.problems[policy] = TuneProblem(
-                spec.policy_reparam(policy), self.base, spec.loss, spec.duration_s, spec.remat,
-                spec.float64, compiler_options=self.opts,
-                quantise_targets=spec.quantise_targets)
+            self.problems[policy] = make_problem(self.spec, self.spec.policy_reparam(policy),
+                                                 compiler_options=self.opts)
         return self.problems[policy]
 
     def eval_sets(self, seed: int) -> dict:
@@ -355,6 +352,8 @@ class StudyRunner:
                 row[f"{label}_diverged"] = int(np.sum(~np.isfinite(fell["best"])))
             self.log(f"  {run_name(policy, method, seed)}: held-out {row['heldout_fall']:.3f} "
                      f"(start {row['start_heldout_fall']:.3f}), {r['iterations']} iterations")
+        from tkujax.studies.tune.spec import ensembles_record
+
         return dict(row, curve=r["curve"], z_best=r["z_best"], extra=r["extra"],
-                    policy_layout=rep.describe(r["z_best"]),
+                    policy_layout=rep.describe(r["z_best"]), ensembles=ensembles_record(spec),
                     devices=[str(d) for d in jax.devices()])
