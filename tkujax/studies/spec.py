@@ -155,7 +155,8 @@ FPGA_FIELDS = (
        "rounding": (0, len(ROUNDING_MODES) - 1, f"(one of {ROUNDING_MODES})")})
 FPGA_COLUMN = "fpga_"   # record column prefix of a gridded [fpga] key
 # [randomize] ensemble = "PATH": one member of an ensemble of robots per push (`EnsembleRef`);
-# recorded per record in ROBOT_ID_COLUMN. Not a RANDOMIZE_FIELDS entry: tune specs do not take it.
+# recorded per record in ROBOT_ID_COLUMN. Not a RANDOMIZE_FIELDS entry: tune specs take it apart
+# (tkujax.studies.tune.spec), with another meaning of the column (a row of the tune's robot table).
 ENSEMBLE_KEY = "ensemble"
 ROBOT_ID_COLUMN = "robot_id"
 SWEEP_FIELDS = {"name": str, "seed": int, "chunk_size": int, "duration_s": (int, float),
@@ -184,10 +185,10 @@ class EnsembleRef:
                     default_member=self.default_member)
 
 
-def parse_ensemble(value) -> EnsembleRef:
-    """randomize.ensemble: read and validate the file (`load_ensemble`); SpecError names the key
-    and the file's problem."""
-    key = f"randomize.{ENSEMBLE_KEY}"
+def parse_ensemble(value, key: str = f"randomize.{ENSEMBLE_KEY}") -> EnsembleRef:
+    """randomize.ensemble (or another spec key naming an ensemble file, `key`: tune specs also
+    take evaluate.shift.ensemble): read and validate the file (`load_ensemble`); SpecError names
+    the key and the file's problem."""
     if not isinstance(value, str) or not value.strip():
         raise SpecError(f"{key}: expected the path of an ensemble file (a string, relative to "
                         f"the current directory or absolute), got {value!r}")

@@ -49,6 +49,16 @@ Gradient notes (checked against central finite differences in float64, tests/tes
   - jax.checkpoint (remat) on each control tick gives the same gradient (1e-14 relative) and is
     what makes 1,024 pushes x 1.5 s fit on one GPU (2.7 GiB peak vs 125 GiB requested without).
 
+Robots and harm (issue 22; tkujax.studies.tune.spec, problem): [randomize] ensemble = "PATH"
+runs every training and held-out push on one member of a calibration ensemble, drawn
+uniformly (last, so specs without it draw the same pushes as before); [evaluate.shift]
+ensemble runs the shifted set on one. One RobotSet holds the default robot (row 0) and the
+members (rows 1..n); each record's robot_id row is picked inside the one compiled loss. Without
+an ensemble the program is the single-robot one. tune.loss.w_harm > 0 multiplies a push's loss
+by (1 + w_harm) when control OFF survives it (a per-push column computed once per batch by a
+control-off forward pass: loss.harm_weighted_mean); the evaluation then also reports the
+harmed rate (falls with control, survives without).
+
 Gradient optimiser: optax chain(clip_by_global_norm, adam) on the latents. A non-finite loss or
 gradient is counted, logged in history.json and skipped: neither the latents nor Adam's moments
 change.
@@ -67,7 +77,7 @@ summary.md.
 from __future__ import annotations
 
 from tkujax.studies.tune.evaluate import evaluate, params_json
-from tkujax.studies.tune.loss import LOSS_FIELDS, LossConfig, push_loss
+from tkujax.studies.tune.loss import LOSS_FIELDS, LossConfig, harm_weighted_mean, push_loss
 from tkujax.studies.tune.methods import (evolution_baseline, make_optimizer, optimise,
                                          temperature_schedule)
 from tkujax.studies.tune.benchmark import benchmark_gradient_step
@@ -79,8 +89,8 @@ from tkujax.studies.tune.report import summary_markdown
 from tkujax.studies.tune.search import METHODS, SearchConfig, alpha_order_mix, run_search
 from tkujax.studies.tune.run import run_tune
 from tkujax.studies.tune.study import run_study
-from tkujax.studies.tune.spec import (TuneSpec, grid_pushes, load_tune_spec, parse_tune_spec,
-                                      sample_pushes)
+from tkujax.studies.tune.spec import (TuneSpec, grid_pushes, load_tune_spec, make_problem,
+                                      parse_tune_spec, robot_table, sample_pushes)
 
 __all__ = ["DEFAULT_RANGES", "DEFAULT_TUNED", "DEG", "LOSS_FIELDS", "RECORD_KEYS", "TUNABLE",
            "LossConfig", "Reparam", "TuneProblem", "TuneSpec", "benchmark_gradient_step",
@@ -88,4 +98,4 @@ __all__ = ["DEFAULT_RANGES", "DEFAULT_TUNED", "DEG", "LOSS_FIELDS", "RECORD_KEYS
            "optimise", "params_json", "parse_tune_spec", "push_loss", "run_tune",
            "sample_pushes", "summary_markdown", "temperature_schedule", "METHODS", "SearchConfig",
            "alpha_order_mix", "run_search", "run_search_lockstep", "PolicyReparam",
-           "parse_policy", "run_study"]
+           "parse_policy", "run_study", "harm_weighted_mean", "make_problem", "robot_table"]

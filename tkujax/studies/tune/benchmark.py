@@ -90,7 +90,8 @@ def gradient_compile_times(batch: int, duration_s: float, remat: bool | str = Tr
             problem = TuneProblem(reparam, base, spec.loss, duration_s, remat, False,
                                   compiler_options=compiler_options, rollout_options=opts)
             t0 = time.perf_counter()
-            lowered = problem._vg.lower(*problem._args(z, DEG, recs, keys))
+            lowered = problem._vg.lower(*problem._args(z, DEG, recs, keys),
+                                        problem._robot_values)
             lower_s = time.perf_counter() - t0
             if label == "cold_s":
                 out["lower_s"] = round(lower_s, 2)

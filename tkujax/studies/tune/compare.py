@@ -24,11 +24,12 @@ import numpy as np
 
 from tkujax.studies.tune.problem import TuneProblem
 from tkujax.studies.tune.search import SearchConfig, run_search
-from tkujax.studies.tune.spec import TuneSpec, sample_pushes, shifted
+from tkujax.studies.tune.spec import TuneSpec, ensembles_record, sample_pushes, shifted
 
 
 def _fell_rates(problem: TuneProblem, latents: dict, records: dict, keys, batch: int) -> dict:
     """{name: (n,) fell as float, NaN where the rollout diverged (never counted either way)}."""
+    records = problem.with_off_survived(records, keys, batch)   # once for every candidate
     out = {}
     for name, z in latents.items():
         aux = problem.forward_padded(z, 0.0, records, keys, batch)
@@ -91,6 +92,7 @@ def run_compare(spec: TuneSpec, out: Path, problem: TuneProblem,
                   tuned=list(reparam.fields), runs=runs, evaluations=evals, pooled=pooled,
                   winner=_winner(pooled, c["methods"]),
                   shift=None if spec.shift is None else _jsonable(spec.shift),
+                  ensembles=ensembles_record(spec),
                   devices=[str(d) for d in jax.devices()])
     (out / "compare.json").write_text(json.dumps(record, indent=1, default=_default))
     _plot_curves(out / "convergence.png", record)

@@ -11,22 +11,36 @@ import jax
 import numpy as np
 
 from tkujax.control.params import ControllerParams
+from tkujax.studies.tune.loss import OFF_SURVIVED
 from tkujax.studies.tune.methods import _f
 from tkujax.studies.tune.problem import TuneProblem
 
 
 def evaluate(problem: TuneProblem, latents: dict[str, np.ndarray], heldout: dict,
-             grid: dict, batch: int, seed: int) -> dict:
+             grid: dict, batch: int, seed: int, harm: bool | None = None) -> dict:
     """Hard-controller (gate_temperature = 0) evaluation of each named latent.
 
     Returns {name: dict(heldout_fall_rate, heldout_mean_recovery_s, heldout_recovered,
-    heldout_loss, grid_fall_rate, max_impulse {azimuth_deg: N s}, per_push arrays)}."""
+    heldout_loss, grid_fall_rate, max_impulse {azimuth_deg: N s}, per_push arrays)}.
+    The held-out loss is the one tuned: each push's loss times its harm weight when the
+    problem's w_harm > 0. harm (default: when w_harm > 0, whose control-off pass is then
+    compiled anyway): also run the held-out pushes once with control OFF and report
+    heldout_off_fall_rate and heldout_harmed_rate, the fraction of held-out pushes that fall
+    with control but not without (pushes diverged either way left out)."""
     from tkujax.studies.maps import max_recoverable_impulse
 
     key = jax.random.PRNGKey(seed)
     k_held, k_grid = jax.random.split(key)
     keys_held = jax.random.split(k_held, max(len(heldout["impulse_ns"]), 1))
     keys_grid = jax.random.split(k_grid, max(len(grid["impulse_ns"]), 1))
+    harm = problem.needs_off if harm is None else harm
+    off = None
+    if len(heldout["impulse_ns"]) and (harm or problem.needs_off):
+        off = problem.control_off(heldout, keys_held, batch)      # once for every latent
+        survived = (~off["fell"] & ~off["diverged"]).astype(float)
+        heldout = dict(heldout, **{OFF_SURVIVED: survived})
+    if len(grid["impulse_ns"]):
+        grid = problem.with_off_survived(grid, keys_grid, batch)
     result = {}
     for name, z in latents.items():
         r: dict[str, Any] = {}
@@ -36,18 +50,20 @@ def evaluate(problem: TuneProblem, latents: dict[str, np.ndarray], heldout: dict
             div = aux["outcomes"]["diverged"].astype(bool)
             fell = aux["outcomes"]["fell"].astype(bool)[~div]
             rec_t = aux["outcomes"]["recovery_time_s"][~div]
+            loss = aux["terms"].get("weighted", aux["terms"]["total"])
             r.update(heldout_n=int(fell.size), heldout_diverged=int(div.sum()),
                      heldout_fall_rate=float(fell.mean()) if fell.size else None,
                      heldout_mean_recovery_s=_f(np.nanmean(rec_t)) if np.isfinite(rec_t).any()
                      else None,
                      heldout_recovered=int(np.isfinite(rec_t).sum()),
-                     heldout_loss=float(np.mean(aux["terms"]["total"][~div])) if fell.size
-                     else None,
-                     heldout_push_loss=aux["terms"]["total"].tolist(),
+                     heldout_loss=float(np.mean(loss[~div])) if fell.size else None,
+                     heldout_push_loss=loss.tolist(),
                      heldout_push_diverged=div.tolist(),
                      heldout_fell=fell.tolist(),
                      heldout_terms={k: float(np.mean(aux["terms"][k]))
                                     for k in ("fall", "recovery", "step")})
+            if off is not None:
+                r.update(harm_rates(aux["outcomes"]["fell"], div, off["fell"], off["diverged"]))
         if len(grid["impulse_ns"]):
             aux = problem.forward_padded(z, 0.0, grid, keys_grid, batch)
             fell = aux["outcomes"]["fell"].astype(bool)
@@ -64,6 +80,20 @@ def evaluate(problem: TuneProblem, latents: dict[str, np.ndarray], heldout: dict
     return result
 
 
+def harm_rates(fell_on, diverged_on, fell_off, diverged_off) -> dict:
+    """Over the pushes that diverged neither with nor without control: heldout_off_fall_rate
+    (control off falls) and heldout_harmed_rate (falls with control, survives without), with
+    heldout_harm_n, their number; per-push heldout_harmed (None where left out)."""
+    fell_on, fell_off = np.asarray(fell_on, bool), np.asarray(fell_off, bool)
+    ok = ~(np.asarray(diverged_on, bool) | np.asarray(diverged_off, bool))
+    harmed = fell_on & ~fell_off
+    n = int(ok.sum())
+    return dict(heldout_harm_n=n,
+                heldout_off_fall_rate=float(fell_off[ok].mean()) if n else None,
+                heldout_harmed_rate=float(harmed[ok].mean()) if n else None,
+                heldout_harmed=[bool(h) if k else None for h, k in zip(harmed, ok)])
+
+
 def params_json(params: ControllerParams) -> dict[str, float]:
     """{field: value} (SI, radians) of the hard controller, as load_params_json reads."""
     d = {k: float(v) for k, v in dataclasses.asdict(params).items()}
@@ -72,7 +102,8 @@ def params_json(params: ControllerParams) -> dict[str, float]:
 
 
 RULE = ("the tuned set is recommended only when, on the held-out pushes (hard controller), its "
-        "fall rate is strictly below the starting set's AND its mean held-out loss is not worse "
+        "fall rate is strictly below the starting set's AND its mean held-out loss (the tuned "
+        "loss, harm weights included) is not worse "
         "than the starting set's by more than one standard error of the paired per-push loss "
         "difference; otherwise the starting set is kept")
 

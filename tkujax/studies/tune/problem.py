@@ -1,4 +1,20 @@
-"""The differentiable tuning problem: one compiled loss and gradient per batch shape."""
+"""The differentiable tuning problem: one compiled loss and gradient per batch shape.
+
+Robots: a problem built with a RobotSet (`tkujax.sim.robots`) runs each push on the robot of
+its record's robot_id column (ROBOT_ID_COLUMN, a row of the set: a traced index picks that
+robot's model and settled stand inside the one compiled program), then applies the push's own
+mass / CoM / friction / kp randomisation on top, as `tkujax sweep` does with [randomize]
+ensemble. The tuner's convention (`tkujax.studies.tune.spec.robot_table`): row 0 is the default
+robot (the spec's model), rows 1..n the members of the training ensemble, then the members of
+the shifted set's ensemble when it is another file. Without a RobotSet the records have no
+robot_id and the program is the single-robot one (a Python branch at trace time).
+
+"Harm nowhere" (LossConfig.w_harm > 0): each push's loss counts (1 + w_harm) times when control
+off survives it. That does not depend on the tuned parameters, so it is computed once per batch
+by a forward pass with control disabled (`with_off_survived`) and enters the loss as a column
+(OFF_SURVIVED) of the batch: the loss stays one compiled function of (z, temperature, batch,
+keys).
+"""
 
 from __future__ import annotations
 
@@ -13,10 +29,11 @@ from tkujax.control.params import ControllerParams
 from tkujax.sim.metrics import outcomes
 from tkujax.sim.push import Push
 from tkujax.sim.randomize import randomize_model
+from tkujax.sim.robots import RobotSet, put_leaves
 from tkujax.sim.rollout_mjx import RolloutConfig, rollout
 from tkujax.sim.setup import init
-from tkujax.studies.spec import RANDOMIZE_FIELDS
-from tkujax.studies.tune.loss import LossConfig, push_loss
+from tkujax.studies.spec import RANDOMIZE_FIELDS, ROBOT_ID_COLUMN
+from tkujax.studies.tune.loss import OFF_SURVIVED, LossConfig, harm_weighted_mean, push_loss
 from tkujax.studies.tune.reparam import CPU_COMPILER_OPTIONS, DEG, EVAL_KEYS, Reparam
 
 
@@ -37,13 +54,22 @@ class TuneProblem:
     a state-dependent schedule). `loss(z, temperature, batch, keys)` -> (loss, aux);
     `value_and_grad` and `forward` are its jitted gradient and forward-only versions (one
     compile each per batch size).
+
+    robots: None (one robot: `model_params`, None = the default robot), or a RobotSet whose
+    row r is the robot of the pushes with robot_id r (a batch column then; the tuner's table,
+    `tkujax.studies.tune.spec.robot_table`, has the default robot in row 0 and the ensembles'
+    members in rows 1..n). Float32 only. The push's randomisation applies on top of its robot.
+    loss_cfg.w_harm > 0: the batch also needs OFF_SURVIVED (added by the methods below when it
+    lacks it: one control-off forward pass; pass a batch that has it to avoid recomputing it,
+    as `run_search` does). aux["terms"]["weighted"] is then each push's weighted loss.
     """
 
     def __init__(self, reparam: Reparam, base: ControllerParams,
                  loss_cfg: LossConfig = LossConfig(),
                  duration_s: float = 1.2, remat: bool = True, float64: bool = False,
                  model_params=None, compiler_options: dict | None = None,
-                 quantise_targets: bool = True, rollout_options: dict | None = None):
+                 quantise_targets: bool = True, rollout_options: dict | None = None,
+                 robots: RobotSet | None = None):
         self.reparam, self.base, self.loss_cfg = reparam, base, loss_cfg
         self.float64 = float64
         # rollout_options: further static RolloutConfig fields (unroll_ticks, unroll_substeps;
@@ -51,26 +77,78 @@ class TuneProblem:
         self.config = RolloutConfig(duration_s=duration_s, remat=remat,
                                     quantise_targets=quantise_targets,
                                     **(rollout_options or {}))
-        host, self.model, self.index, self.state = init(model_params, float64=float64)
+        self.robots = robots
+        if robots is None:
+            host, self.model, self.index, self.state = init(model_params, float64=float64)
+            self._robot_values = None
+            timestep = host.opt.timestep
+        else:
+            if model_params is not None:
+                raise ValueError("TuneProblem: pass either model_params or robots (row 0 of "
+                                 "the RobotSet is the default robot), not both")
+            if float64:
+                raise ValueError("TuneProblem: a RobotSet runs in float32 (float64=False)")
+            self.model, self.index, self.state = (robots.base_model, robots.index,
+                                                  robots.base_state)
+            # Arguments of the jitted functions below (not constants baked into them).
+            self._robot_values = robots.values()
+            timestep = float(robots.base_model.opt.timestep)
         self.dtype = jnp.float64 if float64 else jnp.float32
         self.n_ticks = int(round(duration_s / self.config.control_period_s))
-        self.steps_per_push = int(round(duration_s / host.opt.timestep))
+        self.steps_per_push = int(round(duration_s / timestep))
         if compiler_options is None and jax.default_backend() == "cpu":
             compiler_options = CPU_COMPILER_OPTIONS
         opts = compiler_options or None
-        self._vg = jax.jit(jax.value_and_grad(self.loss, has_aux=True), compiler_options=opts)
-        self._fwd = jax.jit(self.loss, compiler_options=opts)
+        # Every jitted function takes the robots' values as its last argument (None without
+        # robots: no leaves, the single-robot program).
+        self._vg = jax.jit(jax.value_and_grad(self._loss, has_aux=True), compiler_options=opts)
+        self._fwd = jax.jit(self._loss, compiler_options=opts)
         # Population methods (CMA-ES, zeroth-order gradients): every candidate of a generation
         # on the whole batch in ONE call (candidates x pushes rollouts), the loss only.
-        self._pop = jax.jit(jax.vmap(lambda z, t, b, k: self.loss(z, t, b, k)[0],
-                                     in_axes=(0, None, None, None)), compiler_options=opts)
+        self._pop = jax.jit(jax.vmap(lambda z, t, b, k, rv: self._loss(z, t, b, k, rv)[0],
+                                     in_axes=(0, None, None, None, None)), compiler_options=opts)
         # The gradient per group of pushes (vmapped): the mean is the batch gradient, the
         # spread between groups estimates its variance (for the alpha-order mix).
         self._vg_groups = jax.jit(jax.vmap(jax.value_and_grad(
-            lambda z, t, b, k: self.loss(z, t, b, k)[0]), in_axes=(None, None, 0, 0)),
-            compiler_options=opts)
+            lambda z, t, b, k, rv: self._loss(z, t, b, k, rv)[0]),
+            in_axes=(None, None, 0, 0, None)), compiler_options=opts)
+        # Control off (w_harm): compiled on first use only.
+        self._off = jax.jit(jax.vmap(self._off_one, in_axes=(0, 0, None)),
+                            compiler_options=opts)
+
+    @property
+    def needs_off(self) -> bool:
+        """Whether the loss reads the OFF_SURVIVED column (LossConfig.w_harm > 0)."""
+        return bool(self.loss_cfg.w_harm)
+
+    @property
+    def input_keys(self) -> tuple[str, ...]:
+        """The batch columns the loss reads: RECORD_KEYS, plus ROBOT_ID_COLUMN with robots and
+        OFF_SURVIVED with w_harm > 0."""
+        return (RECORD_KEYS + ((ROBOT_ID_COLUMN,) if self.robots is not None else ())
+                + ((OFF_SURVIVED,) if self.needs_off else ()))
+
+    def _model_state(self, rec, robot_values):
+        """The push's robot (its robot_id row of the RobotSet when there is one), with the
+        push's randomisation on top."""
+        model, state = self.model, self.state
+        if robot_values is not None:
+            rid = rec[ROBOT_ID_COLUMN].astype(jnp.int32)
+            model = put_leaves(model, self.robots.model_leaf_ids, robot_values[0], rid)
+            state = put_leaves(state, self.robots.state_leaf_ids, robot_values[1], rid)
+        model = randomize_model(model, self.index.chest_body,
+                                mass_scale=rec["link_mass_scale"],
+                                torso_com_dx_m=rec["torso_com_offset_x_m"],
+                                friction=rec["floor_friction"],
+                                kp_scale=rec["servo_kp_scale"])
+        return model, state
 
     def loss(self, z, temperature, batch: dict, keys):
+        """(mean loss, aux) of latents z on the batch (columns `input_keys`); the robots' values
+        enter as constants here (the jitted methods pass them as arguments)."""
+        return self._loss(z, temperature, batch, keys, self._robot_values)
+
+    def _loss(self, z, temperature, batch: dict, keys, robot_values):
         params = dataclasses.replace(self.reparam.apply(self.base, z),
                                      gate_temperature=temperature)
         # A PolicyReparam (tune.policy other than "scalars") also schedules some fields on the
@@ -81,12 +159,8 @@ class TuneProblem:
         def one(rec, key):
             push = Push(rec["impulse_ns"], rec["azimuth_deg"] * DEG, rec["height_m"],
                         rec["duration_s"], rec["onset_s"])
-            model = randomize_model(self.model, idx.chest_body,
-                                    mass_scale=rec["link_mass_scale"],
-                                    torso_com_dx_m=rec["torso_com_offset_x_m"],
-                                    friction=rec["floor_friction"],
-                                    kp_scale=rec["servo_kp_scale"])
-            series = rollout(model, self.state, push, params, 1.0, key, rec["gyro_noise_std"],
+            model, state = self._model_state(rec, robot_values)
+            series = rollout(model, state, push, params, 1.0, key, rec["gyro_noise_std"],
                              rec["accel_noise_std"], self.config, idx, schedule=schedule)
             out = outcomes(series, push.onset_s)
             return push_loss(series, push.onset_s, cfg), {k: out[k] for k in EVAL_KEYS}
@@ -95,25 +169,76 @@ class TuneProblem:
         # A diverged push (numerical blow-up) is neither fell nor survived: it is left out of
         # the mean (its NaN would poison it) and reported in outcomes["diverged"].
         kept = ~outs["diverged"]
-        total = jnp.sum(jnp.where(kept, terms["total"], 0.0)) / jnp.maximum(jnp.sum(kept), 1)
+        if self.needs_off:   # static: w_harm = 0 compiles the plain mean
+            off = batch[OFF_SURVIVED]
+            terms = dict(terms, weighted=(1.0 + cfg.w_harm * off) * terms["total"])
+            total = harm_weighted_mean(terms["total"], kept, off, cfg.w_harm)
+        else:
+            total = harm_weighted_mean(terms["total"], kept)
         return total, dict(terms=terms, outcomes=outs)
 
+    def _off_one(self, rec, key, robot_values):
+        """One push with control OFF (the robot holds its stand): fell / diverged."""
+        push = Push(rec["impulse_ns"], rec["azimuth_deg"] * DEG, rec["height_m"],
+                    rec["duration_s"], rec["onset_s"])
+        model, state = self._model_state(rec, robot_values)
+        config = dataclasses.replace(self.config, remat=False)   # forward only
+        series = rollout(model, state, push, self.base, 0.0, key, rec["gyro_noise_std"],
+                         rec["accel_noise_std"], config, self.index)
+        out = outcomes(series, push.onset_s)
+        return {k: out[k] for k in ("fell", "diverged")}
+
+    def control_off(self, records: dict, keys, batch: int | None = None) -> dict:
+        """{fell, diverged} (numpy bool, per record) of the records with control OFF, in chunks
+        of `batch` (default: all at once). Independent of the tuned parameters."""
+        n = len(records["impulse_ns"])
+        batch = batch or n
+        cols = [k for k in self.input_keys if k != OFF_SURVIVED]
+        parts = []
+        with _x64(self.float64):
+            for lo in range(0, n, batch):
+                sel = np.resize(np.arange(lo, min(lo + batch, n)), batch)
+                chunk = {k: jnp.asarray(np.asarray(records[k])[sel], self.dtype) for k in cols}
+                out = self._off(chunk, keys[sel], self._robot_values)
+                m = min(batch, n - lo)
+                parts.append({k: np.asarray(v)[:m].astype(bool) for k, v in out.items()})
+        return {k: np.concatenate([p[k] for p in parts]) for k in ("fell", "diverged")}
+
+    def with_off_survived(self, records: dict, keys, batch: int | None = None) -> dict:
+        """The records with their OFF_SURVIVED column (1.0 where control off neither falls nor
+        diverges) when the loss needs it and they lack it; otherwise the records unchanged."""
+        if not self.needs_off or OFF_SURVIVED in records:
+            return records
+        off = self.control_off(records, keys, batch)
+        return dict(records, **{OFF_SURVIVED: (~off["fell"] & ~off["diverged"]).astype(float)})
+
     def _args(self, z, temperature, batch, keys):
+        """(z, temperature, batch, keys) cast to this problem's precision; the batch reduced to
+        `input_keys` (a missing column is named). The jitted methods also take the robots'
+        values, `self._robot_values`, as a last argument."""
+        missing = [k for k in self.input_keys if k not in batch]
+        if missing:
+            raise ValueError(f"TuneProblem: the batch lacks the column(s) {missing}"
+                             + (f" ({ROBOT_ID_COLUMN}: the row of the problem's RobotSet)"
+                                if ROBOT_ID_COLUMN in missing else "")
+                             + (f" ({OFF_SURVIVED}: `with_off_survived`)"
+                                if OFF_SURVIVED in missing else ""))
         cast = lambda x: jnp.asarray(x, self.dtype)  # noqa: E731
-        return (cast(z), cast(temperature), {k: cast(batch[k]) for k in RECORD_KEYS}, keys)
+        return (cast(z), cast(temperature), {k: cast(batch[k]) for k in self.input_keys}, keys)
 
     def value_and_grad(self, z, temperature, batch, keys):
         """(loss, aux, grad) as numpy (float64), computed in this problem's precision."""
+        batch = self.with_off_survived(batch, keys)
         with _x64(self.float64):
-            (loss, aux), g = self._vg(*self._args(z, temperature, batch, keys))
+            (loss, aux), g = self._vg(*self._args(z, temperature, batch, keys),
+                                      self._robot_values)
             return _np(loss), _np(aux), _np(g)
 
     def population(self, zs, temperature, batch, keys) -> np.ndarray:
         """(P,) mean losses of the P latents zs (P, k) on the same batch, one call."""
+        batch = self.with_off_survived(batch, keys)
         with _x64(self.float64):
-            cast = lambda x: jnp.asarray(x, self.dtype)  # noqa: E731
-            out = self._pop(cast(zs), cast(temperature),
-                            {k: cast(batch[k]) for k in RECORD_KEYS}, keys)
+            out = self._pop(*self._args(zs, temperature, batch, keys), self._robot_values)
             return np.asarray(out, np.float64)
 
     def grouped_value_and_grad(self, z, temperature, batch, keys, groups: int):
@@ -121,25 +246,31 @@ class TuneProblem:
         n = len(keys)
         if n % groups:
             raise ValueError(f"batch {n} must be a multiple of the gradient groups {groups}")
+        batch = self.with_off_survived(batch, keys)
         with _x64(self.float64):
             z, t, b, k = self._args(z, temperature, batch, keys)
             split = lambda x: x.reshape((groups, n // groups) + x.shape[1:])  # noqa: E731
-            loss, g = self._vg_groups(z, t, {c: split(v) for c, v in b.items()}, split(k))
+            loss, g = self._vg_groups(z, t, {c: split(v) for c, v in b.items()}, split(k),
+                                      self._robot_values)
             return np.asarray(loss, np.float64), np.asarray(g, np.float64)
 
     def forward(self, z, temperature, batch, keys):
+        batch = self.with_off_survived(batch, keys)
         with _x64(self.float64):
-            loss, aux = self._fwd(*self._args(z, temperature, batch, keys))
+            loss, aux = self._fwd(*self._args(z, temperature, batch, keys), self._robot_values)
             return _np(loss), _np(aux)
 
     def forward_padded(self, z, temperature, records: dict, keys, batch: int) -> dict:
         """Forward over any number of records in chunks of `batch` (one compiled shape).
-        Returns the per-push aux (terms and outcomes) for the records, numpy."""
+        Returns the per-push aux (terms and outcomes) for the records, numpy. The control-off
+        column (w_harm > 0) is computed once here when the records lack it
+        (`with_off_survived`: pass records that have it to share it between calls)."""
         n = len(records["impulse_ns"])
+        records = self.with_off_survived(records, keys, batch)
         parts = []
         for lo in range(0, n, batch):
             sel = np.resize(np.arange(lo, min(lo + batch, n)), batch)
-            chunk = {k: records[k][sel] for k in RECORD_KEYS}
+            chunk = {k: np.asarray(records[k])[sel] for k in self.input_keys}
             _, aux = self.forward(z, temperature, chunk, keys[sel])
             m = min(batch, n - lo)
             parts.append(jax.tree_util.tree_map(lambda x, m=m: x[:m], aux))

@@ -78,6 +78,15 @@ def summary_markdown(rec: dict, comparison: dict | None = None) -> str:
                          " params_after.json is the starting set (`recommended_from`: start); "
                          "the search's result is in params_tuned.json."), "",
                       f"Rule: {dec['rule']}.", ""]
+    ens = rec.get("ensembles") or {}
+    w_harm = rec.get("spec", {}).get("tune", {}).get("loss", {}).get("w_harm", 0.0)
+    setup = (["Robots: " + "; ".join(
+        f"{k} = {v['path']} ({v['n']} members, sha256 {v['sha256'][:12]}…)"
+        for k, v in ens.items()) + "; the other sets run on the default robot."] if ens else [])
+    setup += ([f"Harm weight w_harm = {w_harm:g}: a push survived with control off counts "
+               f"{1 + w_harm:g} times in the loss."] if w_harm else [])
+    if setup:
+        lines[4:4] = [" ".join(setup), ""]
     ev = rec["evaluation"]
     if ev:
         azs = sorted({a for v in ev.values() for a in v.get("max_impulse", {})}, key=float)
@@ -95,6 +104,12 @@ def summary_markdown(rec: dict, comparison: dict | None = None) -> str:
                 f"{_mean_se(v.get('heldout_push_loss'))} | {_pct(v.get('grid_fall_rate'))} | "
                 + " | ".join(f"{v.get('max_impulse', {}).get(a, float('nan')):.2f}" for a in azs)
                 + " |")
+        if ev.get("after", {}).get("heldout_harmed_rate") is not None:
+            b, a = ev.get("before", {}), ev["after"]
+            lines += ["", f"Harm (issue 22; held-out pushes, n = {a['heldout_harm_n']}): control "
+                      f"off falls {_pct(a['heldout_off_fall_rate'])}; pushes that fall with "
+                      f"control but not without: start {_pct(b.get('heldout_harmed_rate'))}, "
+                      f"tuned {_pct(a['heldout_harmed_rate'])}."]
         if "heldout_fell" in ev.get("after", {}):
             d = (np.asarray(ev["after"]["heldout_fell"], float)
                  - np.asarray(ev["before"]["heldout_fell"], float))
@@ -103,6 +118,7 @@ def summary_markdown(rec: dict, comparison: dict | None = None) -> str:
                       f"{100 * d.mean():+.2f} +- {100 * se:.2f} pp (s.e., n = {d.size})"
                       + (" — significant." if d.mean() < -2 * se else " — not significant.")]
             lines += _by_direction(rec)
+    lines += _shifted_section(rec)
     if comparison is not None:
         from tkujax.studies.tune.compare import compare_markdown
 
@@ -138,6 +154,36 @@ def _by_direction(rec: dict) -> list[str]:
             f = fell[(sector == k) & np.isfinite(fell)]
             cells.append(f"{100 * f.mean():.1f}% ({f.size})" if f.size else "-")
         out.append(f"| {'paper' if name == 'before' else 'tuned'} | " + " | ".join(cells) + " |")
+    return out
+
+
+def _shifted_section(rec: dict) -> list[str]:
+    """The start and the tuned set on the shifted held-out pushes ([evaluate.shift])."""
+    ev = rec.get("evaluation_shifted") or {}
+    b, a = ev.get("before", {}), ev.get("after", {})
+    if a.get("heldout_fall_rate") is None or b.get("heldout_fall_rate") is None:
+        return []
+    out = ["", "## Shifted held-out evaluation ([evaluate.shift], hard controller)", "",
+           "| parameters | fall rate | recovered | loss (+- s.e.) | harmed |",
+           "|---|---|---|---|---|"]
+    for name, v in (("start", b), ("tuned", a)):
+        out.append(f"| {name} | {_pct(v.get('heldout_fall_rate'))} | "
+                   f"{v.get('heldout_recovered', '-')}/{v.get('heldout_n', '-')} | "
+                   f"{_mean_se(v.get('heldout_push_loss'))} | "
+                   f"{_pct(v.get('heldout_harmed_rate'))} |")
+    fell = []
+    for v in (b, a):
+        div = np.asarray(v.get("heldout_push_diverged", []), bool)
+        f = np.full(div.size, np.nan)
+        f[~div] = np.asarray(v["heldout_fell"], float)
+        fell.append(f)
+    if fell[0].size == fell[1].size:
+        d = fell[1] - fell[0]
+        d = d[np.isfinite(d)]
+        if d.size > 1:
+            se = d.std(ddof=1) / math.sqrt(d.size)
+            out += ["", f"Paired fall difference tuned - start: {100 * d.mean():+.2f} +- "
+                    f"{100 * se:.2f} pp (s.e., n = {d.size})."]
     return out
 
 

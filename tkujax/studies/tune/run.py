@@ -1,6 +1,10 @@
 """`tkujax tune SPEC --out DIR`: run the spec's method (or the [compare] study), evaluate the
 result with the hard controller on held-out pushes, and write the outputs.
 
+With an [evaluate.shift] table the start and the tuned set are also evaluated on the shifted
+held-out pushes (history.json "evaluation_shifted", a section of summary.md); the
+recommendation does not use them.
+
 params_tuned.json is what the search found; params_after.json is the recommendation: the tuned
 set when the held-out evaluation says it is better than the starting set (the rule:
 `tkujax.studies.tune.evaluate.RULE`), else the starting set; its `recommended_from` says which
@@ -18,11 +22,14 @@ import jax
 import numpy as np
 
 from tkujax.studies.tune.evaluate import evaluate, harmed_directions, params_json, recommend
-from tkujax.studies.tune.problem import TuneProblem, _x64
+from tkujax.studies.tune.problem import _x64
 from tkujax.studies.tune.report import plot_outputs, summary_markdown
 from tkujax.studies.tune.search import SearchConfig, run_search
-from tkujax.studies.tune.spec import (TuneSpec, grid_pushes, load_tune_spec, parse_tune_spec,
-                                      sample_pushes)
+from tkujax.studies.tune.spec import (TuneSpec, ensembles_record, grid_pushes, load_tune_spec,
+                                      make_problem, parse_tune_spec, sample_pushes, shifted)
+
+# The shifted held-out pushes use evaluate.seed + SHIFT_SEED (as [compare] does for seed 0).
+SHIFT_SEED = 1000
 
 
 def run_tune(spec: TuneSpec | dict | str | Path, out_dir: str | Path, quiet: bool = False,
@@ -58,9 +65,7 @@ def _run_tune(spec: TuneSpec, out: Path, quiet: bool, compiler_options: dict | N
     t_start = time.perf_counter()
     reparam, base = spec.policy_reparam(), spec.base_params()
     z0 = reparam.latent_of(base)
-    problem = TuneProblem(reparam, base, spec.loss, spec.duration_s, spec.remat, spec.float64,
-                          compiler_options=compiler_options,
-                          quantise_targets=spec.quantise_targets)
+    problem = make_problem(spec, reparam, compiler_options=compiler_options)
     comparison = None
     if compare and spec.compare is not None:
         from tkujax.studies.tune.compare import run_compare
@@ -81,16 +86,24 @@ def _run_tune(spec: TuneSpec, out: Path, quiet: bool, compiler_options: dict | N
     run = run_search(spec.method, problem, z0, train, keys, cfg, seed=spec.seed, log=log)
     cands = {"before": z0, "after": np.asarray(run["z_best"])}
 
-    evals = {}
+    evals, evals_shifted = {}, None
     if evaluation:
         log(f"evaluating (hard gate) on {spec.eval_n} held-out pushes (seed {spec.eval_seed}) "
             f"and a {len(spec.eval_impulse_ns)} x {len(spec.eval_azimuth_deg)} grid ...")
-        eval_problem = problem if spec.eval_duration_s == spec.duration_s else TuneProblem(
-            reparam, base, spec.loss, spec.eval_duration_s, False, spec.float64,
-            compiler_options=compiler_options, quantise_targets=spec.quantise_targets)
+        eval_problem = problem if spec.eval_duration_s == spec.duration_s else make_problem(
+            spec, reparam, spec.eval_duration_s, False, compiler_options)
         heldout = sample_pushes(spec, spec.eval_n, spec.eval_seed)
         evals = evaluate(eval_problem, cands, heldout, grid_pushes(spec), spec.batch,
                          spec.eval_seed)
+        shift_spec = shifted(spec)
+        if shift_spec is not None and spec.eval_n:
+            # [evaluate.shift] (never trained on), seeded as in [compare]: reported next to
+            # the held-out set; the recommendation stays the held-out set's.
+            log(f"evaluating (hard gate) on {spec.eval_n} shifted held-out pushes "
+                f"([evaluate.shift], seed {spec.eval_seed + SHIFT_SEED}) ...")
+            shift_recs = sample_pushes(shift_spec, spec.eval_n, spec.eval_seed + SHIFT_SEED)
+            evals_shifted = evaluate(eval_problem, cands, shift_recs, {"impulse_ns": ()},
+                                     spec.batch, spec.eval_seed + SHIFT_SEED)
 
     # Never recommend a worse set: params_after.json is the tuned set only when the held-out
     # evaluation says it is better (evaluate.RULE); else the starting set, with a note.
@@ -119,7 +132,8 @@ def _run_tune(spec: TuneSpec, out: Path, quiet: bool, compiler_options: dict | N
         iterations=run["iterations"], float64=spec.float64, remat=spec.remat, run=run,
         params_user={n: reparam.user(z) for n, z in cands.items()},
         latents={n: np.asarray(z).tolist() for n, z in cands.items()}, evaluation=evals,
-        recommendation=decision,
+        evaluation_shifted=evals_shifted,
+        recommendation=decision, ensembles=ensembles_record(spec),
         compare=None if comparison is None else dict(winner=comparison["winner"],
                                                      pooled=comparison["pooled"]),
         wall_s=round(time.perf_counter() - t_start, 2), devices=[str(d) for d in jax.devices()])

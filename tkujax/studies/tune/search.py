@@ -96,8 +96,12 @@ def run_search(method: str, problem: TuneProblem, z0, batch: dict, keys, cfg: Se
     z0 = np.asarray(z0, float)
     pairs = max((cfg.popsize - 1) // 2, 1)
 
-    # Compile (excluded from the budget): call what this method uses once.
+    # Compile (excluded from the budget): call what this method uses once. The control-off
+    # column of the harm weight (w_harm > 0) is computed here, once for the whole search
+    # (`problem` may be any object with the four methods used below: the tests' landscapes).
     t0 = time.perf_counter()
+    if hasattr(problem, "with_off_survived"):
+        batch = problem.with_off_survived(batch, keys)
     hard0 = problem.forward(z0, 0.0, batch, keys)[0]
     if method in ("cma", "sepcma", "hybrid"):
         problem.population(np.repeat(z0[None], cfg.popsize, 0), 0.0, batch, keys)

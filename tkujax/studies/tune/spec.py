@@ -1,8 +1,28 @@
-"""Tune specs: the TOML schema, validation, and the push batches drawn from it."""
+"""Tune specs: the TOML schema, validation, and the push batches drawn from it.
+
+Robot ensembles (issue 22: "train on the training distribution, and on the robot ensemble"):
+  [randomize] ensemble = "PATH"        training pushes, and the held-out pushes of the training
+                                       distribution, each run on one member drawn uniformly
+  [evaluate.shift] ensemble = "PATH"   the shifted held-out set runs on the ensemble's members
+The file is an ensemble of `tkujax calibrate` (tkujax.model.ensemble), read and validated here,
+its path relative to the current directory; its sha256 is recorded with the tune's outputs
+(`ensembles_record`). The other [randomize] / [evaluate.shift] keys apply on top of the member,
+as in sweeps. [evaluate.shift] replaces [randomize] as a whole, the ensemble included: a shift
+without its own ensemble key runs on the default robot.
+
+Robot table (`robot_table`): when either key is given, every push record carries a robot_id
+column (ROBOT_ID_COLUMN), the row of the problem's RobotSet: 0 = the default robot (the spec's
+model), 1..n = the members of the training ensemble, then the members of the shift's ensemble
+when it is another file. Record sets with no ensemble of their own (the grid, a shift without
+one) carry robot_id 0. One compiled program thus runs every set. The member is drawn with the
+set's seed after every other draw, so specs without an ensemble draw exactly the pushes they
+drew before, and adding one changes no other column.
+"""
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 from pathlib import Path
 from typing import Any
 
@@ -10,12 +30,14 @@ import numpy as np
 
 from tkujax.control.params import ControllerParams
 from tkujax.control.io import allowed_range, controller_params_from
-from tkujax.studies.spec import (CONTROLLER_FIELDS, PUSH_FIELDS, RANDOMIZE_DEFAULTS, SpecError,
-                                 _number, _table, _uniform, _values, controller_value,
-                                 parse_randomize, read_toml)
+from tkujax.model.params import ModelParams
+from tkujax.studies.spec import (CONTROLLER_FIELDS, ENSEMBLE_KEY, PUSH_FIELDS,
+                                 RANDOMIZE_DEFAULTS, RANDOMIZE_FIELDS, ROBOT_ID_COLUMN,
+                                 EnsembleRef, SpecError, _number, _table, _uniform, _values,
+                                 controller_value, parse_ensemble, parse_randomize, read_toml)
 from tkujax.studies.tune.loss import LOSS_FIELDS, LossConfig
 from tkujax.studies.tune.policy import DEFAULT_SCHEDULE, PolicyReparam, parse_policy
-from tkujax.studies.tune.problem import RECORD_KEYS
+from tkujax.studies.tune.problem import RECORD_KEYS, TuneProblem
 from tkujax.studies.tune.reparam import DEFAULT_TUNED, TUNABLE, Reparam, _user_factor
 from tkujax.studies.tune.search import METHODS
 
@@ -57,6 +79,11 @@ class TuneSpec:
     schedule: tuple[str, ...] = DEFAULT_SCHEDULE     # tune.schedule: the scheduled fields
     sharpness: float = 4.0                           # tune.sharpness: sector softmax
     study: dict | None = None                        # [study]: policies x methods x seeds
+    # [randomize] ensemble: the ensemble this spec's pushes draw their robot from (the shift's
+    # after `shifted`); robot_table: the ensembles of the problem's robot table, in row order
+    # (training, then the shift's if another file), the same for a spec and its `shifted`.
+    ensemble: EnsembleRef | None = None
+    robot_table: tuple[EnsembleRef, ...] = ()
 
     def reparam(self) -> Reparam:
         return Reparam.make(self.params, self.ranges)
@@ -246,7 +273,10 @@ def parse_tune_spec(data: dict) -> TuneSpec:
     push, jitter = _parse_push(data, tune["duration_s"])
     ctrl_raw = _table("controller", data.get("controller", {}), CONTROLLER_FIELDS)
     controller = {k: controller_value(f"controller.{k}", k, v) for k, v in ctrl_raw.items()}
-    randomize = parse_randomize(data)
+    rand = _table("randomize", data.get("randomize", {}), set(RANDOMIZE_FIELDS) | {ENSEMBLE_KEY})
+    ensemble = parse_ensemble(rand[ENSEMBLE_KEY]) if ENSEMBLE_KEY in rand else None
+    randomize = parse_randomize({"randomize": {k: v for k, v in rand.items()
+                                               if k != ENSEMBLE_KEY}})
     baseline = _parse_baseline(data, tune["seed"], tune["anneal"][1])
     ev = _table("evaluate", data.get("evaluate", {}), {"seed", "n", "impulse_ns", "azimuth_deg",
                                                       "duration_s", "shift"})
@@ -254,9 +284,14 @@ def parse_tune_spec(data: dict) -> TuneSpec:
     compare = _parse_compare(data["compare"], tune["batch"]) if "compare" in data else None
     shift = _parse_shift(ev["shift"]) if "shift" in ev else None
     study = _parse_study(data["study"], tune["batch"]) if "study" in data else None
+    table = tuple(e for e in (ensemble, (shift or {}).get("ensemble")) if e is not None)
+    table = tuple(e for i, e in enumerate(table) if e not in table[:i])   # by content
+    if table and tune["float64"]:
+        raise SpecError("tune.float64: an ensemble ([randomize] or [evaluate.shift] ensemble) "
+                        "runs in float32; set tune.float64 = false")
     spec = TuneSpec(**tune, push=push, azimuth_jitter_deg=jitter, controller=controller,
                     randomize=randomize, **baseline, **evaluate, raw=data, compare=compare,
-                    shift=shift, study=study)
+                    shift=shift, study=study, ensemble=ensemble, robot_table=table)
     # Start values must lie strictly inside the ranges (their latents are finite).
     for key, policy in [("tune.policy", spec.policy)] + [
             (f"study.policies[{i}]", p) for i, p in enumerate((study or {}).get("policies", []))]:
@@ -363,10 +398,13 @@ def _parse_study(raw, batch: int) -> dict:
 
 
 def _parse_shift(raw) -> dict:
-    """[evaluate.shift]: model variations and contact heights never used in training."""
-    sh = _table("evaluate.shift", raw, set(RANDOMIZE_DEFAULTS) | {"height_m"})
+    """[evaluate.shift]: model variations, contact heights and robots never used in training
+    (ensemble: an EnsembleRef, or absent: the default robot)."""
+    sh = _table("evaluate.shift", raw, set(RANDOMIZE_DEFAULTS) | {"height_m", ENSEMBLE_KEY})
     out = {"randomize": parse_randomize({"randomize": {k: v for k, v in sh.items()
-                                                        if k != "height_m"}})}
+                                                        if k not in ("height_m", ENSEMBLE_KEY)}})}
+    if ENSEMBLE_KEY in sh:
+        out[ENSEMBLE_KEY] = parse_ensemble(sh[ENSEMBLE_KEY], f"evaluate.shift.{ENSEMBLE_KEY}")
     if "height_m" in sh:
         lo, hi, _, unit = PUSH_FIELDS["height_m"]
         v = sh["height_m"]
@@ -377,13 +415,85 @@ def _parse_shift(raw) -> dict:
 
 
 def shifted(spec: TuneSpec) -> TuneSpec | None:
-    """The spec with [evaluate.shift] replacing its randomisation and contact heights."""
+    """The spec with [evaluate.shift] replacing its randomisation, its robots (the shift's
+    ensemble, or the default robot) and its contact heights. Its robot table is the spec's."""
     if spec.shift is None:
         return None
     push = dict(spec.push)
     if "height_m" in spec.shift:
         push["height_m"] = spec.shift["height_m"]
-    return dataclasses.replace(spec, push=push, randomize=spec.shift["randomize"])
+    return dataclasses.replace(spec, push=push, randomize=spec.shift["randomize"],
+                               ensemble=spec.shift.get(ENSEMBLE_KEY))
+
+
+def robot_table(spec: TuneSpec, model_params: ModelParams | None = None
+                ) -> tuple[ModelParams, ...] | None:
+    """The robots of the spec's tuning problem, row by row (the robot_id of the records): row
+    0 the default robot (`model_params`, None: the embedded default), then each ensemble of
+    spec.robot_table's members. None when the spec names no ensemble (one robot, no robot_id
+    column, the single-robot program)."""
+    if not spec.robot_table:
+        return None
+    return (model_params or ModelParams(),) + tuple(m for e in spec.robot_table
+                                                    for m in e.members)
+
+
+def robot_offset(spec: TuneSpec, ensemble: EnsembleRef) -> int:
+    """The row of `ensemble`'s member 0 in the spec's robot table."""
+    row = 1
+    for e in spec.robot_table:
+        if e == ensemble:
+            return row
+        row += e.n
+    raise ValueError(f"ensemble {ensemble.path} is not in the spec's robot table")
+
+
+@functools.lru_cache(maxsize=4)
+def _robot_set(models: tuple[ModelParams, ...]):
+    from tkujax.sim.robots import robot_set
+    return robot_set(models)
+
+
+def tune_robots(spec: TuneSpec, model_params: ModelParams | None = None):
+    """The RobotSet of `robot_table` (cached by content), or None without an ensemble; a member
+    that is not of the default robot's structure is a SpecError naming the ensemble key."""
+    models = robot_table(spec, model_params)
+    if models is None:
+        return None
+    try:
+        return _robot_set(models)
+    except ValueError as err:
+        keys = [k for k, e in ((f"randomize.{ENSEMBLE_KEY}", spec.ensemble),
+                               (f"evaluate.shift.{ENSEMBLE_KEY}",
+                                (spec.shift or {}).get(ENSEMBLE_KEY))) if e is not None]
+        raise SpecError(f"{' / '.join(keys)}: the ensemble's robots and the default robot do "
+                        f"not share one structure: {err}") from None
+
+
+def make_problem(spec: TuneSpec, reparam=None, duration_s: float | None = None,
+                 remat: bool | None = None, compiler_options: dict | None = None,
+                 model_params: ModelParams | None = None) -> TuneProblem:
+    """The spec's TuneProblem (its reparameterisation, start, loss, horizon, precision and,
+    with an ensemble, its RobotSet): what `tkujax tune`, [compare] and [study] run."""
+    robots = tune_robots(spec, model_params)
+    return TuneProblem(reparam if reparam is not None else spec.policy_reparam(),
+                       spec.base_params(), spec.loss,
+                       spec.duration_s if duration_s is None else duration_s,
+                       spec.remat if remat is None else remat, spec.float64,
+                       model_params=None if robots is not None else model_params,
+                       compiler_options=compiler_options,
+                       quantise_targets=spec.quantise_targets, robots=robots)
+
+
+def ensembles_record(spec: TuneSpec) -> dict:
+    """{spec key: EnsembleRef.describe() (path, resolved path, sha256, n, ...) and its first
+    row in the robot table}: what the tune's outputs record of its ensembles."""
+    out = {}
+    for key, e in ((f"randomize.{ENSEMBLE_KEY}", spec.ensemble),
+                   (f"evaluate.shift.{ENSEMBLE_KEY}", (spec.shift or {}).get(ENSEMBLE_KEY))):
+        if e is not None:
+            out[key] = e.describe() | {"first_row": robot_offset(spec, e)}
+    return out
 
 
 def load_tune_spec(path: str | Path) -> TuneSpec:
@@ -405,7 +515,12 @@ def sample_pushes(spec: TuneSpec, n: int, seed: int) -> dict[str, np.ndarray]:
     if spec.azimuth_jitter_deg > 0:
         out["azimuth_deg"] = out["azimuth_deg"] + rng.uniform(-spec.azimuth_jitter_deg,
                                                               spec.azimuth_jitter_deg, n)
-    return _with_randomize(out, spec, rng, n)
+    out = _with_randomize(out, spec, rng, n)
+    if spec.robot_table:   # drawn last: the other columns are those drawn without it
+        out[ROBOT_ID_COLUMN] = (np.zeros(n) if spec.ensemble is None else
+                                robot_offset(spec, spec.ensemble)
+                                + rng.integers(0, spec.ensemble.n, n).astype(float))
+    return out
 
 
 def grid_pushes(spec: TuneSpec) -> dict[str, np.ndarray]:
@@ -418,8 +533,11 @@ def grid_pushes(spec: TuneSpec) -> dict[str, np.ndarray]:
         mid = (0.5 * (v[0] + v[1]) if isinstance(v, tuple)
                else float(np.mean(v)) if isinstance(v, list) else v)
         out[k] = np.full(n, mid)
-    # The grid uses the nominal model (no randomisation) and no sensor noise.
-    return _with_randomize(out, None, None, n)
+    # The grid uses the nominal model (no randomisation; the default robot) and no sensor noise.
+    out = _with_randomize(out, None, None, n)
+    if spec.robot_table:
+        out[ROBOT_ID_COLUMN] = np.zeros(n)
+    return out
 
 
 def _with_randomize(out: dict, spec: TuneSpec | None, rng, n: int) -> dict[str, np.ndarray]:

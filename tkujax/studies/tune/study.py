@@ -352,14 +352,11 @@ class StudyRunner:
         return _uses(method) <= self.done.get((policy, side_by_side), set())
 
     def problem(self, policy: str):
-        from tkujax.studies.tune.problem import TuneProblem
+        from tkujax.studies.tune.spec import make_problem
 
         if policy not in self.problems:
-            spec = self.spec
-            self.problems[policy] = TuneProblem(
-                spec.policy_reparam(policy), self.base, spec.loss, spec.duration_s, spec.remat,
-                spec.float64, compiler_options=self.opts,
-                quantise_targets=spec.quantise_targets)
+            self.problems[policy] = make_problem(self.spec, self.spec.policy_reparam(policy),
+                                                 compiler_options=self.opts)
         return self.problems[policy]
 
     def eval_sets(self, seed: int) -> dict:
@@ -413,6 +410,8 @@ class StudyRunner:
         fell: {label: (start fell (n,), best fell (n,))}."""
         import jax
 
+        from tkujax.studies.tune.spec import ensembles_record
+
         st = self.spec.study
         row = dict(method=method, policy=policy, n_params=rep.size, seed=seed,
                    cma_variant=variant, budget_s=st["budget_s"],
@@ -427,6 +426,7 @@ class StudyRunner:
                  f"(start {row['start_heldout_fall']:.3f}), {r['iterations']} iterations")
         return dict(row, curve=r["curve"], z_best=r["z_best"], extra=r["extra"],
                     policy_layout=rep.describe(r["z_best"]),
+                    ensembles=ensembles_record(self.spec),
                     devices=[str(d) for d in jax.devices()])
 
     def __call__(self, policy: str, method: str, seed: int) -> dict:
