@@ -33,6 +33,8 @@ class _Stand:
 
     float64 = False
     dtype = jnp.float32
+    input_keys = RECORD_KEYS            # no robot ensemble, no control-off column (w_harm = 0)
+    _robot_values = None
     _args = TuneProblem._args
     forward = TuneProblem.forward
     population = TuneProblem.population
@@ -40,11 +42,16 @@ class _Stand:
     forward_padded = TuneProblem.forward_padded
 
     def __init__(self):
-        # As TuneProblem.__init__ builds them from its loss.
-        loss0 = lambda z, t, b, k: self.loss(z, t, b, k)[0]  # noqa: E731
-        self._fwd = jax.jit(self.loss)
-        self._pop = jax.jit(jax.vmap(loss0, in_axes=(0, None, None, None)))
-        self._vg_groups = jax.jit(jax.vmap(jax.value_and_grad(loss0), in_axes=(None, None, 0, 0)))
+        # As TuneProblem.__init__ builds them from its loss (the robots' values, None here,
+        # are the jitted functions' last argument).
+        loss0 = lambda z, t, b, k, rv: self.loss(z, t, b, k)[0]  # noqa: E731
+        self._fwd = jax.jit(lambda z, t, b, k, rv: self.loss(z, t, b, k))
+        self._pop = jax.jit(jax.vmap(loss0, in_axes=(0, None, None, None, None)))
+        self._vg_groups = jax.jit(jax.vmap(jax.value_and_grad(loss0),
+                                           in_axes=(None, None, 0, 0, None)))
+
+    def with_off_survived(self, records, keys, batch=None):
+        return records
 
     def loss(self, z, temperature, batch, keys):
         def one(rec, key):
