@@ -215,7 +215,7 @@ def test_recommended_is_the_committed_tuning_result(params):
     from pathlib import Path
 
     rec = ControllerParams.recommended()
-    tuned = json.loads((Path(__file__).parents[1] / "results" / "tune_recovery"
+    tuned = json.loads((Path(__file__).parents[1] / "results" / "tune_recovery_ensemble"
                         / "params_after.json").read_text())
     for f in dataclasses.fields(ControllerParams):
         assert getattr(rec, f.name) == tuned[f.name], f.name

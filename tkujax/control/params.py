@@ -163,9 +163,11 @@ class ControllerParams:
     def recommended(cls, model_params=None) -> ControllerParams:
         """The recommended recovery controller: the paper's architecture with the recovery
         extensions on (rate-aware capture point and trigger, stance feedback, up to two steps,
-        sideways steps, the accelerometer gate), tuned by CMA-ES through MJX on the default
-        robot (`tkujax tune sweeps/tune_recovery.toml`, NVIDIA H200; results/tune_recovery/,
-        whose params_after.json holds these values). Geometry and Kalman noises as `paper`."""
+        sideways steps, the accelerometer gate), tuned by CMA-ES through MJX, last over the
+        calibration's ensemble of 39 plausible robots with the no-harm weight
+        (`tkujax tune sweeps/tune_recovery_ensemble.toml`, NVIDIA H100;
+        results/tune_recovery_ensemble/, whose params_after.json holds these values).
+        Geometry and Kalman noises as `paper`."""
         return dataclasses.replace(cls.paper(model_params), **RECOMMENDED).validate()
 
     def validate(self) -> ControllerParams:
@@ -233,26 +235,27 @@ class ControllerParams:
 KALMAN_ESTIMATED = dict(kalman_q=1e-4, kalman_r=3e-3)
 
 
-# The recommended set (`ControllerParams.recommended()`): the third CMA-ES run of
-# results/tune_recovery (values exactly as its params_after.json).
+# The recommended set (`ControllerParams.recommended()`): the CMA-ES run over the calibration's
+# robot ensemble with the no-harm weight, results/tune_recovery_ensemble (values exactly as its
+# params_after.json; it started from the third run of results/tune_recovery).
 RECOMMENDED = dict(
-    step_period=0.21796063714176211,
-    double_support_ratio=0.008870187177758282,
-    lift_height=0.07730342603325048,
-    cp_gain=3.0460748835149944,
+    step_period=0.2401550468562934,
+    double_support_ratio=0.004891208419776472,
+    lift_height=0.07852125642359459,
+    cp_gain=3.347652426797696,
     lateral_steps=1.0,
-    accel_gate=0.07084230281711561,
-    cp_rate_blend=0.9990902368214323,
-    cp_lookahead_s=0.0012920432052628882,
+    accel_gate=0.06284315875567265,
+    cp_rate_blend=0.999576176313371,
+    cp_lookahead_s=0.004291368070195955,
     cp_trigger=1.0,
-    cp_trigger_forward_m=0.03993349378052501,
-    cp_trigger_backward_m=0.2802021533462098,
-    cp_trigger_lateral_m=0.15116217402324547,
-    stance_ankle_kp=0.40986881503036643,
-    stance_ankle_kd=0.09494472882779928,
-    stance_hip_kp=-0.30625184783466985,
-    stance_hip_kd=0.018971448906724336,
-    stance_roll_kp=-0.4233408953649201,
-    stance_roll_kd=0.055000800158451546,
+    cp_trigger_forward_m=0.030178805806837915,
+    cp_trigger_backward_m=0.2817903883756898,
+    cp_trigger_lateral_m=0.15023490028143624,
+    stance_ankle_kp=0.23155860265353817,
+    stance_ankle_kd=0.09606521460528103,
+    stance_hip_kp=0.08718691474956342,
+    stance_hip_kd=0.009712262949108139,
+    stance_roll_kp=-0.38401757389040403,
+    stance_roll_kd=0.08180953998937987,
     max_steps=2.0,
 )
