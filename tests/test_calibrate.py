@@ -82,7 +82,8 @@ def test_shipped_specs_parse():
     cpu, full = load_calibrate_spec("sweeps/calibrate_cpu.toml"), load_calibrate_spec(
         "sweeps/calibrate.toml")
     assert cpu.max_evals is not None and len(full.hit_phases_ms) >= 3
-    assert set(full.params) == set(P.NAMES)
+    # every parameter but the front hit's (params.NEUTRAL: named by the fits that move it)
+    assert set(full.params) == set(P.NAMES) - set(P.NEUTRAL)
 
 
 # ----------------------------------------------------------------------------- the vector
@@ -322,3 +323,48 @@ def test_criterion_shortfall_by_hand():
     assert a.criterion_weight == 50 and a.fit_digest() != b.fit_digest()
     with pytest.raises(SpecError, match="fit.criterion_weight"):
         _spec({"criterion_weight": -1}, {"max_evals": 2})
+
+
+# ------------------------------------------------------------- the front hit relative to the back
+
+
+def test_front_hit_parameters_move_only_the_front_pushes():
+    """front_height_offset_m and front_impulse_ratio: neutral values give the pushes of one hit
+    for both directions (what fits before them simulated); otherwise only the front pushes
+    change, by exactly the offset and the ratio."""
+    from tkujax.studies.calibrate.evaluate import CASES, pushes_for
+
+    base = P.as_dict(P.base_vector())
+    old = dict(base)
+    for n in P.NEUTRAL:                    # an x archived before these names existed
+        old.pop(n)
+    a, b = pushes_for(old, (0.0, 6.0)), pushes_for(base, (0.0, 6.0))
+    for f in ("impulse_ns", "height_m", "azimuth_rad", "onset_s", "duration_s"):
+        np.testing.assert_array_equal(np.asarray(getattr(a, f)), np.asarray(getattr(b, f)))
+    moved = pushes_for(dict(base, front_height_offset_m=0.02, front_impulse_ratio=1.1), (0.0,))
+    front = np.array([d == "front" for d, _ in CASES])
+    np.testing.assert_allclose(np.asarray(moved.height_m)[front],
+                               np.asarray(b.height_m)[:len(CASES)][front] + 0.02, atol=1e-7)
+    np.testing.assert_allclose(np.asarray(moved.impulse_ns)[front],
+                               np.asarray(b.impulse_ns)[:len(CASES)][front] * 1.1, rtol=1e-6)
+    np.testing.assert_array_equal(np.asarray(moved.height_m)[~front],
+                                  np.asarray(b.height_m)[:len(CASES)][~front])
+    np.testing.assert_array_equal(np.asarray(moved.impulse_ns)[~front],
+                                  np.asarray(b.impulse_ns)[:len(CASES)][~front])
+    # The front contact stays on the chest at the corners of the box.
+    top = pushes_for(dict(base, push_height_m=0.43, front_height_offset_m=0.05), (0.0,))
+    assert float(np.max(np.asarray(top.height_m)[front])) == pytest.approx(0.435)
+
+
+def test_fits_that_hold_the_front_hit_keep_their_digest_and_archives(tmp_path):
+    """A spec that does not fit the front hit has the digest it had before the names existed
+    (the shipped specs' archives resume), and an archived candidate without them reads as
+    the neutral values."""
+    from tkujax.studies.calibrate.spec import parse_calibrate_spec
+
+    data = {"fit": {"params": ["leg_kp"]}, "search": {"max_evals": 1}}
+    spec = parse_calibrate_spec(data)
+    moved = parse_calibrate_spec({**data, "fit": {"params": ["leg_kp", "front_impulse_ratio"]}})
+    assert "front_impulse_ratio" not in spec.params and spec.fit_digest() != moved.fit_digest()
+    assert P.complete({"leg_kp": 20.0}) == {"leg_kp": 20.0, **P.NEUTRAL}
+    assert P.complete({"front_impulse_ratio": 1.1})["front_impulse_ratio"] == 1.1

@@ -57,7 +57,19 @@ PARAMS = (
           "Kalman process noise rad^2 per 30 ms (log10): gyro noise and drift, (0.18-1.8 deg)^2"),
     Param("kalman_r", -3.5, -1.5, math.log10(3e-3), log=True, why=
           "accelerometer-angle variance rad^2 (log10): (1-10 deg)^2"),
+    # The hit from the front, relative to the hit from behind (push_height_m, impulse_factor
+    # describe the latter): the ball meets the chest's back and front, whose shapes and
+    # stiffness differ, and the paper gives neither contact. Neutral values: one hit for both.
+    Param("front_height_offset_m", -0.05, 0.05, 0.0, why=
+          "the front hit's contact height minus the back hit's (the chest's front and back "
+          "differ in shape; the paper gives neither height)"),
+    Param("front_impulse_ratio", 0.8, 1.25, 1.0, why=
+          "the front hit's impulse factor / the back hit's (restitution and effective mass at "
+          "the chest's front vs its back)"),
 )
+# Names whose value above changes nothing (the model before they existed): archives and specs
+# written before them lack them, and read as these values (`complete`).
+NEUTRAL = {"front_height_offset_m": 0.0, "front_impulse_ratio": 1.0}
 NAMES = tuple(p.name for p in PARAMS)
 LO = np.array([p.lo for p in PARAMS])
 HI = np.array([p.hi for p in PARAMS])
@@ -84,6 +96,11 @@ def from_unit(u: np.ndarray) -> np.ndarray:
 
 def as_dict(x: np.ndarray) -> dict:
     return {n: float(v) for n, v in zip(NAMES, x)}
+
+
+def complete(x: dict) -> dict:
+    """x with the NEUTRAL names it lacks (a candidate archived before they existed)."""
+    return {**NEUTRAL, **x}
 
 
 def model_params(x) -> ModelParams:
@@ -122,5 +139,5 @@ def base_vector() -> np.ndarray:
              chest_com_frac=m.chest_com_frac, leg_mass_kg=m.leg_mass_kg,
              chest_share=m.chest_mass_kg / (m.chest_mass_kg + m.pelvis_mass_kg),
              push_height_m=ball.height_m, impulse_factor=ball.impulse_factor,
-             kalman_q=math.log10(c.kalman_q), kalman_r=math.log10(c.kalman_r))
+             kalman_q=math.log10(c.kalman_q), kalman_r=math.log10(c.kalman_r), **NEUTRAL)
     return np.array([float(v[n]) for n in NAMES])

@@ -24,7 +24,11 @@ def load(path) -> list[dict]:
     import gzip
     opener = gzip.open if str(path).endswith(".gz") else open
     with opener(path, "rt") as fh:
-        return [json.loads(line) for line in fh if line.strip()]
+        recs = [json.loads(line) for line in fh if line.strip()]
+    for r in recs:
+        if "x" in r:
+            r["x"] = P.complete(r["x"])      # archived before params.NEUTRAL's names
+    return recs
 
 
 def _k(key: str):

@@ -146,6 +146,7 @@ class Archive:
             for n, line in enumerate(text.splitlines(), 1):
                 if line.strip():
                     rec = json.loads(line)
+                    rec["x"] = P.complete(rec["x"])      # archived before NEUTRAL names
                     if rec.get("spec") != digest:
                         raise SpecError(f"{path}:{n}: archived by a different fit (spec digest "
                                         f"{rec.get('spec')}, this spec {digest}): its losses "

@@ -1,8 +1,9 @@
 """Calibration specs: the TOML schema of `tkujax calibrate` and its validation.
 
 [fit]
-params = [...]            subset of params.NAMES to fit (default: all); the others are held at
-                          the default model's values (params.base_vector())
+params = [...]            subset of params.NAMES to fit (default: all but params.NEUTRAL's, the
+                          front hit relative to the back one); the others are held at the
+                          default model's values (params.base_vector())
 readings = [...]          subset of params.READINGS (default: all): one fit per reading
 rows = "all"              "all" (8 rows) or "table4" (pushes from behind only)
 heldout = true            with rows = "all": also fit on Table 4 alone and predict Table 5
@@ -87,7 +88,13 @@ class CalibrateSpec:
     def fit_digest(self) -> str:
         """What an archived candidate's meaning depends on: a rerun into the same folder with a
         different digest would mix incomparable losses, so run_calibrate refuses it."""
-        key = dict(params=self.params, bounds=self.bounds, start=self.start,
+        # Held names at their neutral value (params.NEUTRAL) leave the digest as it was before
+        # they existed, so archives of older fits still resume.
+        held = {k for k, v in P.NEUTRAL.items()
+                if k not in self.params and self.start.get(k) == v}
+        start = {k: v for k, v in self.start.items() if k not in held}
+        bounds = {k: v for k, v in self.bounds.items() if k not in held}
+        key = dict(params=self.params, bounds=bounds, start=start,
                    readings=self.readings, hit_phases_ms=self.hit_phases_ms)
         if self.contact_times_ms != (DEFAULT_CONTACT_MS,):   # fits of one contact time: as before
             key["contact_times_ms"] = self.contact_times_ms
@@ -128,7 +135,9 @@ def parse_calibrate_spec(data: dict) -> CalibrateSpec:
     for k in ("name", "description"):
         if k in fit and not isinstance(fit[k], str):
             raise SpecError(f"fit.{k}: expected a string, got {fit[k]!r}")
-    names = _names("fit.params", fit.get("params", list(P.NAMES)), P.NAMES)
+    # Default: every parameter but the NEUTRAL ones (added later; a fit names them to move them).
+    names = _names("fit.params", fit.get("params", [n for n in P.NAMES if n not in P.NEUTRAL]),
+                   P.NAMES)
     readings = _names("fit.readings", fit.get("readings", list(P.READINGS)), P.READINGS)
     rows = fit.get("rows", "all")
     if rows not in ROWS_CHOICES:
