@@ -332,6 +332,24 @@ def test_alpha_order_mix_trusts_the_lower_variance_and_rejects_bias():
     assert alpha == 0.0 and np.linalg.norm(g - g_true) < 0.5
 
 
+def test_clipped_group_means_against_a_hand_computation():
+    """Each push's gradient is cut to clip x the median per-push norm, then grouped means."""
+    from tkujax.studies.tune.search import clipped_group_means
+
+    per_push = np.array([[3.0, 4.0],       # norm 5
+                         [0.0, 1.0],       # norm 1
+                         [0.0, -2.0],      # norm 2 (the median of 1, 2, 5, 100)
+                         [60.0, 80.0]])    # norm 100: a chaotic rollout
+    got = clipped_group_means(per_push, groups=2, clip=1.5)      # cap 1.5 x 3.5 = 5.25
+    np.testing.assert_allclose(got, [[1.5, 2.5], [0.5 * 3.15, 0.5 * (4.2 - 2.0)]])
+    # A generous clip changes nothing; one group is the plain mean.
+    np.testing.assert_allclose(clipped_group_means(per_push, 1, 1e6), per_push.mean(0)[None])
+    # A non-finite push (a diverged rollout) counts as zero.
+    bad = per_push.copy()
+    bad[3] = np.nan
+    np.testing.assert_allclose(clipped_group_means(bad, 1, 1e6), per_push[:3].sum(0)[None] / 4)
+
+
 def test_recovery_tuning_spec_round_trips_the_recommended_set():
     """The extended controller's tuning space (sweeps/tune_recovery.toml): the recommended set
     lies strictly inside it and maps to latents and back to itself."""

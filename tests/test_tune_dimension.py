@@ -191,6 +191,7 @@ def test_dimension_specs_parse():
     ({"study": {"popsize": 4}}, "study.popsize"),
     ({"study": {"budget_s": -1.0}}, "study.budget_s"),
     ({"study": {"above_impulse_ns": [3.0, 2.0]}}, "study.above_impulse_ns"),
+    ({"study": {"push_clip": -1.0}}, "study.push_clip"),
     ({"study": {"bogus": 1}}, "unknown key"),
 ])
 def test_spec_validation_names_the_key(patch, match):

@@ -121,6 +121,25 @@ def test_lockstep_matches_run_search_per_seed(stand, method):
     _assert_same(lock, again, rtol=0, atol=0)
 
 
+@pytest.mark.parametrize("method", ["gradient", "hybrid"])
+def test_lockstep_matches_run_search_with_push_clip(stand, method):
+    """The clipped per-push first-order gradient (push_clip > 0) in lockstep = run_search's,
+    and it changes the iterates (the clip is active on this landscape)."""
+    import dataclasses
+
+    cfg = dataclasses.replace(CFG, push_clip=0.5)
+    batches = [_records(N, 10 + s) for s in SEEDS]
+    keys = [_keys(N, s) for s in SEEDS]
+    single = [run_search(method, stand, Z0, batches[i], keys[i], cfg, seed=s)
+              for i, s in enumerate(SEEDS)]
+    lock = run_search_lockstep(method, stand, Z0, batches, keys, cfg, SEEDS)
+    _assert_same(single, lock)
+    np.testing.assert_allclose(lock[0]["extra"]["iterate_loss"],
+                               single[0]["extra"]["iterate_loss"], rtol=1e-5)
+    plain = run_search_lockstep(method, stand, Z0, batches, keys, CFG, SEEDS)
+    assert not np.allclose(plain[0]["z_best"], lock[0]["z_best"])
+
+
 def test_lockstep_shares_one_clock(stand):
     """A budget, not the iteration cap, ends the loop: every seed has done the same number of
     iterations, and their curves end at the same wall time (one clock)."""

@@ -34,7 +34,7 @@ import optax
 from tkujax.studies.tune.problem import _np, _x64
 from tkujax.studies.tune.reparam import CPU_COMPILER_OPTIONS, DEG
 from tkujax.studies.tune.search import (METHODS, SearchConfig, _adam, _finite, _Tracker,
-                                        alpha_order_mix)
+                                        alpha_order_mix, clipped_group_means)
 
 
 class LockstepFunctions:
@@ -192,7 +192,7 @@ def run_search_lockstep(method: str, problem, z0, batches, keys, cfg: SearchConf
     if method == "hybrid":
         fns.population(np.repeat(Z0[:, None], 1 + 2 * pairs, 1), 0.0, batch, keys)
     if method in ("gradient", "hybrid"):
-        fns.grouped_value_and_grad(Z0, tau, batch, keys, cfg.groups)
+        _first_order(fns, Z0, tau, batch, keys, cfg, n)
     compile_s = time.perf_counter() - t0
 
     tracks = [_Tracker(z0, h, n) for h in hard0]
@@ -256,15 +256,17 @@ def run_search_lockstep(method: str, problem, z0, batches, keys, cfg: SearchConf
         apply = jax.jit(lambda z, s, g: _adam(optimizer, z, s, g))
         gens = [np.random.default_rng(s) for s in seeds]
         alphas: list[list[float]] = [[] for _ in seeds]
+        iterate_losses: list[list[float]] = [[] for _ in seeds]
         while running():
             zc = np.stack([np.asarray(z, float) for z in zj])                 # (S, k)
-            _, grads = fns.grouped_value_and_grad(zc, tau, batch, keys, cfg.groups)
+            grads = _first_order(fns, zc, tau, batch, keys, cfg, n)            # (S, G, k)
             pushes = n
             if method == "gradient":
                 hard = fns.forward(zc, 0.0, batch, keys)[0]
                 mixed = []
                 for i, tr in enumerate(tracks):
                     tr.offer(zc[i], hard[i])
+                    iterate_losses[i].append(_finite(hard[i]))
                     mixed.append((grads[i].mean(0), 1.0))
                 pushes += n
             else:
@@ -277,6 +279,7 @@ def run_search_lockstep(method: str, problem, z0, batches, keys, cfg: SearchConf
                 for i, tr in enumerate(tracks):
                     losses = np.array([_finite(v) for v in pop[i]])
                     tr.offer(zc[i], losses[0])
+                    iterate_losses[i].append(float(losses[0]))
                     for zz, v in zip(zs[i][1:], losses[1:]):
                         tr.offer(zz, v)
                     mixed.append(alpha_order_mix(grads[i].mean(0), grads[i],
@@ -293,8 +296,17 @@ def run_search_lockstep(method: str, problem, z0, batches, keys, cfg: SearchConf
                 log(f"{method} x{S}  it {it:3d}  best {best()}  alpha "
                     + " ".join(f"{m[1]:.2f}" for m in mixed)
                     + f"  {clock.elapsed():.0f}/{cfg.budget_s:g} s")
-        for e, a in zip(extras, alphas):
+        for e, a, h in zip(extras, alphas, iterate_losses):
             e["alpha"] = a
+            e["iterate_loss"] = h             # the hard loss of each Adam iterate
     return [dict(method=method, seed=s, z_best=tr.z.tolist(), best_loss=tr.loss,
                  compile_s=round(compile_s, 2), iterations=it, curve=tr.curve, extra=e)
             for s, tr, e in zip(seeds, tracks, extras)]
+
+
+def _first_order(fns, zs, tau, batch, keys, cfg: SearchConfig, n: int) -> np.ndarray:
+    """(S, groups, k) first-order gradient samples, as search.first_order_grads per seed."""
+    if cfg.push_clip > 0:
+        _, per_push = fns.grouped_value_and_grad(zs, tau, batch, keys, n)      # (S, n, k)
+        return np.stack([clipped_group_means(g, cfg.groups, cfg.push_clip) for g in per_push])
+    return np.asarray(fns.grouped_value_and_grad(zs, tau, batch, keys, cfg.groups)[1])

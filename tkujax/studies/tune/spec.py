@@ -308,7 +308,7 @@ def parse_tune_spec(data: dict) -> TuneSpec:
 
 
 COMPARE_FIELDS = {"methods", "seeds", "budget_s", "popsize", "sigma0", "zo_sigma", "groups",
-                  "learning_rate", "temperature_deg", "eval_n"}
+                  "learning_rate", "temperature_deg", "push_clip", "eval_n"}
 
 
 def _methods(table: str, c: dict, default: list) -> list:
@@ -341,6 +341,10 @@ def _search_settings(table: str, c: dict, batch: int, popsize: int, budget_s: fl
                               10.0),
         temperature_deg=_number(f"{table}.temperature_deg", c.get("temperature_deg", 0.5),
                                 1e-3, 30.0, "deg"),
+        # gradient, hybrid: clip each push's gradient at push_clip x the batch's median
+        # per-push norm before the mean (0: the plain mean; search.first_order_grads)
+        push_clip=_number(f"{table}.push_clip", c.get("push_clip", 0.0), 0.0, 1e6,
+                          "(x median norm)"),
         eval_n=_int(f"{table}.eval_n", c.get("eval_n", 4 * batch), 1, 10_000_000))
 
 
@@ -356,8 +360,8 @@ def _parse_compare(raw, batch: int) -> dict:
 
 
 STUDY_FIELDS = {"policies", "methods", "seeds", "budget_s", "popsize", "sigma0", "zo_sigma",
-                "groups", "learning_rate", "temperature_deg", "eval_n", "above_impulse_ns",
-                "sep_cma_from", "margin_s", "compile_s", "seeds_side_by_side"}
+                "push_clip", "groups", "learning_rate", "temperature_deg", "eval_n",
+                "above_impulse_ns", "sep_cma_from", "margin_s", "compile_s", "seeds_side_by_side"}
 
 
 def _parse_study(raw, batch: int) -> dict:

@@ -392,7 +392,8 @@ class StudyRunner:
         cfg = SearchConfig(budget_s=st["budget_s"], popsize=st["popsize"],
                            sigma0=st["sigma0"], zo_sigma=st["zo_sigma"],
                            groups=st["groups"], learning_rate=st["learning_rate"],
-                           clip_norm=spec.clip_norm, temperature_deg=st["temperature_deg"])
+                           clip_norm=spec.clip_norm, temperature_deg=st["temperature_deg"],
+                           push_clip=st["push_clip"])
         return problem, rep, z0, variant, m, cfg
 
     def _train(self, seed: int):
@@ -415,6 +416,7 @@ class StudyRunner:
         st = self.spec.study
         row = dict(method=method, policy=policy, n_params=rep.size, seed=seed,
                    cma_variant=variant, budget_s=st["budget_s"],
+                   push_clip=st["push_clip"] if method in ("gradient", "hybrid") else None,
                    wall_s=r["curve"][-1]["wall_s"], best_loss=r["best_loss"],
                    start_loss=r["curve"][0]["best_loss"], iterations=r["iterations"],
                    compile_s=r["compile_s"], device=str(jax.devices()[0].device_kind))
