@@ -175,7 +175,7 @@ def run_study(spec, out_dir, only: list[str] | None = None, deadline_s: float | 
 ROW_KEYS = ("method", "policy", "n_params", "seed", "heldout_fall", "shifted_fall",
             "above_fall", "start_heldout_fall", "start_shifted_fall", "start_above_fall",
             "wall_s", "budget_s", "best_loss", "start_loss", "iterations", "compile_s",
-            "cma_variant", "device", "side_by_side")
+            "cma_variant", "push_clip", "device", "side_by_side")
 
 
 def load_runs(out: Path) -> list[dict]:
@@ -320,6 +320,25 @@ def plot_study(out: Path, rows: list[dict], runs: list[dict]) -> None:
     fig.tight_layout()
     fig.savefig(out / "convergence.png", dpi=90)
     plt.close(fig)
+
+    # The gradient methods keep their best iterate, so the curves above cannot show a descent
+    # that goes the wrong way: the hard loss of every Adam iterate (extra.iterate_loss) can.
+    its = [r for r in runs if r.get("extra", {}).get("iterate_loss")]
+    if its:
+        fig, ax = plt.subplots(figsize=(6, 4.2))
+        for i, r in enumerate(sorted(its, key=lambda r: (r["n_params"], r["method"],
+                                                          r["seed"]))):
+            label = f"{r['policy']} {r['method']} s{r['seed']}"
+            if r.get("push_clip"):
+                label += f" (push_clip {r['push_clip']:g})"
+            ax.plot(r["extra"]["iterate_loss"], "-o", ms=3, color=f"C{i % 10}", label=label)
+        ax.set_xlabel("Adam iteration")
+        ax.set_ylabel("hard training loss of the iterate")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(out / "iterates.png", dpi=90)
+        plt.close(fig)
 
 
 def _uses(method: str) -> set[str]:
