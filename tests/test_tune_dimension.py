@@ -412,3 +412,33 @@ def test_mjx_study_side_by_side_evaluates_as_alone(tmp_path):
             assert s[f"start_{label}_fall"] == a[f"start_{label}_fall"], label
         assert s["start_loss"] == pytest.approx(a["start_loss"], rel=1e-5)
         assert s["iterations"] >= 1 and len(s["curve"]) == s["iterations"] + 1
+
+
+def test_recommended_method_follows_the_study_evidence():
+    """tune.method = "auto" resolves by size to the dimension study's best method: the table
+    agrees with the committed summary (when it holds rows), and sizes between map to the
+    nearest measured size on a log scale."""
+    import json
+    from pathlib import Path
+
+    from tkujax.studies.tune.advice import EVIDENCE, recommended_method
+    from tkujax.studies.tune.study import recommend_methods
+
+    summary = Path(__file__).resolve().parents[1] / "results/tune_dimension/summary.json"
+    if summary.exists():
+        measured = recommend_methods(json.loads(summary.read_text()))
+        for n, method in EVIDENCE:
+            if n in measured:      # the study names sep-CMA runs "cma" (cma_variant says which)
+                assert measured[n] == ("cma" if method == "sepcma" else method), (n, measured)
+    assert recommended_method(16) == "cma" and recommended_method(8) == "cma"
+    assert recommended_method(30) == "cma" and recommended_method(100) == "sepcma"
+    assert recommended_method(1000) == "sepcma"
+    with pytest.raises(ValueError, match="n_params"):
+        recommended_method(0)
+    data = _spec_dict()
+    data["tune"] = {**data["tune"], "method": "auto"}
+    data.pop("study", None)
+    assert parse_tune_spec(data).method == "auto"
+    data["tune"]["method"] = "adam"
+    with pytest.raises(SpecError, match="tune.method"):
+        parse_tune_spec(data)

@@ -21,6 +21,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from tkujax.studies.tune.advice import EVIDENCE_NOTE, recommended_method
 from tkujax.studies.tune.evaluate import evaluate, harmed_directions, params_json, recommend
 from tkujax.studies.tune.problem import _x64
 from tkujax.studies.tune.report import plot_outputs, summary_markdown
@@ -80,10 +81,17 @@ def _run_tune(spec: TuneSpec, out: Path, quiet: bool, compiler_options: dict | N
                        groups=c.get("groups", 4 if spec.batch % 4 == 0 else 1))
     train = sample_pushes(spec, spec.batch, spec.seed)
     keys = jax.random.split(jax.random.PRNGKey(spec.seed), spec.batch)
-    log(f"tune {spec.name}: method {spec.method}, {spec.batch} pushes x {spec.duration_s} s, "
+    advised = recommended_method(reparam.size)
+    method = advised if spec.method == "auto" else spec.method
+    if spec.method == "auto":
+        log(f"tune.method = auto: {method} for {reparam.size} parameters ({EVIDENCE_NOTE})")
+    elif method != advised:
+        log(f"note: for {reparam.size} parameters the dimension study recommends {advised} "
+            f"(tune.method = \"auto\"; {EVIDENCE_NOTE})")
+    log(f"tune {spec.name}: method {method}, {spec.batch} pushes x {spec.duration_s} s, "
         f"up to {spec.iterations} iterations, tuning {', '.join(reparam.fields)}. Compiling "
         "(minutes on a CPU) ...")
-    run = run_search(spec.method, problem, z0, train, keys, cfg, seed=spec.seed, log=log)
+    run = run_search(method, problem, z0, train, keys, cfg, seed=spec.seed, log=log)
     cands = {"before": z0, "after": np.asarray(run["z_best"])}
 
     evals, evals_shifted = {}, None
@@ -127,7 +135,7 @@ def _run_tune(spec: TuneSpec, out: Path, quiet: bool, compiler_options: dict | N
                           ("params_after.json", params_json(params[chosen].validate()) | note)):
         (out / name).write_text(json.dumps(payload, indent=1))
     record = dict(
-        name=spec.name, spec=spec.raw, method=spec.method, tuned=list(reparam.fields),
+        name=spec.name, spec=spec.raw, method=method, tuned=list(reparam.fields),
         ranges_user_units=reparam.user_ranges(), batch=spec.batch, duration_s=spec.duration_s,
         iterations=run["iterations"], float64=spec.float64, remat=spec.remat, run=run,
         params_user={n: reparam.user(z) for n, z in cands.items()},

@@ -153,8 +153,9 @@ def _parse_tune(data: dict) -> dict:
     out["loss"] = LossConfig(**{k: _number(f"tune.loss.{k}", v, *LOSS_FIELDS[k])
                                 for k, v in loss_raw.items()})
     out["method"] = tune.get("method", "cma")
-    if out["method"] not in METHODS:
-        raise SpecError(f"tune.method: expected one of {list(METHODS)}, got {out['method']!r}")
+    if out["method"] not in METHODS + ("auto",):      # auto: tkujax.studies.tune.advice
+        raise SpecError(f"tune.method: expected one of {list(METHODS) + ['auto']}, "
+                        f"got {out['method']!r}")
     out["popsize"] = _int("tune.popsize", tune.get("popsize", 9), 3, 4096)
     if out["popsize"] % 2 == 0:
         raise SpecError(f"tune.popsize: expected an odd number, got {out['popsize']}")

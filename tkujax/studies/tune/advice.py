@@ -1,0 +1,24 @@
+"""Which search method to use for a parameterisation's size: the dimension study's evidence.
+
+`tune.method = "auto"` picks `recommended_method(n_params)`; with any other method,
+`tkujax tune` names the recommendation in its log when it differs. The table is copied from
+`results/tune_dimension` (issue 23: one NVIDIA H100, 120 s of wall clock per run, 3 seeds side
+by side), the method with the lowest mean held-out fall rate per size among those run so far,
+and is updated with that study.
+"""
+
+from __future__ import annotations
+
+import math
+
+# (parameters, method): 16 scalars, 48 = sectors4, 128 = mlp (sep-CMA-ES from 64 parameters).
+EVIDENCE = ((16, "cma"), (48, "cma"), (128, "sepcma"))
+EVIDENCE_NOTE = ("results/tune_dimension (one H100, 18 of 48 runs): CMA-ES at 16 and 48 "
+                 "parameters, sep-CMA-ES at 128; the gradient made no progress at 128")
+
+
+def recommended_method(n_params: int) -> str:
+    """The method of the measured size nearest to n_params (on a log scale)."""
+    if not isinstance(n_params, int) or isinstance(n_params, bool) or n_params < 1:
+        raise ValueError(f"n_params must be a positive integer, got {n_params!r}")
+    return min(EVIDENCE, key=lambda e: abs(math.log(e[0] / n_params)))[1]
