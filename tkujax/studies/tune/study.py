@@ -291,13 +291,8 @@ def plot_study(out: Path, rows: list[dict], runs: list[dict]) -> None:
                 ax.errorbar(n, 100 * y, 100 * e, fmt=style, color=colors[m], capsize=3,
                             label=f"{m} ({key.split('_')[0]})")
     ax.set_xscale("log")
-    ax.set_xlabel("parameters tuned")
-    ax.set_ylabel("fall rate (%)")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out / "study.png", dpi=90)
-    plt.close(fig)
+    _label(ax, "parameters tuned", "fall rate (%)")
+    _save(fig, out / "study.png")
 
     policies = list(dict.fromkeys(r["policy"] for r in sorted(runs, key=lambda r: r["n_params"])))
     fig, axes = plt.subplots(1, len(policies), figsize=(4 * len(policies), 3.6), squeeze=False)
@@ -313,13 +308,8 @@ def plot_study(out: Path, rows: list[dict], runs: list[dict]) -> None:
             seen.add(r["method"])
         ax.set_title(f"{pol} ({next(r['n_params'] for r in runs if r['policy'] == pol)} "
                      "params)", fontsize=9)
-        ax.set_xlabel("wall clock (s, compile excluded)")
-        ax.set_ylabel("best hard training loss")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out / "convergence.png", dpi=90)
-    plt.close(fig)
+        _label(ax, "wall clock (s, compile excluded)", "best hard training loss")
+    _save(fig, out / "convergence.png")
 
     # The gradient methods keep their best iterate, so the curves above cannot show a descent
     # that goes the wrong way: the hard loss of every Adam iterate (extra.iterate_loss) can.
@@ -332,13 +322,23 @@ def plot_study(out: Path, rows: list[dict], runs: list[dict]) -> None:
             if r.get("push_clip"):
                 label += f" (push_clip {r['push_clip']:g})"
             ax.plot(r["extra"]["iterate_loss"], "-o", ms=3, color=f"C{i % 10}", label=label)
-        ax.set_xlabel("Adam iteration")
-        ax.set_ylabel("hard training loss of the iterate")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
-        fig.tight_layout()
-        fig.savefig(out / "iterates.png", dpi=90)
-        plt.close(fig)
+        _label(ax, "Adam iteration", "hard training loss of the iterate")
+        _save(fig, out / "iterates.png")
+
+
+def _label(ax, xlabel: str, ylabel: str) -> None:
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+
+
+def _save(fig, path: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
 
 
 def _uses(method: str) -> set[str]:
