@@ -106,8 +106,7 @@ def _island(values: list[float], holds: list[bool], i0: int) -> tuple[int, int] 
     return lo, hi
 
 
-def island_slices(names=tuple(n for n in P.NAMES if n not in P.NEUTRAL), points: int = 41,
-                  refine: int = 4,
+def island_slices(names=P.DEFAULT_FIT, points: int = 41, refine: int = 4,
                   hit_phases: tuple[float, ...] = (0.0,), log=print,
                   window: float = 1.0) -> dict:
     """{name: slice and island} for each parameter (see the module docstring). window: the
@@ -278,7 +277,7 @@ def main(argv=None) -> int:
     ap.add_argument("--points", type=int, default=41, help="grid values per slice over the "
                     "bounds (default 41; the default value is added)")
     ap.add_argument("--refine", type=int, default=4, help="bisections of each island edge")
-    ap.add_argument("--params", default=",".join(n for n in P.NAMES if n not in P.NEUTRAL),
+    ap.add_argument("--params", default=",".join(P.DEFAULT_FIT),
                     help="comma-separated parameters")
     ap.add_argument("--slice-phases", type=int, default=1, help="hit phases per slice value "
                     "(1: the fit's 0 ms; n: k/n * 30 ms and all must hold)")

@@ -71,6 +71,8 @@ PARAMS = (
 # written before them lack them, and read as these values (`complete`).
 NEUTRAL = {"front_height_offset_m": 0.0, "front_impulse_ratio": 1.0}
 NAMES = tuple(p.name for p in PARAMS)
+# What a fit moves unless it names its parameters: all but the NEUTRAL ones (added later).
+DEFAULT_FIT = tuple(n for n in NAMES if n not in NEUTRAL)
 LO = np.array([p.lo for p in PARAMS])
 HI = np.array([p.hi for p in PARAMS])
 DEFAULT = np.array([p.default for p in PARAMS])

@@ -136,8 +136,7 @@ def parse_calibrate_spec(data: dict) -> CalibrateSpec:
         if k in fit and not isinstance(fit[k], str):
             raise SpecError(f"fit.{k}: expected a string, got {fit[k]!r}")
     # Default: every parameter but the NEUTRAL ones (added later; a fit names them to move them).
-    names = _names("fit.params", fit.get("params", [n for n in P.NAMES if n not in P.NEUTRAL]),
-                   P.NAMES)
+    names = _names("fit.params", fit.get("params", list(P.DEFAULT_FIT)), P.NAMES)
     readings = _names("fit.readings", fit.get("readings", list(P.READINGS)), P.READINGS)
     rows = fit.get("rows", "all")
     if rows not in ROWS_CHOICES:

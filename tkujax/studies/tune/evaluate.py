@@ -13,7 +13,7 @@ import numpy as np
 from tkujax.control.params import ControllerParams
 from tkujax.studies.tune.loss import OFF_SURVIVED
 from tkujax.studies.tune.methods import _f
-from tkujax.studies.tune.problem import TuneProblem
+from tkujax.studies.tune.problem import TuneProblem, off_survived
 
 
 def evaluate(problem: TuneProblem, latents: dict[str, np.ndarray], heldout: dict,
@@ -37,8 +37,7 @@ def evaluate(problem: TuneProblem, latents: dict[str, np.ndarray], heldout: dict
     off = None
     if len(heldout["impulse_ns"]) and (harm or problem.needs_off):
         off = problem.control_off(heldout, keys_held, batch)      # once for every latent
-        survived = (~off["fell"] & ~off["diverged"]).astype(float)
-        heldout = dict(heldout, **{OFF_SURVIVED: survived})
+        heldout = dict(heldout, **{OFF_SURVIVED: off_survived(off)})
     if len(grid["impulse_ns"]):
         grid = problem.with_off_survived(grid, keys_grid, batch)
     result = {}

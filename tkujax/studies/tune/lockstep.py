@@ -34,7 +34,8 @@ import optax
 from tkujax.studies.tune.problem import _np, _x64
 from tkujax.studies.tune.reparam import CPU_COMPILER_OPTIONS, DEG
 from tkujax.studies.tune.search import (METHODS, SearchConfig, _adam, _finite, _Tracker,
-                                        alpha_order_mix, clipped_group_means)
+                                        alpha_order_mix, clipped_group_means,
+                                        one_plus_one_step, tell_generation)
 
 
 class LockstepFunctions:
@@ -218,10 +219,7 @@ def run_search_lockstep(method: str, problem, z0, batches, keys, cfg: SearchConf
             zs = np.stack([np.stack([o.ask() for _ in range(cfg.popsize)]) for o in opts])
             losses = fns.population(zs, 0.0, batch, keys)                    # (S, P)
             for o, tr, zz, ll in zip(opts, tracks, zs, losses):
-                o.tell([(z, _finite(v)) for z, v in zip(zz, ll)])
-                for z, v in zip(zz, ll):
-                    tr.offer(z, v)
-                tr.tick(cfg.popsize * n)
+                tell_generation(o, tr, zz, ll, cfg.popsize * n)
             it += 1
             if log:
                 log(f"{method} x{S}  gen {it:3d}  best {best()}  sigma "
@@ -241,10 +239,8 @@ def run_search_lockstep(method: str, problem, z0, batches, keys, cfg: SearchConf
             losses = fns.forward(np.stack(cands), 0.0, batch, keys)[0]
             for i, tr in enumerate(tracks):
                 loss = _finite(losses[i])
-                if loss < bests[i]:
-                    zs[i], bests[i], sigmas[i] = cands[i], loss, sigmas[i] * 1.5
-                else:
-                    sigmas[i] *= 1.5 ** -0.25
+                zs[i], bests[i], sigmas[i] = one_plus_one_step(zs[i], bests[i], sigmas[i],
+                                                               cands[i], loss)
                 tr.offer(cands[i], loss)
                 tr.tick(n)
             it += 1

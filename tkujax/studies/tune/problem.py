@@ -209,8 +209,8 @@ class TuneProblem:
         diverges) when the loss needs it and they lack it; otherwise the records unchanged."""
         if not self.needs_off or OFF_SURVIVED in records:
             return records
-        off = self.control_off(records, keys, batch)
-        return dict(records, **{OFF_SURVIVED: (~off["fell"] & ~off["diverged"]).astype(float)})
+        return dict(records, **{OFF_SURVIVED: off_survived(self.control_off(records, keys,
+                                                                             batch))})
 
     def _args(self, z, temperature, batch, keys):
         """(z, temperature, batch, keys) cast to this problem's precision; the batch reduced to
@@ -275,6 +275,12 @@ class TuneProblem:
             m = min(batch, n - lo)
             parts.append(jax.tree_util.tree_map(lambda x, m=m: x[:m], aux))
         return jax.tree_util.tree_map(lambda *xs: np.concatenate(xs), *parts)
+
+
+def off_survived(off: dict) -> np.ndarray:
+    """The OFF_SURVIVED column of `control_off`'s result: 1.0 where control off neither falls
+    nor diverges, 0.0 elsewhere."""
+    return (~off["fell"] & ~off["diverged"]).astype(float)
 
 
 def _np(tree):

@@ -124,11 +124,8 @@ def run_search(method: str, problem: TuneProblem, z0, batch: dict, keys, cfg: Se
                                                    population_size=cfg.popsize, seed=seed)
         while it < cfg.max_iterations and track.elapsed() < cfg.budget_s:
             zs = np.stack([opt.ask() for _ in range(cfg.popsize)])
-            losses = problem.population(zs, 0.0, batch, keys)
-            opt.tell([(z, _finite(v)) for z, v in zip(zs, losses)])
-            for z, v in zip(zs, losses):
-                track.offer(z, v)
-            track.tick(cfg.popsize * n)
+            tell_generation(opt, track, zs, problem.population(zs, 0.0, batch, keys),
+                            cfg.popsize * n)
             it += 1
             if log:
                 log(f"{method}  gen {it:3d}  best {track.loss:.4f}  sigma {opt._sigma:.3f}  "
@@ -140,10 +137,7 @@ def run_search(method: str, problem: TuneProblem, z0, batch: dict, keys, cfg: Se
             rng, sub = jax.random.split(rng)
             cand = z + sigma * np.asarray(jax.random.normal(sub, z.shape), float)
             loss = _finite(problem.forward(cand, 0.0, batch, keys)[0])
-            if loss < best:
-                z, best, sigma = cand, loss, sigma * 1.5
-            else:
-                sigma *= 1.5 ** -0.25
+            z, best, sigma = one_plus_one_step(z, best, sigma, cand, loss)
             track.offer(cand, loss)
             track.tick(n)
             it += 1
@@ -190,6 +184,22 @@ def run_search(method: str, problem: TuneProblem, z0, batch: dict, keys, cfg: Se
         extra["iterate_loss"] = iterate_losses     # the hard loss of each Adam iterate
     return dict(method=method, seed=seed, z_best=track.z.tolist(), best_loss=track.loss,
                 compile_s=round(compile_s, 2), iterations=it, curve=track.curve, extra=extra)
+
+
+def tell_generation(opt, track: _Tracker, zs, losses, pushes: int) -> None:
+    """One CMA-ES generation's losses: told to the optimiser (non-finite as _BIG), offered to
+    the tracker, and the curve ticked by the pushes simulated."""
+    opt.tell([(z, _finite(v)) for z, v in zip(zs, losses)])
+    for z, v in zip(zs, losses):
+        track.offer(z, v)
+    track.tick(pushes)
+
+
+def one_plus_one_step(z, best: float, sigma: float, cand, loss: float):
+    """The (1+1)-ES with the 1/5 success rule: (z, best, sigma) after trying cand."""
+    if loss < best:
+        return cand, loss, sigma * 1.5
+    return z, best, sigma * 1.5 ** -0.25
 
 
 def clipped_group_means(per_push: np.ndarray, groups: int, clip: float) -> np.ndarray:

@@ -25,9 +25,9 @@ yet in this process).
 
 After every run (group), `summary.json` (one row per finished run: method, policy, n_params,
 seed, heldout_fall, shifted_fall, above_fall, wall_s, side_by_side, ...), `study.md`,
-`study.png` (held-out fall rate against parameter count per method) and `convergence.png` (best
-hard training loss against wall time, one panel per policy) are rewritten from all run files
-present.
+`study.png` (held-out fall rate against parameter count per method), `convergence.png` (best
+hard training loss against wall time, one panel per policy) and, for gradient and hybrid runs,
+`iterates.png` (the hard loss of every Adam iterate) are rewritten from all run files present.
 
 Seeds as in [compare]: training batch tune.seed + s, held-out evaluate.seed + s, shifted
 evaluate.seed + 1000 + s, above the training range evaluate.seed + 2000 + s. Each run also
