@@ -95,11 +95,11 @@ def _cmd_paper(args) -> int:
 
 
 def _cmd_sweep(args) -> int:
-    from tkujax.control.io import load_controller_params_json
+    from tkujax.control.io import load_policy_json
     from tkujax.studies.sweep import run_sweep
 
-    params = load_controller_params_json(args.params) if args.params else None
-    manifest = run_sweep(args.spec, args.out, params=params,
+    params, schedule = load_policy_json(args.params) if args.params else (None, None)
+    manifest = run_sweep(args.spec, args.out, params=params, schedule=schedule,
                          model_params=_model_params([args.model] if args.model else []),
                          max_chunks=args.max_chunks,
                          process_id=args.process_id, num_processes=args.num_processes,
@@ -390,7 +390,10 @@ def _add_sweep_commands(sub) -> None:
     p = sub.add_parser("sweep", help="run (or resume) a push sweep from a TOML spec")
     p.add_argument("spec", help="sweep spec, e.g. sweeps/stability_map_cpu.toml")
     p.add_argument("--out", required=True, help="output folder (npz chunks + manifest.json)")
-    p.add_argument("--params", default=None, help="controller parameters JSON (tkujax tune output)")
+    p.add_argument("--params", default=None,
+                   help="controller parameters JSON (tkujax tune output), or a scheduled "
+                        "policy file (policy_after.json of tkujax tune, best_policy.json of "
+                        "its [study])")
     p.add_argument("--model", default=None, metavar="FILE.json",
                    help="model parameters JSON (tkujax calibrate's model_params.json)")
     p.add_argument("--max-chunks", type=int, default=None, help="stop after this many new chunks")

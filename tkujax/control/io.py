@@ -95,11 +95,7 @@ def controller_params_from_dict(data, where: str,
 PARAMS_NOTE_KEYS = ("recommended_from",)
 
 
-def load_controller_params_json(path: str | Path) -> ControllerParams:
-    """ControllerParams from a JSON file {field: value} (SI units, radians), as `tkujax tune`
-    and `tkujax calibrate` write it (`--params FILE.json`); string notes of PARAMS_NOTE_KEYS
-    are ignored."""
-    path = Path(path)
+def _read_json(path: Path):
     try:
         data = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as err:
@@ -107,7 +103,63 @@ def load_controller_params_json(path: str | Path) -> ControllerParams:
     if isinstance(data, dict):        # a note, not a parameter (tkujax tune writes it)
         data = {k: v for k, v in data.items()
                 if not (k in PARAMS_NOTE_KEYS and isinstance(v, str))}
+    return data
+
+
+def is_policy(data) -> bool:
+    """A policy file: {"controller": {field: value}, "schedule": {...}} (`save_policy_json`)."""
+    return isinstance(data, dict) and "schedule" in data
+
+
+def load_controller_params_json(path: str | Path) -> ControllerParams:
+    """ControllerParams from a JSON file {field: value} (SI units, radians), as `tkujax tune`
+    and `tkujax calibrate` write it (`--params FILE.json`); string notes of PARAMS_NOTE_KEYS
+    are ignored. A policy file (a scheduled controller) is refused: its schedule would be
+    silently dropped; `load_policy_json` reads it."""
+    path = Path(path)
+    data = _read_json(path)
+    if is_policy(data):
+        raise ValueError(f"--params {path}: holds a scheduled policy (key 'schedule'); only "
+                         f"`tkujax sweep --params` runs one")
     return controller_params_from_dict(data, f"--params {path}")
+
+
+def load_policy_json(path: str | Path):
+    """(ControllerParams, Schedule or None) from a parameter file or a policy file
+    {"controller": {field: value}, "schedule": {...}} (`save_policy_json`; the study and
+    `tkujax tune` write one for a scheduled policy). ValueError names the file and the key."""
+    from tkujax.control.policy import schedule_from_dict
+
+    path = Path(path)
+    data = _read_json(path)
+    if not is_policy(data):
+        return controller_params_from_dict(data, f"--params {path}"), None
+    unknown = sorted(set(data) - {"controller", "schedule"} - set(POLICY_NOTE_KEYS))
+    if unknown:
+        raise ValueError(f"--params {path}: unknown key(s) {unknown} in a policy file "
+                         f"(allowed: controller, schedule, {', '.join(POLICY_NOTE_KEYS)})")
+    params = controller_params_from_dict(data.get("controller"), f"--params {path}: controller")
+    return params, schedule_from_dict(data["schedule"], f"--params {path}: schedule")
+
+
+# Free-form notes a policy file may carry (where it came from).
+POLICY_NOTE_KEYS = ("source", "recommended_from")
+
+
+def save_policy_json(params: ControllerParams, schedule, path: str | Path,
+                     source: str | None = None) -> Path:
+    """Write a policy file: the full ControllerParams and the Schedule (None: the plain
+    parameter file of `save_controller_params_json`)."""
+    from tkujax.control.policy import schedule_to_dict
+
+    if schedule is None:
+        return save_controller_params_json(params, path)
+    path = Path(path)
+    payload = dict(controller=dataclasses.asdict(params), schedule=schedule_to_dict(schedule))
+    if source:
+        payload["source"] = source
+    path.write_text(json.dumps(payload, indent=1, default=float) + "\n")
+    return path
 
 
 def save_controller_params_json(params: ControllerParams, path: str | Path) -> Path:

@@ -37,6 +37,7 @@ import math
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from tkujax.control.params import ControllerParams
 
@@ -129,3 +130,91 @@ def scheduled_params(schedule: Schedule, params: ControllerParams, pitch_dev, pi
     return dataclasses.replace(params, **{
         f: jnp.clip(jnp.asarray(getattr(params, f), off.dtype) + v[..., i], lo[i], hi[i])
         for i, f in enumerate(schedule.fields)})
+
+
+# -- the policy file (`tkujax sweep --params FILE` with a "schedule" key) -------------------
+SCHEDULE_ARRAYS = {"sectors": ("table",), "mlp": ("w1", "b1", "w2", "b2")}
+
+
+def schedule_to_dict(schedule: Schedule) -> dict:
+    """JSON form of a Schedule: its static layout and its numbers (nested lists)."""
+    d = dict(kind=schedule.kind, fields=list(schedule.fields), lo=list(schedule.lo),
+             hi=list(schedule.hi), log=list(schedule.log), sharpness=schedule.sharpness,
+             z_base=np.asarray(schedule.z_base, float).tolist())
+    for name in SCHEDULE_ARRAYS[schedule.kind]:
+        d[name] = np.asarray(getattr(schedule, name), float).tolist()
+    return d
+
+
+def schedule_from_dict(d, where: str) -> Schedule:
+    """Schedule from its JSON form, validated: ValueError names where, the key and what is
+    allowed (kind, schedulable fields, shapes consistent with the fields, finite numbers)."""
+    if not isinstance(d, dict):
+        raise ValueError(f"{where}: expected an object, got {type(d).__name__}")
+    kind = d.get("kind")
+    if kind not in SCHEDULE_ARRAYS:
+        raise ValueError(f"{where}.kind: expected one of {sorted(SCHEDULE_ARRAYS)}, got {kind!r}")
+    allowed = {"kind", "fields", "lo", "hi", "log", "sharpness", "z_base",
+               *SCHEDULE_ARRAYS[kind]}
+    unknown = sorted(set(d) - allowed)
+    missing = sorted(allowed - set(d))
+    if unknown or missing:
+        raise ValueError(f"{where}: {'unknown key(s) ' + str(unknown) if unknown else ''}"
+                         f"{'; ' if unknown and missing else ''}"
+                         f"{'missing key(s) ' + str(missing) if missing else ''} "
+                         f"(a {kind!r} schedule has {sorted(allowed)})")
+    fields = d["fields"]
+    names = {f.name for f in dataclasses.fields(ControllerParams)}
+    if (not isinstance(fields, list) or not fields
+            or not all(isinstance(f, str) for f in fields)):
+        raise ValueError(f"{where}.fields: expected a non-empty list of field names, "
+                         f"got {fields!r}")
+    for f in fields:
+        if f not in names or f in UNSCHEDULABLE:
+            raise ValueError(f"{where}.fields: {f!r} cannot be scheduled (schedulable: "
+                             f"{sorted(names - UNSCHEDULABLE)})")
+    if len(set(fields)) != len(fields):
+        raise ValueError(f"{where}.fields: expected distinct names, got {fields!r}")
+    n_f = len(fields)
+
+    def array(key, ndim, last=None):
+        try:
+            a = np.asarray(d[key], float)
+        except (TypeError, ValueError):
+            raise ValueError(f"{where}.{key}: expected numbers, got {d[key]!r:.80}") from None
+        if a.ndim != ndim or (last is not None and a.shape[-1] != last) or not a.size:
+            want = f"a {ndim}-d array" + (f", last axis {last}" if last is not None else "")
+            raise ValueError(f"{where}.{key}: expected {want}, got shape {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{where}.{key}: every value must be finite")
+        return a
+
+    lo, hi, z_base = (array(k, 1, n_f) for k in ("lo", "hi", "z_base"))
+    log = d["log"]
+    if not isinstance(log, list) or len(log) != n_f or not all(isinstance(g, bool) for g in log):
+        raise ValueError(f"{where}.log: expected {n_f} booleans, got {log!r}")
+    if np.any(lo >= hi) or np.any(lo[np.asarray(log)] <= 0):
+        raise ValueError(f"{where}: expected lo < hi (and lo > 0 where log), got lo {lo.tolist()}"
+                         f", hi {hi.tolist()}")
+    sharpness = d["sharpness"]
+    if isinstance(sharpness, bool) or not isinstance(sharpness, (int, float)) or not (
+            0 < sharpness <= 100):
+        raise ValueError(f"{where}.sharpness: expected a number in (0, 100], got {sharpness!r}")
+    arrays = {}
+    if kind == "sectors":
+        arrays["table"] = array("table", 2, n_f)
+    else:
+        w1 = array("w1", 2)
+        width = w1.shape[1]
+        if w1.shape[0] != 4:
+            raise ValueError(f"{where}.w1: expected shape (4, H) (inputs: pitch deviation, "
+                             f"pitch rate, roll, roll rate), got {w1.shape}")
+        arrays = dict(w1=w1, b1=array("b1", 1, width), w2=array("w2", 2, n_f),
+                      b2=array("b2", 1, n_f))
+        if arrays["w2"].shape[0] != width:
+            raise ValueError(f"{where}.w2: expected shape ({width}, {n_f}), "
+                             f"got {arrays['w2'].shape}")
+    return Schedule(z_base=jnp.asarray(z_base, jnp.float32),
+                    **{k: jnp.asarray(v, jnp.float32) for k, v in arrays.items()},
+                    kind=kind, fields=tuple(fields), lo=tuple(float(v) for v in lo),
+                    hi=tuple(float(v) for v in hi), log=tuple(log), sharpness=float(sharpness))

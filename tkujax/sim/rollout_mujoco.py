@@ -125,11 +125,12 @@ def _rollout_pool(nthread: int) -> mujoco.rollout.Rollout:
 
 
 @functools.partial(jax.jit, static_argnames=("quantise",))
-def _control_tick(states, gyro, accel, params, enabled, quantise: bool, overrides=None):
+def _control_tick(states, gyro, accel, params, enabled, quantise: bool, overrides=None,
+                  schedule=None):
     """controller_step over the batch (states, gyro, accel, enabled, overrides batched; params
-    shared)."""
-    step = jax.vmap(control_tick, in_axes=(0, 0, 0, None, 0, None, 0))
-    return step(states, gyro, accel, params, enabled, quantise, overrides)
+    and schedule shared)."""
+    step = jax.vmap(control_tick, in_axes=(0, 0, 0, None, 0, None, 0, None))
+    return step(states, gyro, accel, params, enabled, quantise, overrides, schedule)
 
 
 @functools.partial(jax.jit, static_argnames=("quantise", "fixed"))
@@ -312,14 +313,15 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
                     gyro_noise_std: float = 0.0, accel_noise_std: float = 0.0,
                     model_params: ModelParams | None = None,
                     config: RolloutConfig = RolloutConfig(), n_threads: int | None = None,
-                    push_wrench: str = "exact", overrides: StepOverride | None = None
-                    ) -> tuple[Series, Outcomes]:
+                    push_wrench: str = "exact", overrides: StepOverride | None = None,
+                    schedule=None) -> tuple[Series, Outcomes]:
     """Run a batch of pushes with MuJoCo C physics; returns numpy (series, outcomes).
 
     Same arguments, keys and shapes as `tkujax.sim.rollout_mjx.simulate`, plus n_threads (physics
     threads; default: the CPUs this process may use) and push_wrench ("exact" or
     "period_start", see the module doc) and overrides (stacked StepOverride, leading axis n;
-    their onset_s is taken from the pushes).
+    their onset_s is taken from the pushes) and schedule (a scheduled policy's
+    `tkujax.control.policy.Schedule`, shared by the batch; not with a fixed-point controller).
     """
     if push_wrench not in PUSH_WRENCH_MODES:
         raise ValueError(f"push_wrench must be one of {PUSH_WRENCH_MODES}, got {push_wrench!r}")
@@ -338,6 +340,9 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
     if fixed is not None:   # options the fixed-point twin lacks: refused, not ignored
         check_supported(params)
     overrides = _check_overrides(overrides, pushes, n, fixed)
+    if fixed is not None and schedule is not None:
+        raise ValueError("scheduled parameters have no fixed-point controller twin; "
+                         "use RolloutConfig(fixed=None)")
     switch = 0 if fixed is None else servo_switch_substep(fixed, substeps)
 
     init = (controller_init(params, jnp.float32) if fixed is None else
@@ -357,7 +362,8 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
         gyro_j, accel_j = jnp.asarray(gyro, jnp.float32), jnp.asarray(accel, jnp.float32)
         if fixed is None:
             ctrl_state, legs, out = _control_tick(ctrl_state, gyro_j, accel_j, params,
-                                                  enabled_j, config.quantise_targets, overrides)
+                                                  enabled_j, config.quantise_targets, overrides,
+                                                  schedule)
         else:
             ctrl_state, legs, prev, out = _control_tick_fx(ctrl_state, gyro_j, accel_j, params,
                                                            enabled_j, config.quantise_targets,

@@ -38,6 +38,7 @@ from tkujax.control.fixed import FixedPointConfig, check_supported
 from tkujax.control.io import controller_params_from
 from tkujax.control.io import load_controller_params_json as load_params_json  # noqa: F401
 from tkujax.control.params import ControllerParams
+from tkujax.control.policy import Schedule, schedule_to_dict
 from tkujax.model import ModelParams
 from tkujax.sim.metrics import CAPTURE_KEYS, capture_outcomes
 from tkujax.sim.metrics import outcomes as rollout_outcomes
@@ -105,7 +106,10 @@ def make_chunk_fn(varied: tuple[str, ...], duration_s: float,
     ensemble: [randomize] ensemble: each record runs on member rec["robot_id"] of the ensemble's
     RobotSet (`ensemble_robots`, built once per ensemble content), its model and settled stand
     picked inside the program; model_params must then be None. The controller parameters stay
-    the batch's (the controller does not know which robot it runs on)."""
+    the batch's (the controller does not know which robot it runs on).
+    The returned f also takes an optional 4th argument, a `tkujax.control.policy.Schedule`
+    shared by the batch (a scheduled policy, `tkujax sweep --params POLICY.json`): its numbers
+    are traced inputs; None (the default) is the plain controller's program."""
     if ensemble is not None and model_params is not None:
         raise SpecError("[randomize] ensemble gives the robots: pass no model_params with it")
     # Positional call into the cache: lru_cache keys f(a, b) and f(a, b, steps=False) apart,
@@ -136,7 +140,7 @@ def _make_chunk_fn(varied, duration_s, model_params, with_qpos, steps, fixed, en
         model, index, state = robots.base_model, robots.index, robots.base_state
     config = RolloutConfig(duration_s=duration_s, record_qpos=with_qpos, fixed=fixed)
 
-    def one(rec, key, base_params, robot_values=None):
+    def one(rec, key, base_params, schedule, robot_values=None):
         push = Push(rec["impulse_ns"], jnp.radians(rec["azimuth_deg"]), rec["height_m"],
                     rec["duration_s"], rec["onset_s"])
         params = controller_params_from(base_params, {k: rec[k] for k in varied})
@@ -150,17 +154,20 @@ def _make_chunk_fn(varied, duration_s, model_params, with_qpos, steps, fixed, en
                             friction=rec["floor_friction"], kp_scale=rec["servo_kp_scale"])
         series = rollout(m, s, push, params, rec["control"], key, rec["gyro_noise_std"],
                          rec["accel_noise_std"], config, index,
-                         step_override(rec) if steps else None)
+                         step_override(rec) if steps else None, schedule)
         out = rollout_outcomes(series, push.onset_s)
         res = {k: out[k] for k in OUTCOME_KEYS} | ({"qpos": series.qpos} if with_qpos else {})
         return res | (capture_outcomes(series, push.onset_s, params.gravity) if steps else {})
 
     if ensemble is None:
-        return jax.jit(jax.vmap(one, in_axes=(0, 0, None)))
+        def chunk(batch, keys, params, schedule=None):
+            return jax.vmap(one, in_axes=(0, 0, None, None))(batch, keys, params, schedule)
+
+        return jax.jit(chunk)
     # The members' values are arguments of the program, not constants baked into it.
-    fn = jax.jit(jax.vmap(one, in_axes=(0, 0, None, None)))
+    fn = jax.jit(jax.vmap(one, in_axes=(0, 0, None, None, None)))
     values = robots.values()
-    return lambda batch, keys, params: fn(batch, keys, params, values)
+    return lambda batch, keys, params, schedule=None: fn(batch, keys, params, schedule, values)
 
 
 BACKENDS = ("auto", "mjx", "mujoco")
@@ -191,7 +198,7 @@ def mujoco_chunk(batch: dict, seed: int, base: ControllerParams, duration_s: flo
                  model_params: ModelParams | None, with_qpos: bool = False,
                  varied: tuple[str, ...] = (), steps: bool = False,
                  fpga: dict | None = None, fpga_varied: tuple[str, ...] = (),
-                 ensemble: EnsembleRef | None = None) -> dict:
+                 ensemble: EnsembleRef | None = None, schedule=None) -> dict:
     """One chunk on MuJoCo C (tkujax.sim.rollout_mujoco), outcomes (and qpos) as numpy: one
     batch per controller-grid point present in the chunk (`varied` names the grid's fields; the
     controller's parameters are shared by a batch there). steps: records carry a commanded step
@@ -199,7 +206,8 @@ def mujoco_chunk(batch: dict, seed: int, base: ControllerParams, duration_s: flo
     values of a fixed-point sweep (None: float controller), fpga_varied: its gridded keys
     (columns fpga_<key>): one batch per (controller-grid point, FixedPointConfig). ensemble: a
     [randomize] ensemble: one batch per member too (column robot_id; model_params is then
-    unused: each batch runs its member's ModelParams)."""
+    unused: each batch runs its member's ModelParams). schedule: a scheduled policy's Schedule
+    (None: the plain controller)."""
     from tkujax.sim.rollout_mujoco import simulate_mujoco
 
     n = len(batch["impulse_ns"])
@@ -226,7 +234,7 @@ def mujoco_chunk(batch: dict, seed: int, base: ControllerParams, duration_s: flo
             gyro_noise_std=float(batch["gyro_noise_std"][0]),
             accel_noise_std=float(batch["accel_noise_std"][0]), model_params=robot,
             config=RolloutConfig(duration_s=duration_s, record_qpos=with_qpos, fixed=fixed),
-            overrides=overrides)
+            overrides=overrides, schedule=schedule)
         fields = {k: np.asarray(out[k]) for k in OUTCOME_KEYS}
         if with_qpos:
             fields["qpos"] = np.asarray(series.qpos)
@@ -247,7 +255,8 @@ def shares_robot_draws(spec: SweepSpec) -> bool:
     return any(isinstance(v, tuple) for v in spec.randomize.values()) and n_settings > 1
 
 
-def _spec_hash(spec: SweepSpec, params: ControllerParams, model_params: ModelParams) -> str:
+def _spec_hash(spec: SweepSpec, params: ControllerParams, model_params: ModelParams,
+               schedule=None) -> str:
     # Fields added later enter the hash only when set, so older sweeps still resume. The model
     # enters in full: a changed default robot (e.g. the calibration) is a different sweep.
     p = {k: v for k, v in dataclasses.asdict(params).items()
@@ -259,6 +268,8 @@ def _spec_hash(spec: SweepSpec, params: ControllerParams, model_params: ModelPar
         parts.append("push.random.onset_phase: uniform [0, 1) by default")
     if spec.ensemble is not None:   # the robots themselves, by the file's content
         parts.append({"randomize.ensemble sha256": spec.ensemble.sha256})
+    if schedule is not None:        # a scheduled policy: its layout and numbers
+        parts.append({"schedule": schedule_to_dict(schedule)})
     if shares_robot_draws(spec):
         # The robot draws became shared by the settings of a push (records of older sweeps
         # differ): such a sweep is a new one.
@@ -301,6 +312,7 @@ class _ChunkJob:
     base: ControllerParams
     model_params: ModelParams | None
     backend: str
+    schedule: Schedule | None
     padded: int
     sharding: NamedSharding
 
@@ -318,7 +330,8 @@ class _ChunkJob:
             res = mujoco_chunk({k: recs[k][lo:hi] for k in self.input_keys}, spec.seed + i,
                                self.base, spec.duration_s, self.model_params, varied=varied,
                                steps=steps, fpga=spec.fpga if spec.arithmetic == "fixed" else None,
-                               fpga_varied=tuple(sorted(spec.fpga_grid)), ensemble=spec.ensemble)
+                               fpga_varied=tuple(sorted(spec.fpga_grid)), ensemble=spec.ensemble,
+                               schedule=self.schedule)
             return {k: recs[k][lo:hi] for k in recs} | res
         keys = chunk_keys(spec.seed, i, self.padded)
         res = {}
@@ -332,7 +345,8 @@ class _ChunkJob:
                      for k in self.input_keys}
             fn = make_chunk_fn(varied, spec.duration_s, self.model_params, steps=steps,
                                fixed=fixed, ensemble=spec.ensemble)
-            part = fn(batch, jax.device_put(keys[rows], self.sharding), traced_params(self.base))
+            part = fn(batch, jax.device_put(keys[rows], self.sharding), traced_params(self.base),
+                      self.schedule)
             for k, v in part.items():
                 v = np.asarray(v)[:len(sel)]
                 res.setdefault(k, np.empty((hi - lo,) + v.shape[1:], v.dtype))[sel] = v
@@ -377,7 +391,7 @@ def _compute_pending(out: Path, job: _ChunkJob, pending: list[int], n_chunks: in
 
 def _describe(spec: SweepSpec, digest: str, n: int, n_chunks: int, padded: int,
               params: ControllerParams, model_params: ModelParams | None, num_processes: int,
-              backend: str) -> dict:
+              backend: str, schedule=None) -> dict:
     """The manifest's description of the sweep (every writer restates it)."""
     manifest = dict(name=spec.name, spec=spec.raw, spec_hash=digest, n_pushes=n,
                     chunk_size=spec.chunk_size, n_chunks=n_chunks, padded_chunk=padded,
@@ -390,6 +404,8 @@ def _describe(spec: SweepSpec, digest: str, n: int, n_chunks: int, padded: int,
         manifest["fixed_point_defaults"] = dataclasses.asdict(FixedPointConfig())
     if spec.ensemble is not None:
         manifest["ensemble"] = spec.ensemble.describe()
+    if schedule is not None:
+        manifest["schedule"] = schedule_to_dict(schedule)
     return manifest
 
 
@@ -397,7 +413,8 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
               model_params: ModelParams | None = None, max_chunks: int | None = None,
               process_id: int | None = None, num_processes: int | None = None,
               coordinator: str | None = None, quiet: bool = False,
-              wait_for_others_s: float = 3600.0, backend: str = "auto") -> dict:
+              wait_for_others_s: float = 3600.0, backend: str = "auto",
+              schedule: Schedule | None = None) -> dict:
     """Run (or resume) a sweep into `out`. Returns the manifest.
 
     max_chunks: stop after computing this many new chunks (for tests and partial runs).
@@ -405,19 +422,23 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
     before writing the final manifest. backend: "auto" (see `choose_backend`), "mjx" or
     "mujoco"; the manifest records which ran (the spec hash does not include it, so a sweep
     can be resumed on another machine; outcomes agree across backends except near the fall
-    boundary).
+    boundary). schedule: a scheduled policy's Schedule (`tkujax.control.io.load_policy_json`),
+    applied with `params` in every control-on run; the manifest and the spec hash record it.
     """
     spec = spec if isinstance(spec, SweepSpec) else load_spec(spec)
     if spec.ensemble is not None and model_params is not None:
         raise SpecError("[randomize] ensemble gives the sweep's robots: give either it or a "
                         "model (--model), not both")
     params = params or ControllerParams.paper()
+    if schedule is not None and spec.arithmetic == "fixed":
+        raise SpecError("a scheduled policy (--params with a 'schedule') has no fixed-point "
+                        "controller twin: use a plain parameter file with arithmetic = 'fixed'")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     process_id, num_processes = _processes(process_id, num_processes, coordinator)
 
     backend = choose_backend(backend, spec)
-    digest = _spec_hash(spec, params, model_params or ModelParams())
+    digest = _spec_hash(spec, params, model_params or ModelParams(), schedule)
     old = chunks.read_manifest(out)
     if old and old.get("spec_hash") != digest:
         raise SpecError(f"{out} holds a different sweep (spec hash {old.get('spec_hash')} != "
@@ -430,7 +451,7 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
     # Pad every chunk to one shape (a multiple of the device count): one compile for all.
     padded = math.ceil(spec.chunk_size / len(devices)) * len(devices)
     manifest = _describe(spec, digest, n, n_chunks, padded, params, model_params,
-                         num_processes, backend)
+                         num_processes, backend, schedule)
     chunks.clean_temporaries(out)
     # Every writer (re)states the description; the chunk entries are kept (see chunks.py).
     chunks.update_manifest(out, lambda m: {**manifest, "complete": False,
@@ -444,7 +465,7 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
     if spec.arithmetic == "fixed":   # the twin lacks some float options: refuse, do not ignore
         check_supported(base)
     job = _ChunkJob(spec=spec, recs=recs, base=base,
-                    model_params=model_params, backend=backend, padded=padded,
+                    model_params=model_params, backend=backend, schedule=schedule, padded=padded,
                     sharding=NamedSharding(Mesh(np.array(devices), ("push",)),
                                            PartitionSpec("push")))
     progress = Progress(len(mine) * spec.chunk_size, (len(mine) - len(pending)) * spec.chunk_size,

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import re
+from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
@@ -199,3 +200,14 @@ class PolicyReparam:
 
 def as_policy(reparam) -> PolicyReparam:
     return reparam if isinstance(reparam, PolicyReparam) else PolicyReparam.make(reparam)
+
+
+def save_policy(reparam: PolicyReparam, base: ControllerParams, z, path, source: str = "") -> Path:
+    """The controller of latent z as a file `tkujax sweep --params` runs: a plain parameter file
+    for "scalars", else a policy file (the full ControllerParams and the Schedule)."""
+    from tkujax.control.io import save_policy_json
+
+    z = np.asarray(z, float)
+    return save_policy_json(reparam.params_np(base, z).validate(), reparam.schedule(z), path,
+                            source=source or None)
+

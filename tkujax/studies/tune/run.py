@@ -24,6 +24,7 @@ import numpy as np
 from tkujax.studies.tune.advice import EVIDENCE_NOTE, recommended_method
 from tkujax.studies.tune.evaluate import evaluate, harmed_directions, params_json, recommend
 from tkujax.studies.tune.problem import _x64
+from tkujax.studies.tune.policy import save_policy
 from tkujax.studies.tune.report import plot_outputs, summary_markdown
 from tkujax.studies.tune.search import SearchConfig, run_search
 from tkujax.studies.tune.spec import (TuneSpec, ensembles_record, grid_pushes, load_tune_spec,
@@ -130,6 +131,10 @@ def _run_tune(spec: TuneSpec, out: Path, quiet: bool, compiler_options: dict | N
     if reparam.kind != "scalars":      # the schedule has no ControllerParams form
         (out / "policy.json").write_text(json.dumps(
             {n: reparam.describe(z) for n, z in cands.items()}, indent=1))
+        # What `tkujax sweep --params` runs: the recommended set with its schedule.
+        save_policy(reparam, base, cands[chosen], out / "policy_after.json",
+                    f"tkujax tune {spec.name}: the {'tuned' if chosen == 'after' else 'start'} "
+                    f"policy ({note['recommended_from']})")
     for name, payload in (("params_before.json", params_json(params["before"].validate())),
                           ("params_tuned.json", params_json(params["after"].validate())),
                           ("params_after.json", params_json(params[chosen].validate()) | note)):

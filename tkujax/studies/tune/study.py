@@ -198,7 +198,31 @@ def write_summary(out: Path, spec=None) -> list[dict]:
     (out / "study.md").write_text(study_markdown(rows, spec))
     if runs:
         plot_study(out, rows, runs)
+        if spec is not None:
+            write_best_policy(out, spec, runs)
     return rows
+
+
+def best_run(runs: list[dict], key: str = "heldout_fall") -> dict | None:
+    """The run with the lowest held-out fall rate (ties: fewer parameters, then the name)."""
+    ok = [r for r in runs if r.get(key) is not None and math.isfinite(r[key])]
+    return min(ok, key=lambda r: (r[key], r["n_params"], run_name(r["policy"], r["method"],
+                                                                   r["seed"])), default=None)
+
+
+def write_best_policy(out: Path, spec, runs: list[dict]) -> Path | None:
+    """best_policy.json: the study's best run as a file `tkujax sweep --params` runs (a policy
+    file for a scheduled policy), to evaluate it on other pushes (results/recovery_eval)."""
+    from tkujax.studies.tune.policy import save_policy
+
+    r = best_run(runs)
+    if r is None or r["policy"] not in spec.study["policies"]:
+        return None
+    name = run_name(r["policy"], r["method"], r["seed"])
+    source = (f"tkujax tune [study]: runs/{name}.json, the lowest held-out fall rate of the "
+              f"study ({r['heldout_fall']:.4f}; start {r['start_heldout_fall']:.4f})")
+    return save_policy(spec.policy_reparam(r["policy"]), spec.base_params(), r["z_best"],
+                       out / "best_policy.json", source)
 
 
 def aggregate(rows: list[dict], key: str = "heldout_fall") -> dict:
