@@ -44,10 +44,11 @@ def _fake_stages(monkeypatch, seen: list, out):
         seen.append((f"raw_{b}", on_disk_stages()))
         return dict(batch=b, steps=steps, seconds=1.0, physics_steps_per_s=100.0 * b)
 
-    def closed(b, duration, repeats, compiled=None):
+    def closed(b, duration, repeats, compiled=None, unroll_substeps=None):
+        u = unroll_substeps or 1
         seen.append((f"closed_loop_{b}", on_disk_stages()))
-        return dict(batch=b, duration_s=duration, seconds=1.0, pushes_per_s=float(b),
-                    physics_steps_per_s=80.0 * b)
+        return dict(batch=b, duration_s=duration, unroll_substeps=u, seconds=1.0,
+                    pushes_per_s=float(b) * u, physics_steps_per_s=80.0 * b * u)
 
     def cpu(b, duration, repeats):
         seen.append(("cpu_peer", on_disk_stages()))
@@ -77,7 +78,30 @@ def test_stages_written_incrementally_failure_recorded(tmp_path, monkeypatch, ca
     err = capsys.readouterr().err
     assert "closed_loop_16: start" in err and "cpu_peer: FAILED" in err
     md = out.with_suffix(".md").read_text()
-    assert "| 16 | 1.6e+03 | 1.28e+03 | 16 | 0.80 |" in md and "| cpu_peer | failed" in md
+    assert "| 16 | 1 | 1.6e+03 | 1.28e+03 | 16 | 0.80 |" in md and "| cpu_peer | failed" in md
+
+
+def test_loop_structures_timed_side_by_side(tmp_path, monkeypatch):
+    """--unroll-substeps 1,15: one raw run per batch, one closed loop per structure, each in
+    its own stage and row; a bad structure fails before any stage runs."""
+    out = tmp_path / "b.json"
+    seen = []
+    _fake_stages(monkeypatch, seen, out)
+    run_bench(out, batches=(8,), compile_batch=0, cpu_batch=0, unroll_substeps=(1, 15),
+              quiet=True)
+    on_disk = json.loads(out.read_text())
+    assert [st["name"] for st in on_disk["stages"]] == ["raw_8", "closed_loop_8_unroll1",
+                                                        "closed_loop_8_unroll15"]
+    assert len(seen) == 3
+    assert on_disk["unroll_substeps"] == [1, 15]
+    assert [r["unroll_substeps"] for r in on_disk["closed_loop"]] == [1, 15]
+    md = out.with_suffix(".md").read_text()
+    assert "| 8 | 1 | 800 | 640 | 8 | 0.80 |" in md
+    assert "| 8 | 15 | 800 | 9.6e+03 | 120 | 12.00 |" in md
+    with pytest.raises(ValueError, match="unroll_substeps"):
+        run_bench(tmp_path / "c.json", batches=(8,), compile_batch=0, cpu_batch=0,
+                  unroll_substeps=(0,))
+    assert not (tmp_path / "c.json").exists()
 
 
 def test_budget_skips_later_stages(tmp_path, monkeypatch):
@@ -129,7 +153,12 @@ def test_cli_modes(tmp_path, monkeypatch):
                      "--profile-variants", "no_noise;raw", "--trace", "tr"]) == 0
     assert cli.main(["bench", "--out", out, "--stages", "gradient_compile", "--grad-variants",
                      "remat=tick_nocse", "--grad-cold-only", "--budget-s", "300"]) == 0
-    default, full, prof, grad = calls
+    assert cli.main(["bench", "--out", out, "--unroll-substeps", "1,15"]) == 0
+    for bad in ("0", "x"):
+        with pytest.raises(SystemExit, match="--unroll-substeps"):
+            cli.main(["bench", "--out", out, "--unroll-substeps", bad])
+    default, full, prof, grad, unroll = calls
+    assert default["unroll_substeps"] is None and unroll["unroll_substeps"] == (1, 15)
     assert default["batches"] == MODES["default"]["batches"] == (1024, 65536)
     assert default["grad_batch"] is None and default["grad_compile_batch"] == 0
     assert default["stages"] is None and default["profile_batches"] == ()

@@ -37,7 +37,7 @@ from tkujax.sim.setup import init
 from tkujax.control.params import ControllerParams
 from tkujax.studies.compile_cache import fresh_compilation_cache
 from tkujax.studies.provenance import package_versions
-from tkujax.studies.sweep import make_chunk_fn, traced_params
+from tkujax.studies.sweep import SWEEP_UNROLL_SUBSTEPS, make_chunk_fn, traced_params
 
 
 def _timed(fn, repeats: int) -> float:
@@ -70,36 +70,41 @@ def raw_stepping(batch: int, n_steps: int, repeats: int) -> dict:
     return dict(batch=batch, steps=n_steps, seconds=sec, physics_steps_per_s=batch * n_steps / sec)
 
 
-def closed_loop(batch: int, duration_s: float, repeats: int, compiled=None) -> dict:
+def closed_loop(batch: int, duration_s: float, repeats: int, compiled=None,
+                unroll_substeps: int | None = None) -> dict:
     """`compiled`: the chunk's executable for this batch (the compile stage's), else compiled
-    here on the warm-up call."""
+    here on the warm-up call. unroll_substeps: the loop structure (make_chunk_fn's; None: the
+    sweeps' default)."""
+    unroll = SWEEP_UNROLL_SUBSTEPS if unroll_substeps is None else unroll_substeps
     params = traced_params(ControllerParams.paper())
-    fn = compiled or make_chunk_fn((), duration_s)
+    fn = compiled or make_chunk_fn((), duration_s, unroll_substeps=unroll)
     recs = _push_batch(batch)
     keys = jax.random.split(jax.random.PRNGKey(0), batch)
     sec = _timed(lambda: fn(recs, keys, params), repeats)
     steps = int(round(duration_s / physics.host_model().opt.timestep))
-    return dict(batch=batch, duration_s=duration_s, seconds=sec, pushes_per_s=batch / sec,
-                physics_steps_per_s=batch * steps / sec)
+    return dict(batch=batch, duration_s=duration_s, unroll_substeps=unroll, seconds=sec,
+                pushes_per_s=batch / sec, physics_steps_per_s=batch * steps / sec)
 
 
-def compile_times(batch: int, duration_s: float, keep: dict | None = None) -> dict:
+def compile_times(batch: int, duration_s: float, keep: dict | None = None,
+                  unroll_substeps: int | None = None) -> dict:
     """Cold compile into an empty persistent cache, then again from that cache. `keep`: a dict
-    that receives {batch: the executable} (the closed-loop stage at that batch runs it instead
-    of compiling again)."""
+    that receives {(batch, unroll_substeps): the executable} (the closed-loop stage at that
+    batch and loop structure runs it instead of compiling again)."""
+    unroll = SWEEP_UNROLL_SUBSTEPS if unroll_substeps is None else unroll_substeps
     params = traced_params(ControllerParams.paper())
     recs = _push_batch(batch)
     keys = jax.random.split(jax.random.PRNGKey(0), batch)
-    out = {}
+    out = dict(batch=batch, unroll_substeps=unroll)
     with fresh_compilation_cache():
         for label in ("cold_s", "cached_s"):
             jax.clear_caches()
-            fn = make_chunk_fn((), duration_s)
+            fn = make_chunk_fn((), duration_s, unroll_substeps=unroll)
             t0 = time.perf_counter()
             exe = fn.lower(recs, keys, params).compile()
             out[label] = time.perf_counter() - t0
     if keep is not None:
-        keep[batch] = exe
+        keep[(batch, unroll)] = exe
     return out
 
 
@@ -272,10 +277,12 @@ def run_bench(out: str | Path, batches=MODES["default"]["batches"], duration_s: 
               profile_variants=None, compile_workers: int | None = None,
               trace_dir: str | Path | None = None, grad_variants: list[dict] | None = None,
               grad_cached: bool = True, budget_s: float | None = None,
-              quiet: bool = False) -> dict:
+              unroll_substeps: tuple[int, ...] | None = None, quiet: bool = False) -> dict:
     """The bench (module docstring). The size arguments default to the "default" mode (MODES);
     `stages`: the STAGE_GROUPS to run (None: those the sizes enable, plus "profile" when
-    `profile_batches` is given). Returns the result, also written to `out` (JSON) and its .md."""
+    `profile_batches` is given). `unroll_substeps`: the closed loop's loop structures to
+    compile and time (None: the sweeps' SWEEP_UNROLL_SUBSTEPS alone). Returns the result, also
+    written to `out` (JSON) and its .md."""
     from tkujax import bench_profile
 
     out = Path(out)
@@ -293,6 +300,9 @@ def run_bench(out: str | Path, batches=MODES["default"]["batches"], duration_s: 
         for v in profile_variants or ():
             if v != "no_push":
                 bench_profile._variant_config(v)        # fail before any stage runs
+    unrolls = tuple(unroll_substeps or (SWEEP_UNROLL_SUBSTEPS,))
+    if any(int(u) < 1 for u in unrolls):
+        raise ValueError(f"unroll_substeps must be >= 1, got {list(unrolls)}")
     dev = jax.devices()[0]
     result = dict(mode=mode, stages_requested=list(stages), device=str(dev),
                   device_kind=getattr(dev, "device_kind", dev.platform),
@@ -302,16 +312,22 @@ def run_bench(out: str | Path, batches=MODES["default"]["batches"], duration_s: 
     run = _Stages(out, result, budget_s, quiet)
     compiled = {}
 
+    result["unroll_substeps"] = list(unrolls)
     if "compile" in stages and compile_batch:
-        def stage_compile():
-            result["compile"] = compile_times(compile_batch, duration_s, keep=compiled)
-        run.run("compile", stage_compile)
+        for u in unrolls:
+            def stage_compile(u=u):
+                c = compile_times(compile_batch, duration_s, keep=compiled, unroll_substeps=u)
+                result.setdefault("compile_variants", []).append(c)
+                result.setdefault("compile", c)         # the first structure's, as before
+            run.run("compile" if len(unrolls) == 1 else f"compile_unroll{u}", stage_compile)
     if "throughput" in stages:
         for b in batches:
             run.run(f"raw_{b}", lambda b=b: result["raw"].append(
                 raw_stepping(b, raw_steps, repeats)))
-            run.run(f"closed_loop_{b}", lambda b=b: result["closed_loop"].append(
-                closed_loop(b, duration_s, repeats, compiled.get(b))))
+            for u in unrolls:
+                run.run(f"closed_loop_{b}" + ("" if len(unrolls) == 1 else f"_unroll{u}"),
+                        lambda b=b, u=u: result["closed_loop"].append(
+                            closed_loop(b, duration_s, repeats, compiled.pop((b, u), None), u)))
     if "multi_device" in stages and scaling_batch:
         def stage_multi():
             result["multi_device"] = multi_device(scaling_batch, duration_s, repeats)
@@ -363,19 +379,20 @@ def summary_markdown(r: dict) -> str:
              f"{r['repeats']} runs; closed loop = {r['duration_s']} s pushes with controller, "
              f"sensors and metrics.", ""]
     if r["raw"] or r["closed_loop"]:
-        lines += ["| batch | raw MJX steps/s (a) | closed-loop steps/s (b) | pushes/s | b/a |",
-                  "|---|---|---|---|---|"]
+        lines += ["| batch | substep unroll | raw MJX steps/s (a) | closed-loop steps/s (b) | "
+                  "pushes/s | b/a |", "|---|---|---|---|---|---|"]
         raw = {a["batch"]: a for a in r["raw"]}
         for b in r["closed_loop"]:
             a = raw.get(b["batch"])
-            lines.append(f"| {b['batch']} | {a['physics_steps_per_s']:.3g} | " if a else
-                         f"| {b['batch']} | - | ")
+            u = b.get("unroll_substeps", 1)
+            lines.append(f"| {b['batch']} | {u} | {a['physics_steps_per_s']:.3g} | " if a else
+                         f"| {b['batch']} | {u} | - | ")
             lines[-1] += (f"{b['physics_steps_per_s']:.3g} | {b['pushes_per_s']:.3g} | " +
                           (f"{b['physics_steps_per_s'] / a['physics_steps_per_s']:.2f} |" if a
                            else "- |"))
         for a in r["raw"]:
             if all(b["batch"] != a["batch"] for b in r["closed_loop"]):
-                lines.append(f"| {a['batch']} | {a['physics_steps_per_s']:.3g} | - | - | - |")
+                lines.append(f"| {a['batch']} | - | {a['physics_steps_per_s']:.3g} | - | - | - |")
     c = r.get("cpu_peer")
     if c and r["closed_loop"]:
         best = max(r["closed_loop"], key=lambda x: x["physics_steps_per_s"])
@@ -413,9 +430,9 @@ def summary_markdown(r: dict) -> str:
             lines.append(f"| {gc['batch']} | {v} | {gc.get('lower_s', '-')} | "
                          f"{gc['cold_s']:.1f} | {gc.get('cached_s', '-')} | "
                          f"{gc.get('hlo_chars', '-')} |")
-    comp = r.get("compile")
-    if comp:
-        lines += ["", f"Compile of the closed loop: cold {comp['cold_s']:.1f} s, "
+    for comp in r.get("compile_variants") or ([r["compile"]] if r.get("compile") else []):
+        lines += ["", f"Compile of the closed loop (batch {comp.get('batch', '-')}, substep "
+                  f"unroll {comp.get('unroll_substeps', 1)}): cold {comp['cold_s']:.1f} s, "
                   f"from the persistent cache {comp['cached_s']:.1f} s."]
     for p in r.get("profile") or []:
         from tkujax.bench_profile import profile_markdown

@@ -228,6 +228,15 @@ def _cmd_bench(args) -> int:
     if args.profile and stages and "profile" not in stages:
         stages = stages + ("profile",)
     grad_variants = parse_grad_variants(args.grad_variants) if args.grad_variants else None
+    unrolls = None
+    if args.unroll_substeps:
+        try:
+            unrolls = ints(args.unroll_substeps)
+        except ValueError:
+            unrolls = (0,)
+        if not unrolls or min(unrolls) < 1:
+            raise SystemExit(f"--unroll-substeps: a comma list of integers >= 1, got "
+                             f"{args.unroll_substeps!r}")
     # A stage asked for by name (or gradient variants) whose size the mode leaves at 0: the
     # full mode's size.
     named = set(stages or ()) | ({"gradient_compile"} if grad_variants else set())
@@ -247,7 +256,7 @@ def _cmd_bench(args) -> int:
                                      if v.strip()) if args.profile_variants else None,
               compile_workers=args.compile_workers, trace_dir=args.trace,
               grad_variants=grad_variants, grad_cached=not args.grad_cold_only,
-              budget_s=args.budget_s)
+              budget_s=args.budget_s, unroll_substeps=unrolls)
     result = json.loads(Path(args.out).read_text())
     print(summary_markdown(result))
     return 0 if all(st["status"] != "failed" for st in result["stages"]) else 1
@@ -523,6 +532,10 @@ def _add_study_commands(sub) -> None:
                    help="folder for a jax.profiler trace of the full loop (profile stage)")
     p.add_argument("--budget-s", type=float, default=None,
                    help="skip the stages that would start after this many seconds")
+    p.add_argument("--unroll-substeps", default=None,
+                   help="closed loop's loop structures to compile and time, a comma list of "
+                        "substep-scan unrollings (1: rolled; 15: the whole 30 ms tick at 2 ms), "
+                        "e.g. 1,15 (default: the sweeps' own)")
     p.set_defaults(func=_cmd_bench)
 
     p = sub.add_parser("tune", help="tune T, gamma, H_Sup, eps_1, eps_2 (...) by CMA-ES, "

@@ -90,6 +90,28 @@ def _checkpoints(remat: bool | str):
     return jax.checkpoint, functools.partial(jax.checkpoint, prevent_cse=False)   # nested
 
 
+def _is_float(x) -> bool:
+    return jnp.issubdtype(jnp.result_type(x), jnp.floating)
+
+
+def _seed_carry(carry, inputs):
+    """The scan's initial carry, an exact zero computed from `inputs` taken from its float leaves.
+
+    Under vmap and under differentiation, lax.scan finds which carry leaves are batched (and
+    which have nonzero tangents) by a fixpoint: it traces the whole body again for every pass
+    in which more leaves turn batched or differentiated. The stand state and the controller's
+    initial state depend on no push and no parameter, so without this the tick body (each
+    holding the substep scan, with its own fixpoint) is traced 2-3 times. Tied to the inputs,
+    the carry is batched and differentiated from the first pass, which is where the fixpoint
+    ends anyway (the first tick's physics makes every state leaf depend on the push and the
+    controller). The values are unchanged, bit for bit: x - zero with zero = +0.0 (0 times the
+    absolute sum of the inputs' finite values) is x, the sign of a zero included."""
+    total = sum(jnp.sum(jnp.where(jnp.isfinite(x), x, 0.0)) for x in jax.tree.leaves(inputs)
+                if _is_float(x))
+    zero = 0.0 * jnp.abs(jnp.where(jnp.isfinite(total), total, 0.0))     # +0.0, never NaN
+    return jax.tree.map(lambda x: x - zero.astype(x.dtype) if _is_float(x) else x, carry)
+
+
 def _push_wrench(idx: ModelIndex, d: mjx.Data, push: Push) -> jax.Array:
     """(nbody, 6) xfrc_applied for the push at time d.time (force and moment about the CoM)."""
     force = force_at(push, d.time)
@@ -241,6 +263,8 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
 
     carry = (state, controller_init(params, dtype) if fixed is None else
              controller_init_fx(params, fixed, dtype))
+    carry = _seed_carry(carry, (push, params, schedule, enabled, gyro_noise_std,
+                                accel_noise_std))
     _, series = jax.lax.scan(wrap_tick(tick), carry, jax.random.split(key, n_ticks),
                              unroll=config.unroll_ticks)
     return series

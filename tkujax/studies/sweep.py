@@ -52,6 +52,11 @@ from tkujax.studies.provenance import git_commit, versions
 from tkujax.studies.spec import (FPGA_COLUMN, ROBOT_ID_COLUMN, EnsembleRef, SpecError, SweepSpec,
                                  fixed_point_config, load_spec)
 
+# lax.scan unrolling of each control tick's physics substeps in the sweeps' program
+# (RolloutConfig.unroll_substeps; 1: a rolled loop). Same arithmetic, another loop structure:
+# `tkujax bench --unroll-substeps 1,15` times the choices (docs/performance.md).
+SWEEP_UNROLL_SUBSTEPS = 1
+
 OUTCOME_KEYS = ("fell", "diverged", "recovery_time_s", "step_length_m", "step_width_m",
                 "peak_incl_deg", "capture_point_m", "capture_point_y_m", "zmp_excursion_m")
 MANIFEST = chunks.MANIFEST
@@ -91,7 +96,7 @@ def traced_params(params: ControllerParams) -> ControllerParams:
 def make_chunk_fn(varied: tuple[str, ...], duration_s: float,
                   model_params: ModelParams | None = None, with_qpos: bool = False,
                   steps: bool = False, fixed: FixedPointConfig | None = None,
-                  ensemble: EnsembleRef | None = None):
+                  ensemble: EnsembleRef | None = None, unroll_substeps: int | None = None):
     """jit(vmap) of push records -> outcomes: f(batch, keys, params) with `params` a
     ControllerParams shared by the batch (pass it through `traced_params`), and `varied` the
     controller fields given per record instead (a [controller.grid]).
@@ -109,13 +114,18 @@ def make_chunk_fn(varied: tuple[str, ...], duration_s: float,
     the batch's (the controller does not know which robot it runs on).
     The returned f also takes an optional 4th argument, a `tkujax.control.policy.Schedule`
     shared by the batch (a scheduled policy, `tkujax sweep --params POLICY.json`): its numbers
-    are traced inputs; None (the default) is the plain controller's program."""
+    are traced inputs; None (the default) is the plain controller's program.
+    unroll_substeps: the loop structure (RolloutConfig.unroll_substeps); None: the sweeps'
+    SWEEP_UNROLL_SUBSTEPS. The outcomes do not depend on it (tests/test_perf_equivalence)."""
     if ensemble is not None and model_params is not None:
         raise SpecError("[randomize] ensemble gives the robots: pass no model_params with it")
     # Positional call into the cache: lru_cache keys f(a, b) and f(a, b, steps=False) apart,
     # which would compile the same program twice.
+    unroll = SWEEP_UNROLL_SUBSTEPS if unroll_substeps is None else int(unroll_substeps)
+    if unroll < 1:
+        raise ValueError(f"unroll_substeps must be >= 1, got {unroll_substeps!r}")
     return _make_chunk_fn(tuple(varied), duration_s, model_params, with_qpos, steps, fixed,
-                          ensemble)
+                          ensemble, unroll)
 
 
 @functools.lru_cache(maxsize=4)
@@ -130,7 +140,7 @@ def ensemble_robots(ensemble: EnsembleRef):
 
 
 @functools.lru_cache(maxsize=16)
-def _make_chunk_fn(varied, duration_s, model_params, with_qpos, steps, fixed, ensemble=None):
+def _make_chunk_fn(varied, duration_s, model_params, with_qpos, steps, fixed, ensemble, unroll):
     from tkujax.sim.robots import put_leaves
 
     if ensemble is None:
@@ -138,7 +148,8 @@ def _make_chunk_fn(varied, duration_s, model_params, with_qpos, steps, fixed, en
     else:
         robots = ensemble_robots(ensemble)
         model, index, state = robots.base_model, robots.index, robots.base_state
-    config = RolloutConfig(duration_s=duration_s, record_qpos=with_qpos, fixed=fixed)
+    config = RolloutConfig(duration_s=duration_s, record_qpos=with_qpos, fixed=fixed,
+                           unroll_substeps=unroll)
 
     def one(rec, key, base_params, schedule, robot_values=None):
         push = Push(rec["impulse_ns"], jnp.radians(rec["azimuth_deg"]), rec["height_m"],
