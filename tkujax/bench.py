@@ -4,7 +4,8 @@
   b. the closed-loop sweep (sensors, controller, metrics): physics steps/s and pushes/s;
   c. the CPU peer: MuJoCo C physics across all cores with the JAX controller between ticks
      (when tkujax.sim.rollout_mujoco is available);
-  d. one tuning gradient step (when tkujax.studies.tune is available): time and peak device memory;
+  d. one tuning gradient step (when tkujax.studies.tune is available): time and the process's
+     peak device memory (earlier stages of the run included);
   e. compile time of (b), cold (empty persistent cache) and from the persistent cache;
   f. compile time of the tuning gradient, per variant of its program (remat, unrolling);
   g. the profile of (b): what each part costs per control tick (`tkujax.bench_profile`).
@@ -407,7 +408,9 @@ def summary_markdown(r: dict) -> str:
         lines += ["", f"Gradient step (reverse mode through the closed loop, batch {g['batch']} x "
                   f"{g['duration_s']} s, {g['n_params']} parameters, remat {g['remat']}, float64 "
                   f"{g['float64']}): {g['seconds']:.2f} s per step = {g['pushes_per_s']:.3g} "
-                  f"pushes/s, first call (compile) {g['first_call_s']:.0f} s, peak device memory "
+                  f"pushes/s, first call (compile) {g['first_call_s']:.0f} s, peak device memory of "
+                  f"the process (earlier stages included; run --stages gradient_step alone "
+                  f"for the step's own) "
                   + (f"{g['peak_device_bytes'] / 2**30:.2f} GiB" if g['peak_device_bytes']
                      else "n/a") + f", gradient finite: {g['grad_finite']}."]
     md = r.get("multi_device")
