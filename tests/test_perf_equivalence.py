@@ -95,6 +95,10 @@ def test_loop_options_keep_the_outcomes():
 def test_rollout_config_checks_its_options():
     from tkujax.sim.rollout_mjx import RolloutConfig, _checkpoints, rollout
 
+    for bad in (0, -3):
+        with pytest.raises(ValueError, match="unroll_substeps"):
+            make_chunk_fn((), 1.5, unroll_substeps=bad)
+
     with pytest.raises(ValueError, match="remat"):
         _checkpoints("sometimes")
     for mode in (False, True, "none", "tick", "tick_nocse", "tick_dots", "substep", "nested"):
