@@ -167,13 +167,21 @@ def _claims_of(out: Path, pid: int) -> list[Path]:
 
 
 def test_sigkill_loop_then_resume_gives_identical_records(reference, tmp_path):
-    """>= 10 SIGKILLs at random moments (TKUJAX_TEST_SLOW_WRITE widens the write windows so
-    that many land mid-write), each followed by a resume; the end equals the reference."""
+    """>= 10 SIGKILLs, each followed by a resume; the end equals the reference. Odd kills land
+    at random moments; even ones wait for the writer to be mid-write (its temporary file, or a
+    renamed chunk not yet in the manifest: TKUJAX_TEST_SLOW_WRITE holds each for 0.3 s), so
+    that the mid-write path is exercised whatever the machine's load."""
     spec, _, rec = reference
     out = tmp_path / "killed"
     rng = random.Random(14)
     kills = mid_write = 0
-    for _ in range(40):
+
+    def writing(pid: int) -> bool:
+        entries = chunks.read_manifest(out).get("chunks", {})
+        return bool(list(out.glob(f".chunk_*.npz.{pid}.tmp"))) or any(
+            p.name not in entries for p in out.glob("chunk_*.npz"))
+
+    for attempt in range(40):
         if kills >= 10:
             break
         proc = _writer(spec, out, slow_s=0.6)
@@ -181,16 +189,18 @@ def test_sigkill_loop_then_resume_gives_identical_records(reference, tmp_path):
         while (proc.poll() is None and time.monotonic() - t0 < 60
                and not _claims_of(out, proc.pid)):
             time.sleep(0.05)
-        time.sleep(rng.uniform(0.0, 1.5))
+        if attempt % 2 == 0:        # until it is mid-write (or 60 s)
+            while proc.poll() is None and time.monotonic() - t0 < 60 and not writing(proc.pid):
+                time.sleep(0.01)
+        else:
+            time.sleep(rng.uniform(0.0, 1.5))
         if proc.poll() is not None:          # it finished first: not a kill
             assert proc.returncode == 0, proc.stderr.read()[-3000:]
             break
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait()                          # reap it: a zombie's pid still looks alive
         kills += 1
-        entries = chunks.read_manifest(out).get("chunks", {})
-        mid_write += bool(list(out.glob(f".chunk_*.npz.{proc.pid}.tmp"))) or any(
-            p.name not in entries for p in out.glob("chunk_*.npz"))
+        mid_write += writing(proc.pid)
     assert kills >= 10, f"only {kills} kills landed before the sweep finished"
     assert mid_write >= 1, "no kill landed mid-write"
     final = _writer(spec, out, slow_s=0.0)
