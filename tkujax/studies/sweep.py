@@ -53,8 +53,10 @@ from tkujax.studies.spec import (FPGA_COLUMN, ROBOT_ID_COLUMN, EnsembleRef, Spec
                                  fixed_point_config, load_spec)
 
 # lax.scan unrolling of each control tick's physics substeps in the sweeps' program
-# (RolloutConfig.unroll_substeps; 1: a rolled loop). Same arithmetic, another loop structure:
-# `tkujax bench --unroll-substeps 1,15` times the choices (docs/performance.md).
+# (RolloutConfig.unroll_substeps; 1: a rolled loop). Same arithmetic, another loop structure.
+# Rolled, because on an H200 x3 gained 2 % pushes/s for ~2x the compile and x15 (the whole
+# tick) took 10x the compile (results/bench/README.md); `tkujax bench --unroll-substeps 1,3`
+# times the choices again.
 SWEEP_UNROLL_SUBSTEPS = 1
 
 OUTCOME_KEYS = ("fell", "diverged", "recovery_time_s", "step_length_m", "step_width_m",
@@ -119,11 +121,11 @@ def make_chunk_fn(varied: tuple[str, ...], duration_s: float,
     SWEEP_UNROLL_SUBSTEPS. The outcomes do not depend on it (tests/test_perf_equivalence)."""
     if ensemble is not None and model_params is not None:
         raise SpecError("[randomize] ensemble gives the robots: pass no model_params with it")
-    # Positional call into the cache: lru_cache keys f(a, b) and f(a, b, steps=False) apart,
-    # which would compile the same program twice.
     unroll = SWEEP_UNROLL_SUBSTEPS if unroll_substeps is None else int(unroll_substeps)
     if unroll < 1:
         raise ValueError(f"unroll_substeps must be >= 1, got {unroll_substeps!r}")
+    # Positional call into the cache: lru_cache keys f(a, b) and f(a, b, steps=False) apart,
+    # which would compile the same program twice.
     return _make_chunk_fn(tuple(varied), duration_s, model_params, with_qpos, steps, fixed,
                           ensemble, unroll)
 
