@@ -114,6 +114,13 @@ class ModelParams:
     timestep_s: float = 0.002            # 2 ms (Playground humanoids)
     solver_iterations: int = 1           # Newton, 1 iteration: reverse-mode differentiable
     ls_iterations: int = 4
+    # --- the IMU's own low-pass (a MEMS sensor's digital low-pass filter, e.g. the MPU-6050's
+    # DLPF at 5-260 Hz), first order, applied per physics step before the controller samples
+    # the reading every 30 ms. 0 = none: the controller reads the instantaneous value. [est]
+    # The paper does not say; see results/calibration/imu_bandwidth: sampled without a filter,
+    # the accelerometer catches the 20 ms ball pulse at some hit phases and not at others.
+    accel_lowpass_hz: float = 0.0
+    gyro_lowpass_hz: float = 0.0
     leg_servo: ServoParams = MX64_FIT
     arm_servo: ServoParams = MX28
 
@@ -162,6 +169,12 @@ class ModelParams:
                              f"got {self.floor_friction!r}")
         if self.solver_iterations < 1 or self.ls_iterations < 1:
             raise ValueError("ModelParams.solver_iterations and ls_iterations must be >= 1")
+        nyquist_hz = 0.5 / self.timestep_s
+        for name in ("accel_lowpass_hz", "gyro_lowpass_hz"):
+            hz = getattr(self, name)
+            if not (isinstance(hz, (int, float)) and (hz == 0.0 or 1.0 <= hz <= nyquist_hz)):
+                raise ValueError(f"ModelParams.{name} must be 0 (no filter) or in [1, "
+                                 f"{nyquist_hz:g}] Hz (the physics step's Nyquist), got {hz!r}")
         off = self.foot_forward_offset_m
         if not (isinstance(off, (int, float)) and abs(off) < 0.5 * self.foot_length_m):
             raise ValueError("ModelParams.foot_forward_offset_m must be in (-foot_length_m/2, "
@@ -189,6 +202,13 @@ class ModelParams:
                 raise ValueError(f"model parameter {key} must be a number, got {value!r}") from None
         base = cls.estimated() if variant == "estimated" else cls()
         return dataclasses.replace(base, **values).validate()
+
+    def imu_lowpass_alpha(self, name: str) -> float:
+        """Per-physics-step gain of the first-order IMU filter `name` ("accel" or "gyro"):
+        y += alpha (x - y), alpha = 1 - exp(-2 pi f_c dt), the exact discretisation of the RC
+        filter for an input held over each step. 0 when the filter is off."""
+        hz = getattr(self, f"{name}_lowpass_hz")
+        return 0.0 if hz == 0.0 else 1.0 - math.exp(-2.0 * math.pi * hz * self.timestep_s)
 
     @property
     def height_m(self) -> float:

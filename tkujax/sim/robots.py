@@ -24,7 +24,7 @@ import numpy as np
 from tkujax.model import ModelParams, load_model
 from tkujax.sim import physics
 from tkujax.sim.mjx_import import mjx
-from tkujax.sim.setup import SETTLE_S, ModelIndex
+from tkujax.sim.setup import SETTLE_S, ModelIndex, index_of
 
 
 class UnlistedFieldError(ValueError):
@@ -88,9 +88,9 @@ def robot_set(model_params: Sequence[ModelParams], settle_s: float = SETTLE_S,
     if not model_params:
         raise ValueError("robot_set needs at least one ModelParams")
     hosts = [_host_robot(mp, settle_s) for mp in model_params]
-    index = ModelIndex.of(hosts[0][0])
-    for k, (host, _) in enumerate(hosts[1:], 1):
-        bad = _index_mismatch(index, ModelIndex.of(host))
+    index = index_of(hosts[0][0], model_params[0])
+    for k, ((host, _), mp) in enumerate(zip(hosts[1:], model_params[1:]), 1):
+        bad = _index_mismatch(index, index_of(host, mp))
         if bad is not None:
             raise ValueError(f"robot {k} differs from robot 0 in its static model index "
                              f"({bad}): it needs its own compiled program, not a RobotSet")

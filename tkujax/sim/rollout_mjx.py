@@ -1,6 +1,7 @@
 """The closed loop: MJX physics + sensors + the paper's controller, as one pure rollout.
 
-Per control period (30 ms): read the IMU (optional Gaussian noise), run `controller_step`,
+Per control period (30 ms): read the IMU (through its low-pass when the model has one;
+optional Gaussian noise), run `controller_step`,
 quantise the leg targets to the servos' 0.088 deg resolution (straight-through gradient), hold
 them for `substeps` physics steps while the push's force acts through `xfrc_applied`. A
 `lax.scan` over periods; `jax.vmap` over pushes, controller parameters and model parameters.
@@ -213,20 +214,34 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
     wrap_tick, wrap_substep = _checkpoints(config.remat)
     scan_substeps = functools.partial(jax.lax.scan, unroll=config.unroll_substeps)
 
-    def physics_step(d, _):
+    def imu_read(d):
+        return (d.sensordata[idx.gyro_adr:idx.gyro_adr + 3],
+                d.sensordata[idx.accel_adr:idx.accel_adr + 3])
+
+    # The IMU's own low-pass (ModelParams.accel_lowpass_hz, gyro_lowpass_hz), advanced every
+    # physics step; its state rides in the carry. Off (the default robot): no filter state, the
+    # tick reads the instantaneous sensordata (a Python branch: the program is unchanged).
+    imu_filtered = idx.accel_alpha > 0.0 or idx.gyro_alpha > 0.0
+    imu_alpha = (idx.gyro_alpha or 1.0, idx.accel_alpha or 1.0)   # 1: y = x, unfiltered
+
+    def physics_step(carry, _):
+        d, imu = carry
         if "wrench" not in ablate:
             with jax.named_scope("push_wrench"):
                 d = d.replace(xfrc_applied=_push_wrench(idx, d, push))
         with jax.named_scope("mjx_step"):
-            return mjx.step(model, d), None
+            d = mjx.step(model, d)
+        if imu_filtered:
+            imu = tuple(y + jnp.asarray(a, dtype) * (x - y)
+                        for y, x, a in zip(imu, imu_read(d), imu_alpha))
+        return (d, imu), None
 
     physics_step = wrap_substep(physics_step)
 
     def tick(carry, tick_key):
-        d, ctrl_state = carry
+        d, imu, ctrl_state = carry
         with jax.named_scope("sensors"):
-            gyro = d.sensordata[idx.gyro_adr:idx.gyro_adr + 3]
-            accel = d.sensordata[idx.accel_adr:idx.accel_adr + 3]
+            gyro, accel = imu if imu_filtered else imu_read(d)
             if "noise" not in ablate:
                 kg, ka = jax.random.split(tick_key)
                 gyro = gyro + gyro_noise_std * jax.random.normal(kg, (3,), dtype)
@@ -248,11 +263,11 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
             if fixed is not None and switch > 0:
                 # Fractional latency: the previous command holds until the static switch substep.
                 d = d.replace(ctrl=stand_ctrl.at[legs_slice].set(prev.astype(dtype)))
-                d, _ = scan_substeps(physics_step, d, None, length=switch)
+                (d, imu), _ = scan_substeps(physics_step, (d, imu), None, length=switch)
             d = d.replace(ctrl=stand_ctrl.at[legs_slice].set(legs.astype(dtype)))
-            d, _ = scan_substeps(physics_step, d, None, length=substeps - switch)
+            (d, imu), _ = scan_substeps(physics_step, (d, imu), None, length=substeps - switch)
         if "records" in ablate:
-            return (d, ctrl_state), d.qpos[2]
+            return (d, imu, ctrl_state), d.qpos[2]
         with jax.named_scope("records"):
             pitch, roll = physics.pitch_roll_from_quat(d.qpos[3:7])
             zmp, fsr_total = _zmp(idx, d)
@@ -261,9 +276,10 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
                 com=d.subtree_com[1], r_ankle=d.site_xpos[r_ankle], l_ankle=d.site_xpos[l_ankle],
                 pelvis_z=d.qpos[2], lowest_body_z=_lowest_body_point(idx, d), out=out,
                 ctrl_state=ctrl_state, qpos=d.qpos if config.record_qpos else None)
-        return (d, ctrl_state), series
+        return (d, imu, ctrl_state), series
 
-    carry = (state, controller_init(params, dtype) if fixed is None else
+    carry = (state, imu_read(state) if imu_filtered else None,
+             controller_init(params, dtype) if fixed is None else
              controller_init_fx(params, fixed, dtype))
     carry = _seed_carry(carry, (push, params, schedule, enabled, gyro_noise_std,
                                 accel_noise_std))

@@ -4,7 +4,8 @@
 callers can switch backends. Per control period:
 
   1. read every robot's IMU (gyro, accelerometer) from the sensordata of the previous physics
-     step, add Gaussian noise (numpy RNG: same law as MJX, not the same realisation);
+     step (or, with the model's IMU low-pass, its filter advanced over every step), add
+     Gaussian noise (numpy RNG: same law as MJX, not the same realisation);
   2. run ONE jitted, vmapped `controller_step` over the whole batch (compiled once per batch
      shape), quantise the leg targets to the servo resolution exactly as the MJX loop
      (`tkujax.sim.tick.control_tick`, shared);
@@ -212,6 +213,29 @@ def _wrench(idx: ModelIndex, pose, height: np.ndarray, force: np.ndarray) -> np.
     return np.concatenate([force, np.cross(np.broadcast_to(arm, force.shape), force)], -1)
 
 
+class _ImuFilter:
+    """The IMU reading the controller gets: the last physics step's gyro and accelerometer,
+    or, with the model's low-pass (ModelIndex.accel_alpha / gyro_alpha > 0), the first-order
+    filter y += alpha (x - y) advanced over every physics step, as in the MJX loop."""
+
+    def __init__(self, idx: ModelIndex, sensordata0: np.ndarray):
+        self.g, self.a = (slice(idx.gyro_adr, idx.gyro_adr + 3),
+                          slice(idx.accel_adr, idx.accel_adr + 3))
+        self.alpha = (idx.gyro_alpha or 1.0, idx.accel_alpha or 1.0)   # 1: unfiltered
+        self.gyro, self.accel = sensordata0[:, self.g].copy(), sensordata0[:, self.a].copy()
+
+    def advance(self, sens_steps: np.ndarray) -> None:
+        """sens_steps (n, substeps, nsensordata): the sensordata after each physics step."""
+        (ag, aa), g, a = self.alpha, self.gyro, self.accel
+        if ag == 1.0 and aa == 1.0:
+            self.gyro, self.accel = sens_steps[:, -1, self.g], sens_steps[:, -1, self.a]
+            return
+        for j in range(sens_steps.shape[1]):
+            g = g + ag * (sens_steps[:, j, self.g] - g)
+            a = a + aa * (sens_steps[:, j, self.a] - a)
+        self.gyro, self.accel = g, a
+
+
 class _Physics:
     """Advances a batch of robots one control period with `mujoco.rollout`, chaining the warm
     start (module doc); holds the static pieces (model, thread pool, scratch data)."""
@@ -240,14 +264,15 @@ class _Physics:
     def period(self, state, pose_state, warm, ctrl_steps, held, force, height, push_wrench):
         """One period of `substeps` physics steps. ctrl_steps (n, substeps, nu) per-step
         controls; held: they are all equal (one row serves); force (n, substeps, 3) the push;
-        height (n,). Returns (state, pose_state, sensordata, warm) after the period, pose_state
-        the state whose kinematics MJX's d.xpos holds (before the last step)."""
+        height (n,). Returns (state, pose_state, sensordata per step (n, substeps,
+        nsensordata), warm) after the period, pose_state the state whose kinematics MJX's
+        d.xpos holds (before the last step)."""
         substeps, nu = ctrl_steps.shape[1], self.m.nu
         if not np.any(force != 0.0):
             control = np.ascontiguousarray(ctrl_steps[:, :1]) if held else ctrl_steps
             states, sens, warm = self._run(state, warm, control, _CTRL, substeps)
             pose_state = states[:, -2] if substeps > 1 else state
-            return states[:, -1], pose_state, sens[:, -1], warm
+            return states[:, -1], pose_state, sens, warm
         if push_wrench == "period_start":
             control = np.zeros((state.shape[0], substeps, self.ctrl_spec_size))
             control[:, :, :nu] = ctrl_steps
@@ -255,17 +280,19 @@ class _Physics:
                                                     force)
             states, sens, warm = self._run(state, warm, control, _CTRL_XFRC, substeps)
             pose_state = states[:, -2] if substeps > 1 else state
-            return states[:, -1], pose_state, sens[:, -1], warm
+            return states[:, -1], pose_state, sens, warm
         # exact: one step per call, the wrench from the pose MJX would use
         control = np.zeros((state.shape[0], 1, self.ctrl_spec_size))
+        per_step = []
         for j in range(substeps):
             control[:, 0, :nu] = ctrl_steps[:, j]
             control[:, :, self.xfrc_cols] = _wrench(self.idx, self.kin.chest(pose_state), height,
                                                     force[:, j:j + 1])
             states, sens, warm = self._run(state, warm, control, _CTRL_XFRC, 1)
             pose_state = state
-            state, sensordata = states[:, -1], sens[:, -1]
-        return state, pose_state, sensordata, warm
+            state = states[:, -1]
+            per_step.append(sens[:, -1])
+        return state, pose_state, np.stack(per_step, axis=1), warm
 
     def record(self, state, pose_state, sensordata, out, ctrl_state, record_qpos: bool) -> Series:
         """The Series row of the period just run (numpy; the controller's fields as given)."""
@@ -352,11 +379,11 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
     pose_state = state.copy()     # whose kinematics MJX's d.xpos holds (before the last step)
     warm = np.tile(setup.warmstart0, (n, 1))
     sensordata = np.tile(setup.sensordata0, (n, 1))
+    imu = _ImuFilter(idx, sensordata)
     stand_ctrl = np.asarray(idx.stand_ctrl, np.float64)
     rows = []
     for _ in range(n_ticks):
-        gyro = sensordata[:, idx.gyro_adr:idx.gyro_adr + 3]
-        accel = sensordata[:, idx.accel_adr:idx.accel_adr + 3]
+        gyro, accel = imu.gyro, imu.accel
         gyro = gyro + gyro_noise_std * rng.standard_normal((n, 3))
         accel = accel + accel_noise_std * rng.standard_normal((n, 3))
         gyro_j, accel_j = jnp.asarray(gyro, jnp.float32), jnp.asarray(accel, jnp.float32)
@@ -376,8 +403,10 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
         if switch > 0:
             ctrl_steps[:, :switch, idx.leg_actuators] = np.asarray(prev, np.float64)[:, None, :]
         force = _force(p, state[:, :1] + phys.dt * np.arange(substeps)[None, :])
-        state, pose_state, sensordata, warm = phys.period(
+        state, pose_state, sens_steps, warm = phys.period(
             state, pose_state, warm, ctrl_steps, switch == 0, force, p["height_m"], push_wrench)
+        sensordata = sens_steps[:, -1]
+        imu.advance(sens_steps)
         rows.append(phys.record(state, pose_state, sensordata, out, ctrl_state,
                                 config.record_qpos))
 

@@ -42,6 +42,10 @@ class ModelIndex:
     ankle_sites: tuple[int, int]  # r_ankle, l_ankle
     stand_ctrl: np.ndarray
     timestep_s: float
+    # Per-physics-step gains of the IMU's first-order low-pass (ModelParams.accel_lowpass_hz,
+    # gyro_lowpass_hz); 0 = no filter, the rollouts read the instantaneous sensor value.
+    accel_alpha: float = 0.0
+    gyro_alpha: float = 0.0
 
     @staticmethod
     def of(model: mujoco.MjModel) -> ModelIndex:
@@ -67,7 +71,15 @@ class ModelIndex:
 
 @functools.lru_cache(maxsize=8)
 def model_index(params: ModelParams | None = None) -> ModelIndex:
-    return ModelIndex.of(physics.host_model(params))
+    return index_of(physics.host_model(params), params)
+
+
+def index_of(host: mujoco.MjModel, params: ModelParams | None) -> ModelIndex:
+    """The ModelIndex of a host model built from `params` (None: the default robot): the
+    compiled model's indices plus what lives outside MuJoCo (the IMU's low-pass gains)."""
+    p = params or ModelParams()
+    return dataclasses.replace(ModelIndex.of(host), accel_alpha=p.imu_lowpass_alpha("accel"),
+                               gyro_alpha=p.imu_lowpass_alpha("gyro"))
 
 
 class SimSetup(NamedTuple):

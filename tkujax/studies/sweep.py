@@ -72,6 +72,8 @@ _LATER_FIELDS = {f.name: f.default for f in dataclasses.fields(ControllerParams)
     "cp_trigger_backward_m", "cp_trigger_lateral_m", "stance_ankle_kp", "stance_ankle_kd",
     "stance_hip_kp", "stance_hip_kd", "stance_roll_kp", "stance_roll_kd", "stance_limit",
     "max_steps")}
+# The same for ModelParams: the IMU filter fields enter the hash only when a filter is on.
+_LATER_MODEL_FIELDS = {"accel_lowpass_hz": 0.0, "gyro_lowpass_hz": 0.0}
 
 
 def step_override(rec: dict) -> StepOverride:
@@ -274,7 +276,9 @@ def _spec_hash(spec: SweepSpec, params: ControllerParams, model_params: ModelPar
     # enters in full: a changed default robot (e.g. the calibration) is a different sweep.
     p = {k: v for k, v in dataclasses.asdict(params).items()
          if not (k in _LATER_FIELDS and v == _LATER_FIELDS[k])}
-    parts = [spec.raw, p, dataclasses.asdict(model_params)]
+    m = {k: v for k, v in dataclasses.asdict(model_params).items()
+         if not (k in _LATER_MODEL_FIELDS and v == _LATER_MODEL_FIELDS[k])}
+    parts = [spec.raw, p, m]
     if spec.arithmetic == "fixed":   # the FixedPointConfig defaults fill every unset [fpga] key
         parts.append({"fixed_point_defaults": dataclasses.asdict(FixedPointConfig())})
     if spec.phase_default:   # random onsets changed meaning when the phase axis came in
