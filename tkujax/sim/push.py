@@ -151,22 +151,31 @@ def ball_momentum_ns(ball: str) -> float:
 class BallContact:
     """Where the paper's ball meets the robot and how much of its momentum it transfers.
 
-    height_m         contact height above the floor. [fit] 0.405 m (upper chest), bound
-                     0.28-0.43 m (anywhere on the chest); estimate DEFAULT_HEIGHT_M.
-    impulse_factor   impulse delivered / ball momentum m v = (1 + e) / (1 + m / M_eff).
-                     [fit] 1.365, bound 0.9-1.5 (restitution e 0.2-0.6); estimate 1.0.
-                     tkujax.sim.ball_rig's rigid rig predicts 1.02-1.12: the fit asks for a
+    height_m         contact height above the floor of the hit from behind. [fit] 0.405 m
+                     (upper chest), bound 0.28-0.43 m (anywhere on the chest); estimate
+                     DEFAULT_HEIGHT_M.
+    impulse_factor   impulse delivered / ball momentum m v = (1 + e) / (1 + m / M_eff), hit
+                     from behind. [fit] 1.365, bound 0.9-1.5 (restitution e 0.2-0.6); estimate
+                     1.0. tkujax.sim.ball_rig's rigid rig predicts 1.02-1.12: the fit asks for a
                      livelier ball. The data pin only the product height x impulse (the
                      angular impulse about the ankles), not the two separately.
+    front_height_offset_m, front_impulse_ratio
+                     the hit from the front relative to the one from behind: its contact height
+                     minus height_m (the result kept on the chest, CHEST_RANGE_M), and its
+                     impulse factor over impulse_factor. The ball meets the chest's front and
+                     back, whose shapes and stiffness differ; the paper gives neither contact.
+                     0 and 1: one hit for both directions.
     """
 
     height_m: float = 0.405
     impulse_factor: float = 1.365
+    front_height_offset_m: float = 0.0
+    front_impulse_ratio: float = 1.0
 
     @classmethod
     def estimated(cls) -> BallContact:
-        """Before calibration: mid-chest, the ball's momentum exactly."""
-        return cls(DEFAULT_HEIGHT_M, 1.0)
+        """Before calibration: mid-chest, the ball's momentum exactly, one hit for both."""
+        return cls(DEFAULT_HEIGHT_M, 1.0, 0.0, 1.0)
 
     def validate(self) -> BallContact:
         if not (0.28 <= self.height_m <= 0.43):
@@ -175,11 +184,41 @@ class BallContact:
         if not (0.9 <= self.impulse_factor <= 1.5):
             raise ValueError(f"BallContact.impulse_factor must be in [0.9, 1.5], "
                              f"got {self.impulse_factor!r}")
+        if not (-0.05 <= self.front_height_offset_m <= 0.05):
+            raise ValueError(f"BallContact.front_height_offset_m must be in [-0.05, 0.05] m, "
+                             f"got {self.front_height_offset_m!r}")
+        if not (0.8 <= self.front_impulse_ratio <= 1.25):
+            raise ValueError(f"BallContact.front_impulse_ratio must be in [0.8, 1.25], "
+                             f"got {self.front_impulse_ratio!r}")
         return self
 
-    def impulse_ns(self, ball: str) -> float:
-        """The impulse (N s) this contact delivers for the paper's `ball`."""
-        return self.impulse_factor * ball_momentum_ns(ball)
+    def contact_height_m(self, direction: str = "back") -> float:
+        """The contact height (m) of the hit from `direction` ("back" or "front")."""
+        if _direction(direction) == "back":
+            return self.height_m
+        lo, hi = CHEST_RANGE_M
+        return min(max(self.height_m + self.front_height_offset_m, lo), hi)
+
+    def impulse_ns(self, ball: str, direction: str = "back") -> float:
+        """The impulse (N s) this contact delivers for the paper's `ball` from `direction`."""
+        ratio = self.front_impulse_ratio if _direction(direction) == "front" else 1.0
+        return self.impulse_factor * ratio * ball_momentum_ns(ball)
+
+    def push(self, ball: str, direction: str, onset_s: float = PAPER_ONSET_S,
+             duration_s: float = DEFAULT_DURATION_S) -> Push:
+        """The paper's case `ball` from `direction` as a Push."""
+        return make_push(self.impulse_ns(ball, direction), DIRECTIONS[direction],
+                         height_m=self.contact_height_m(direction), onset_s=onset_s,
+                         duration_s=duration_s)
+
+
+CHEST_RANGE_M = (0.275, 0.435)   # the chest's height range in the stand pose, m
+
+
+def _direction(name: str) -> str:
+    if name not in DIRECTIONS:
+        raise ValueError(f"direction must be one of {sorted(DIRECTIONS)}, got {name!r}")
+    return name
 
 
 def _ball(name: str) -> str:
@@ -195,7 +234,4 @@ def ball_push(ball: str, direction: str, onset_s: float = PAPER_ONSET_S,
               contact: BallContact = BallContact()) -> Push:
     """The paper's case as an impulse (the ball's momentum times the contact's transfer factor,
     at the contact's height), from the back or the front."""
-    if direction not in DIRECTIONS:
-        raise ValueError(f"direction must be one of {sorted(DIRECTIONS)}, got {direction!r}")
-    return make_push(contact.impulse_ns(ball), DIRECTIONS[direction], height_m=contact.height_m,
-                     onset_s=onset_s)
+    return contact.push(ball, _direction(direction), onset_s)

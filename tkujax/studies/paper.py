@@ -76,8 +76,9 @@ def run_cases(params: ControllerParams | None = None, model_params: ModelParams 
     params = params or ControllerParams.paper(model_params)
     cases = paper_cases()
     pushes = push_lib.stack_pushes([
-        push_lib.make_push(impulse_scale * contact.impulse_ns(b), push_lib.DIRECTIONS[d],
-                           height_m=contact.height_m, onset_s=onset_s) for d, b, _ in cases])
+        push_lib.make_push(impulse_scale * contact.impulse_ns(b, d), push_lib.DIRECTIONS[d],
+                           height_m=contact.contact_height_m(d), onset_s=onset_s)
+        for d, b, _ in cases])
     enabled = np.array([1.0 if c == "on" else 0.0 for *_, c in cases], np.float32)
     series, outcomes = simulate(pushes, enabled, params, model_params=model_params, config=config)
     return cases, series, outcomes, pushes
@@ -277,8 +278,9 @@ def render_case(case: str, control_on: bool, out: str | Path, width: int = 480,
     try:
         ball, direction = case.split("-")
         contact = push_lib.BallContact()
-        push = push_lib.make_push(impulse_scale * contact.impulse_ns(ball),
-                                  push_lib.DIRECTIONS[direction], height_m=contact.height_m)
+        push = push_lib.make_push(impulse_scale * contact.impulse_ns(ball, direction),
+                                  push_lib.DIRECTIONS[direction],
+                                  height_m=contact.contact_height_m(direction))
     except (ValueError, KeyError) as err:
         raise ValueError(f"case must be BALL-DIRECTION with BALL in {BALL_NAMES} and DIRECTION "
                          f"in {DIRECTION_NAMES}, got {case!r}") from err

@@ -19,7 +19,7 @@ from tkujax.sim import push as push_lib
 from tkujax.studies.calibrate import params as P
 
 CASES = [(d, b) for d in ("back", "front") for b in ("baseball", "volleyball")]
-CHEST_RANGE_M = (0.275, 0.435)       # the chest's height range in the stand pose (params.py)
+CHEST_RANGE_M = push_lib.CHEST_RANGE_M   # the chest's height range in the stand pose
 
 
 def _simulate(pushes, enabled, cparams, mparams):
@@ -70,18 +70,13 @@ def pushes_for(x, samples=(0.0,)) -> object:
     sample-major, 4 * len(samples) pushes."""
     v = P.complete(P.as_dict(x) if not isinstance(x, dict) else x)
     # push_height_m and impulse_factor are the hit from behind; the front hit is set relative
-    # to it (params.py: front_height_offset_m, front_impulse_ratio; neutral: the same hit).
-    # The front contact stays on the chest (0.275-0.435 m in the stand pose, params.py's
-    # push_height_m bounds up to rounding): a box of (height, offset) can reach past it.
-    front_m = min(max(float(v["push_height_m"]) + float(v["front_height_offset_m"]),
-                      CHEST_RANGE_M[0]), CHEST_RANGE_M[1])
-    height = {"back": float(v["push_height_m"]), "front": front_m}
-    factor = {"back": float(v["impulse_factor"]),
-              "front": float(v["impulse_factor"]) * float(v["front_impulse_ratio"])}
+    # to it (params.py: front_height_offset_m, front_impulse_ratio; neutral: the same hit), and
+    # BallContact keeps its contact on the chest (a box of (height, offset) can reach past it).
+    contact = push_lib.BallContact(
+        float(v["push_height_m"]), float(v["impulse_factor"]),
+        float(v["front_height_offset_m"]), float(v["front_impulse_ratio"]))
     return push_lib.stack_pushes([
-        push_lib.make_push(factor[d] * push_lib.ball_momentum_ns(b),
-                           push_lib.DIRECTIONS[d], height_m=height[d],
-                           onset_s=hit_onset_s(s.phase_ms), duration_s=1e-3 * s.contact_ms)
+        contact.push(b, d, onset_s=hit_onset_s(s.phase_ms), duration_s=1e-3 * s.contact_ms)
         for s in map(as_sample, samples) for d, b in CASES])
 
 

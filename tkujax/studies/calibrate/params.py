@@ -141,5 +141,7 @@ def base_vector() -> np.ndarray:
              chest_com_frac=m.chest_com_frac, leg_mass_kg=m.leg_mass_kg,
              chest_share=m.chest_mass_kg / (m.chest_mass_kg + m.pelvis_mass_kg),
              push_height_m=ball.height_m, impulse_factor=ball.impulse_factor,
-             kalman_q=math.log10(c.kalman_q), kalman_r=math.log10(c.kalman_r), **NEUTRAL)
+             kalman_q=math.log10(c.kalman_q), kalman_r=math.log10(c.kalman_r),
+             front_height_offset_m=ball.front_height_offset_m,
+             front_impulse_ratio=ball.front_impulse_ratio)
     return np.array([float(v[n]) for n in NAMES])

@@ -88,7 +88,10 @@ class Refiner:
         step, fall = _targets()
         self.step_target, self.must_fall = step[self.cases], fall[self.cases]
         self.enabled = np.array([1.0 if c == "on" else 0.0 for *_, c in self.names], np.float32)
-        self.impulse = np.array([self.contact.impulse_ns(b) for _, b, _ in self.names], np.float32)
+        self.impulse = np.array([self.contact.impulse_ns(b, d) for d, b, _ in self.names],
+                                np.float32)
+        self.height = np.array([self.contact.contact_height_m(d) for d, _, _ in self.names],
+                               np.float32)
         self.azimuth = np.radians([push_lib.DIRECTIONS[d] for d, _, _ in self.names]).astype(
             np.float32)
         self.lo, self.hi = bounds(self.model_params, self.contact)
@@ -102,8 +105,8 @@ class Refiner:
             m = randomize_model(model, index.chest_body, torso_com_dx_m=dx, kp_scale=kp,
                                 damping_scale=damp, actuator_mask=leg_mask, dof_mask=dof_mask)
 
-            def one(j, az, en):
-                push = Push(j * imp, az, jnp.float32(self.contact.height_m),
+            def one(j, az, en, h):
+                push = Push(j * imp, az, h,
                             jnp.float32(push_lib.DEFAULT_DURATION_S),
                             jnp.float32(push_lib.PAPER_ONSET_S))
                 series = rollout(m, state, push, self.params, en, jax.random.PRNGKey(0),
@@ -111,7 +114,7 @@ class Refiner:
                 return rollout_outcomes(series, push.onset_s)
 
             return jax.vmap(one)(jnp.asarray(self.impulse), jnp.asarray(self.azimuth),
-                                 jnp.asarray(self.enabled))
+                                 jnp.asarray(self.enabled), jnp.asarray(self.height))
 
         def loss(theta):
             out = rows(theta)
