@@ -345,8 +345,13 @@ def test_ball_rig_and_impulse_model_agree_on_momentum(ball, direction):
           f"J = {j:.4f} N s, ratio {ratio:.3f}")
     assert rig["impulse_model_ns"] == pytest.approx(j)
     assert abs(ratio - 1.0) <= RIG_AGREEMENT_TOL
-    # The paper's case applies J times the calibrated contact's impulse factor (its default).
-    factor = push_lib.BallContact().impulse_factor
+    # The paper's case applies J times the calibrated contact's impulse factor (its default),
+    # and the front hit's ratio to it from the front.
+    contact = push_lib.BallContact()
+    factor = contact.impulse_factor * (contact.front_impulse_ratio if direction == "front"
+                                       else 1.0)
     assert float(ball_push(ball, direction).impulse_ns) == pytest.approx(factor * j, rel=1e-6)
+    assert float(ball_push(ball, direction).height_m) == pytest.approx(
+        contact.contact_height_m(direction), abs=1e-6)
     assert float(ball_push(ball, direction, contact=push_lib.BallContact.estimated()).impulse_ns) \
         == pytest.approx(j, rel=1e-6)

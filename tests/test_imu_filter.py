@@ -28,7 +28,11 @@ def test_alpha_is_the_exact_rc_discretisation():
     idx = model_index(FILTERED)
     assert idx.accel_alpha == pytest.approx(FILTERED.imu_lowpass_alpha("accel"))
     assert idx.gyro_alpha == pytest.approx(FILTERED.imu_lowpass_alpha("gyro"))
-    assert model_index(None).accel_alpha == 0.0 and model_index(None).gyro_alpha == 0.0
+    # The default robot filters its accelerometer (7.5 Hz) and not its gyro.
+    assert model_index(None).accel_alpha == pytest.approx(ModelParams().imu_lowpass_alpha("accel"))
+    assert model_index(None).accel_alpha > 0.0 and model_index(None).gyro_alpha == 0.0
+    unfiltered = model_index(ModelParams(accel_lowpass_hz=0.0))
+    assert unfiltered.accel_alpha == 0.0 and unfiltered.gyro_alpha == 0.0
 
 
 @pytest.mark.parametrize("field, value", [("accel_lowpass_hz", 0.5), ("accel_lowpass_hz", -1.0),
@@ -56,7 +60,7 @@ def test_filter_recursion_step_response():
                           (idx.gyro_alpha, f.gyro, np.full(3, 0.5))):
         np.testing.assert_allclose(got, np.broadcast_to(x * (1 - (1 - alpha) ** 30), (n, 3)),
                                    rtol=1e-12)
-    unfiltered = _ImuFilter(model_index(None), y0)
+    unfiltered = _ImuFilter(model_index(ModelParams(accel_lowpass_hz=0.0)), y0)
     unfiltered.advance(steps)
     np.testing.assert_array_equal(unfiltered.accel, steps[:, -1, idx.accel_adr:idx.accel_adr + 3])
 

@@ -102,8 +102,11 @@ def test_csv_is_the_simulation(rows):
     by_case = {(r["direction"], r["ball"], r["control"]): r for r in rows}
     for i, (d, b, c) in enumerate(cases):
         r = by_case[(d, b, c)]
+        contact = push_lib.BallContact()
         assert float(pushes.impulse_ns[i]) == pytest.approx(
-            push_lib.BallContact().impulse_factor * push_lib.ball_momentum_ns(b))
+            contact.impulse_factor * push_lib.ball_momentum_ns(b)
+            * (contact.front_impulse_ratio if d == "front" else 1.0))
+        assert float(pushes.height_m[i]) == pytest.approx(contact.contact_height_m(d), abs=1e-6)
         assert math.cos(float(pushes.azimuth_rad[i])) == pytest.approx(
             1.0 if d == "back" else -1.0, abs=1e-6)
         assert (r["fell"] == "true") == bool(outcomes["fell"][i])
