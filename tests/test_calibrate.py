@@ -334,7 +334,8 @@ def test_front_hit_parameters_move_only_the_front_pushes():
     change, by exactly the offset and the ratio."""
     from tkujax.studies.calibrate.evaluate import CASES, pushes_for
 
-    base = P.as_dict(P.base_vector())
+    # The default contact has its own front hit (BallContact); from the neutral one:
+    base = dict(P.as_dict(P.base_vector()), **P.NEUTRAL)
     old = dict(base)
     for n in P.NEUTRAL:                    # an x archived before these names existed
         old.pop(n)

@@ -52,7 +52,7 @@ def test_a_field_outside_the_program_is_refused():
 
 @pytest.fixture(scope="module")
 def batched():
-    samples = (E.Sample(0.0), E.Sample(10.0, 30.0))
+    samples = (E.Sample(0.0), E.Sample(10.0, 25.0))
     res = M.evaluate_many(CANDIDATES + [_x(foot_length_m=-0.1)], (READING,), samples,
                           robots_per_call=2)
     return samples, res
