@@ -219,8 +219,8 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
                 d.sensordata[idx.accel_adr:idx.accel_adr + 3])
 
     # The IMU's own low-pass (ModelParams.accel_lowpass_hz, gyro_lowpass_hz), advanced every
-    # physics step; its state rides in the carry. Off (the default robot): no filter state, the
-    # tick reads the instantaneous sensordata (a Python branch: the program is unchanged).
+    # physics step; its state rides in the carry. Off (both cutoffs 0): no filter state, the
+    # tick reads the instantaneous sensordata (a Python branch: no filter in the program).
     imu_filtered = idx.accel_alpha > 0.0 or idx.gyro_alpha > 0.0
     imu_alpha = (idx.gyro_alpha or 1.0, idx.accel_alpha or 1.0)   # 1: y = x, unfiltered
 
