@@ -80,6 +80,17 @@ def rows_summary(model_params, contact) -> dict:
     return out
 
 
+def robot(hz: float, dz_m: float, ratio: float):
+    """(ModelParams, BallContact) of the default robot with the accelerometer cutoff `hz` and
+    the front hit `dz_m` higher and `ratio` times as strong as the one from behind."""
+    from tkujax.model import ModelParams
+    from tkujax.sim.push import BallContact
+
+    return (ModelParams(accel_lowpass_hz=hz),
+            dataclasses.replace(BallContact(), front_height_offset_m=dz_m,
+                                front_impulse_ratio=ratio))
+
+
 def criterion(summary: dict) -> dict:
     """The issue's done-when on one summary: every row at >= 80 %, no wrong-way step, and
     (so that it does not hold by stepping nowhere) both volleyball rows with control step the
@@ -155,9 +166,6 @@ SEARCH_HI = np.array([math.log10(40.0), 0.03, 1.25])
 def cmd_search(a) -> None:
     from cmaes import CMA
 
-    from tkujax.model import ModelParams
-    from tkujax.sim.push import BallContact
-
     start = np.array([math.log10(a.start_hz), a.start_dz, a.start_ratio])
     opt = CMA(mean=(start - SEARCH_LO) / (SEARCH_HI - SEARCH_LO), sigma=0.2,
               bounds=np.array([[0.0, 1.0]] * 3), population_size=8, seed=a.seed)
@@ -168,9 +176,7 @@ def cmd_search(a) -> None:
             for _ in range(opt.population_size):
                 u = opt.ask()
                 v = SEARCH_LO + np.clip(u, 0.0, 1.0) * (SEARCH_HI - SEARCH_LO)
-                mp = ModelParams(accel_lowpass_hz=float(10 ** v[0]))
-                contact = dataclasses.replace(BallContact(), front_height_offset_m=float(v[1]),
-                                              front_impulse_ratio=float(v[2]))
+                mp, contact = robot(float(10 ** v[0]), float(v[1]), float(v[2]))
                 rows = rows_summary(mp, contact)
                 loss = search_loss(rows["all"]) + 2.0 * search_loss(rows["20ms"])
                 told.append((u, loss))
@@ -190,9 +196,6 @@ SLICES = dict(accel_lowpass_hz=[5.0, 5.5, 6.0, 6.5, 7.0, 7.5, 8.0, 8.5, 9.0, 9.5
 
 
 def cmd_slices(a) -> None:
-    from tkujax.model import ModelParams
-    from tkujax.sim.push import BallContact
-
     hz0, dz0, ratio0 = a.center
     out = dict(center=dict(accel_lowpass_hz=hz0, front_height_offset_m=dz0,
                            front_impulse_ratio=ratio0), slices={})
@@ -200,10 +203,8 @@ def cmd_slices(a) -> None:
         pts = []
         for v in values:
             point = {**out["center"], name: v}
-            mp = ModelParams(accel_lowpass_hz=point["accel_lowpass_hz"])
-            contact = dataclasses.replace(
-                BallContact(), front_height_offset_m=point["front_height_offset_m"],
-                front_impulse_ratio=point["front_impulse_ratio"])
+            mp, contact = robot(point["accel_lowpass_hz"], point["front_height_offset_m"],
+                                point["front_impulse_ratio"])
             rows = rows_summary(mp, contact)
             pts.append(dict(value=v, rows=rows, criterion_20ms=criterion(rows["20ms"]),
                             criterion_all=criterion(rows["all"])))

@@ -221,8 +221,7 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
     # The IMU's own low-pass (ModelParams.accel_lowpass_hz, gyro_lowpass_hz), advanced every
     # physics step; its state rides in the carry. Off (both cutoffs 0): no filter state, the
     # tick reads the instantaneous sensordata (a Python branch: no filter in the program).
-    imu_filtered = idx.accel_alpha > 0.0 or idx.gyro_alpha > 0.0
-    imu_alpha = (idx.gyro_alpha or 1.0, idx.accel_alpha or 1.0)   # 1: y = x, unfiltered
+    imu_filtered = idx.imu_filtered
 
     def physics_step(carry, _):
         d, imu = carry
@@ -233,7 +232,7 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
             d = mjx.step(model, d)
         if imu_filtered:
             imu = tuple(y + jnp.asarray(a, dtype) * (x - y)
-                        for y, x, a in zip(imu, imu_read(d), imu_alpha))
+                        for y, x, a in zip(imu, imu_read(d), idx.imu_gains))
         return (d, imu), None
 
     physics_step = wrap_substep(physics_step)

@@ -221,13 +221,13 @@ class _ImuFilter:
     def __init__(self, idx: ModelIndex, sensordata0: np.ndarray):
         self.g, self.a = (slice(idx.gyro_adr, idx.gyro_adr + 3),
                           slice(idx.accel_adr, idx.accel_adr + 3))
-        self.alpha = (idx.gyro_alpha or 1.0, idx.accel_alpha or 1.0)   # 1: unfiltered
+        self.filtered, self.alpha = idx.imu_filtered, idx.imu_gains
         self.gyro, self.accel = sensordata0[:, self.g].copy(), sensordata0[:, self.a].copy()
 
     def advance(self, sens_steps: np.ndarray) -> None:
         """sens_steps (n, substeps, nsensordata): the sensordata after each physics step."""
         (ag, aa), g, a = self.alpha, self.gyro, self.accel
-        if ag == 1.0 and aa == 1.0:
+        if not self.filtered:
             self.gyro, self.accel = sens_steps[:, -1, self.g], sens_steps[:, -1, self.a]
             return
         for j in range(sens_steps.shape[1]):

@@ -47,6 +47,17 @@ class ModelIndex:
     accel_alpha: float = 0.0
     gyro_alpha: float = 0.0
 
+    @property
+    def imu_filtered(self) -> bool:
+        """Whether the IMU has a low-pass (either gain > 0)."""
+        return self.accel_alpha > 0.0 or self.gyro_alpha > 0.0
+
+    @property
+    def imu_gains(self) -> tuple[float, float]:
+        """(gyro, accel) gains of y += gain (x - y) per physics step; 1 where a filter is off
+        (y = x, the instantaneous value), so both rollouts run one update for both."""
+        return (self.gyro_alpha or 1.0, self.accel_alpha or 1.0)
+
     @staticmethod
     def of(model: mujoco.MjModel) -> ModelIndex:
         data = physics.stand_data(model)

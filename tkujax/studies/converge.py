@@ -189,8 +189,7 @@ def pushes_of(spec: ConvergeSpec):
     for k in range(spec.phases):
         onset = float(push_lib.onset_from_phase(push_lib.PAPER_ONSET_S, k / spec.phases))
         for i, (d, b, c) in enumerate(cases):
-            plist.append(push_lib.make_push(contact.impulse_ns(b, d), push_lib.DIRECTIONS[d],
-                                            height_m=contact.contact_height_m(d), onset_s=onset))
+            plist.append(contact.push(b, d, onset_s=onset))
             enabled.append(1.0 if c == "on" else 0.0)
             label["set"].append("paper"), label["control"].append(c)
             label["phase"].append(k / spec.phases), label["row"].append(i)

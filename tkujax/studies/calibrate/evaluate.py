@@ -19,7 +19,6 @@ from tkujax.sim import push as push_lib
 from tkujax.studies.calibrate import params as P
 
 CASES = [(d, b) for d in ("back", "front") for b in ("baseball", "volleyball")]
-CHEST_RANGE_M = push_lib.CHEST_RANGE_M   # the chest's height range in the stand pose
 
 
 def _simulate(pushes, enabled, cparams, mparams):
