@@ -248,6 +248,24 @@ SPEC = {"tune": {"batch": 4, "iterations": 2, "duration_s": 1.0},
         "push": {"impulse_ns": {"uniform": [0.2, 1.0]}, "azimuth_deg": [0, 180]}}
 
 
+def test_model_table_picks_the_robot_and_names_bad_keys():
+    """[model]: ModelParams overrides of the robot the spec tunes (a study kept on an earlier
+    robot); validated at the edge, recorded, and used by make_problem."""
+    from tkujax.studies.tune import make_problem
+
+    spec = parse_tune_spec({**SPEC, "model": {"accel_lowpass_hz": 0}})
+    assert spec.model == {"accel_lowpass_hz": 0.0}
+    assert spec.model_params().accel_lowpass_hz == 0.0
+    assert parse_tune_spec(SPEC).model_params() is None          # the embedded default
+    assert not make_problem(spec).index.imu_filtered
+    assert make_problem(parse_tune_spec(SPEC)).index.imu_filtered
+    for table, match in [({"no_such_field": 1.0}, "no_such_field"),
+                         ({"accel_lowpass_hz": "fast"}, "model.accel_lowpass_hz"),
+                         ({"accel_lowpass_hz": 1e4}, "accel_lowpass_hz")]:
+        with pytest.raises(SpecError, match=match):
+            parse_tune_spec({**SPEC, "model": table})
+
+
 def test_spec_validation_names_key_and_range():
     spec = parse_tune_spec(SPEC)
     assert spec.params == ("step_period", "double_support_ratio", "lift_height", "eps_forward",
@@ -299,7 +317,7 @@ class _Quadratic:
         return np.full(groups, self._hard(z)), g[None] + noise
 
 
-@pytest.mark.parametrize("method", ["cma", "gradient", "hybrid", "es"])
+@pytest.mark.parametrize("method", ["cma", "gradient", "hybrid", "linesearch", "es"])
 def test_every_search_method_improves_a_known_landscape(method):
     from tkujax.studies.tune.search import SearchConfig, run_search
 
@@ -312,6 +330,60 @@ def test_every_search_method_improves_a_known_landscape(method):
     losses = [p["best_loss"] for p in r["curve"]]
     assert all(b <= a for a, b in zip(losses, losses[1:]))      # best-so-far never undone
     assert r["iterations"] <= 60 and r["curve"][-1]["pushes"] > 8
+
+
+class _Counting(_Quadratic):
+    """_Quadratic that counts gradient calls, optionally with a gradient pointing the wrong way
+    (a first-order gradient blind to what the hard loss does)."""
+
+    def __init__(self, target, flip=False):
+        super().__init__(target)
+        self.flip, self.grad_calls = flip, 0
+
+    def grouped_value_and_grad(self, z, temperature, batch, keys, groups):
+        self.grad_calls += 1
+        v, g = super().grouped_value_and_grad(z, temperature, batch, keys, groups)
+        return v, -g if self.flip else g
+
+
+def test_linesearch_takes_the_best_step_on_the_ray_and_never_a_worse_one():
+    """On |z - z*|^2 from 0 along the exact direction, the ray's best radius is the one
+    nearest |z*|; every accepted iterate lowers the hard loss; a new gradient follows each
+    move."""
+    from tkujax.studies.tune.search import SearchConfig, run_search
+
+    target = np.array([0.6, -0.8, 0.0])                 # |z*| = 1: radius 1 is on the ray
+    prob = _Counting(target)
+    cfg = SearchConfig(budget_s=30.0, max_iterations=4, popsize=7, ray_radius=2.0, groups=2)
+    r = run_search("linesearch", prob, np.zeros(3), {}, np.zeros(4), cfg, seed=0, log=None)
+    steps = r["extra"]["step_radius"]
+    assert steps[0] == pytest.approx(1.0)               # radii 2, 1, 0.5, ...: 1 is best
+    assert r["best_loss"] < 1e-3 and r["extra"]["moves"] >= 1
+    losses = [c["best_loss"] for c in r["curve"]]
+    assert all(b <= a for a, b in zip(losses, losses[1:]))
+    # One gradient at compile, then one per iteration that follows a move (and the first).
+    assert prob.grad_calls == 1 + 1 + sum(1 for s in steps[:-1] if s > 0)
+
+
+def test_linesearch_rejects_a_wrong_gradient_and_tries_other_directions():
+    """With the gradient flipped (uphill), no point on its ray is better: the incumbent stays,
+    no new gradient is computed for the same point, and the next rays use the push groups'
+    directions (here as wrong), then random ones, which find descent."""
+    from tkujax.studies.tune.search import SearchConfig, run_search
+
+    start = _Quadratic([0.6, -0.8, 0.0])._hard(np.zeros(3))
+    prob = _Counting([0.6, -0.8, 0.0], flip=True)
+    cfg = SearchConfig(budget_s=30.0, max_iterations=3, popsize=7, ray_radius=2.0, groups=2)
+    r = run_search("linesearch", prob, np.zeros(3), {}, np.zeros(4), cfg, seed=0, log=None)
+    assert r["extra"]["direction"] == ["mean", "group0", "group1"]
+    assert r["extra"]["step_radius"] == [0.0, 0.0, 0.0] and r["best_loss"] == start
+    assert prob.grad_calls == 2                         # compile + the first: none after fails
+    prob = _Counting([0.6, -0.8, 0.0], flip=True)
+    r = run_search("linesearch", prob, np.zeros(3), {}, np.zeros(4),
+                   dataclasses.replace(cfg, max_iterations=8), seed=0, log=None)
+    kinds, steps = r["extra"]["direction"], r["extra"]["step_radius"]
+    assert kinds[3] == "random" and max(steps) > 0
+    assert r["best_loss"] < start                       # random rays found descent
 
 
 def test_alpha_order_mix_trusts_the_lower_variance_and_rejects_bias():

@@ -58,7 +58,7 @@ def run_compare(spec: TuneSpec, out: Path, problem: TuneProblem,
     cfg = SearchConfig(budget_s=c["budget_s"], popsize=c["popsize"], sigma0=c["sigma0"],
                        zo_sigma=c["zo_sigma"], groups=c["groups"],
                        learning_rate=c["learning_rate"], temperature_deg=c["temperature_deg"],
-                       push_clip=c["push_clip"])
+                       push_clip=c["push_clip"], ray_radius=c["ray_radius"])
     shift_spec = shifted(spec)
     runs, evals = [], []
     for s in c["seeds"]:
@@ -93,7 +93,7 @@ def run_compare(spec: TuneSpec, out: Path, problem: TuneProblem,
                   tuned=list(reparam.fields), runs=runs, evaluations=evals, pooled=pooled,
                   winner=_winner(pooled, c["methods"]),
                   shift=None if spec.shift is None else _jsonable(spec.shift),
-                  ensembles=ensembles_record(spec),
+                  ensembles=ensembles_record(spec), model=dict(spec.model),
                   devices=[str(d) for d in jax.devices()])
     (out / "compare.json").write_text(json.dumps(record, indent=1, default=_default))
     _plot_curves(out / "convergence.png", record)

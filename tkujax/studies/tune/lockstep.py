@@ -33,8 +33,8 @@ import optax
 
 from tkujax.studies.tune.problem import _np, _x64
 from tkujax.studies.tune.reparam import CPU_COMPILER_OPTIONS, DEG
-from tkujax.studies.tune.search import (METHODS, SearchConfig, _adam, _finite, _Tracker,
-                                        alpha_order_mix, clipped_group_means,
+from tkujax.studies.tune.search import (METHODS, RaySearch, SearchConfig, _adam, _finite,
+                                        _Tracker, alpha_order_mix, clipped_group_means,
                                         one_plus_one_step, tell_generation)
 
 
@@ -192,7 +192,9 @@ def run_search_lockstep(method: str, problem, z0, batches, keys, cfg: SearchConf
         fns.population(np.repeat(Z0[:, None], cfg.popsize, 1), 0.0, batch, keys)
     if method == "hybrid":
         fns.population(np.repeat(Z0[:, None], 1 + 2 * pairs, 1), 0.0, batch, keys)
-    if method in ("gradient", "hybrid"):
+    if method == "linesearch":
+        fns.population(np.repeat(Z0[:, None], cfg.popsize, 1), 0.0, batch, keys)
+    if method in ("gradient", "hybrid", "linesearch"):
         _first_order(fns, Z0, tau, batch, keys, cfg, n)
     compile_s = time.perf_counter() - t0
 
@@ -225,6 +227,31 @@ def run_search_lockstep(method: str, problem, z0, batches, keys, cfg: SearchConf
                 log(f"{method} x{S}  gen {it:3d}  best {best()}  sigma "
                     + " ".join(f"{o._sigma:.3f}" for o in opts)
                     + f"  {clock.elapsed():.0f}/{cfg.budget_s:g} s")
+    elif method == "linesearch":
+        rays = [RaySearch(z0, h, cfg, s) for h, s in zip(hard0, seeds)]
+        while running():
+            pushes = 0
+            if any(r.needs_gradient for r in rays):     # one call for all seeds
+                grads = _first_order(fns, np.stack([r.z for r in rays]), tau, batch, keys,
+                                     cfg, n)                                    # (S, G, k)
+                for r, g in zip(rays, grads):
+                    if r.needs_gradient:
+                        r.set_directions(g)
+                pushes += n
+            zs = np.stack([r.candidates() for r in rays])                       # (S, P, k)
+            losses = fns.population(zs, 0.0, batch, keys)                       # (S, P)
+            for r, tr, zz, ll in zip(rays, tracks, zs, losses):
+                r.tell(zz, ll)
+                for z, v in zip(zz, ll):
+                    tr.offer(z, v)
+                tr.tick(pushes + cfg.popsize * n)
+            it += 1
+            if log:
+                log(f"{method} x{S}  it {it:3d}  best {best()}  "
+                    + "; ".join(r.describe() for r in rays)
+                    + f"  {clock.elapsed():.0f}/{cfg.budget_s:g} s")
+        for e, r in zip(extras, rays):
+            e.update(r.extra())
     elif method == "es":
         rngs = [jax.random.PRNGKey(s) for s in seeds]
         zs = [z0.copy() for _ in seeds]

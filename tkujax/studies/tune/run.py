@@ -79,7 +79,8 @@ def _run_tune(spec: TuneSpec, out: Path, quiet: bool, compiler_options: dict | N
                        popsize=spec.popsize, learning_rate=spec.learning_rate,
                        clip_norm=spec.clip_norm, sigma0=spec.baseline_sigma,
                        temperature_deg=c.get("temperature_deg", 0.5),
-                       groups=c.get("groups", 4 if spec.batch % 4 == 0 else 1))
+                       groups=c.get("groups", 4 if spec.batch % 4 == 0 else 1),
+                       ray_radius=c.get("ray_radius", 2.0))
     train = sample_pushes(spec, spec.batch, spec.seed)
     keys = jax.random.split(jax.random.PRNGKey(spec.seed), spec.batch)
     advised = recommended_method(reparam.size)
@@ -146,7 +147,7 @@ def _run_tune(spec: TuneSpec, out: Path, quiet: bool, compiler_options: dict | N
         params_user={n: reparam.user(z) for n, z in cands.items()},
         latents={n: np.asarray(z).tolist() for n, z in cands.items()}, evaluation=evals,
         evaluation_shifted=evals_shifted,
-        recommendation=decision, ensembles=ensembles_record(spec),
+        recommendation=decision, ensembles=ensembles_record(spec), model=dict(spec.model),
         compare=None if comparison is None else dict(winner=comparison["winner"],
                                                      pooled=comparison["pooled"]),
         wall_s=round(time.perf_counter() - t_start, 2), devices=[str(d) for d in jax.devices()])

@@ -24,6 +24,14 @@ that evaluation uses) against wall time and pushes simulated, and returns the be
             pairs, giving its variance): alpha = var_ZO / (var_FO + var_ZO), and alpha = 0 when
             the two disagree by more than 2 standard errors (the first-order gradient is then
             biased by a contact or gate discontinuity). Adam on the mix.
+  linesearch  the clipped first-order gradient as a DIRECTION only, its step length chosen
+            on the hard loss: one batched call evaluates `popsize` points along the ray
+            (radii ray_radius, ray_radius/2, ...), and the best is taken only if it lowers the
+            hard loss (else the next direction: a push group's own gradient, then a random
+            one). A gradient is computed only after a move. The dimension study's answer to
+            the gradient's climb (results/tune_dimension): on this rough loss a local
+            gradient predicts the loss a step away poorly, so the step is measured, not
+            trusted.
   es        the (1+1)-ES with the 1/5 success rule on the hard loss (the simple baseline).
 
 Pushes simulated count a value-and-gradient rollout as one push.
@@ -44,7 +52,7 @@ import optax
 from tkujax.studies.tune.problem import TuneProblem
 from tkujax.studies.tune.reparam import DEG
 
-METHODS = ("cma", "sepcma", "gradient", "hybrid", "es")
+METHODS = ("cma", "sepcma", "gradient", "hybrid", "linesearch", "es")
 _BIG = 1e6          # the loss a non-finite candidate gets (never selected, keeps CMA-ES sane)
 
 
@@ -60,6 +68,7 @@ class SearchConfig:
     clip_norm: float = 1.0
     temperature_deg: float = 0.5      # soft gate of first-order gradients
     push_clip: float = 0.0            # > 0: clip each push's gradient at push_clip x median
+    ray_radius: float = 2.0           # linesearch: the longest step of the first ray (latent)
 
 
 def _finite(x) -> float:
@@ -108,9 +117,9 @@ def run_search(method: str, problem: TuneProblem, z0, batch: dict, keys, cfg: Se
     if hasattr(problem, "with_off_survived"):
         batch = problem.with_off_survived(batch, keys)
     hard0 = problem.forward(z0, 0.0, batch, keys)[0]
-    if method in ("cma", "sepcma", "hybrid"):
+    if method in ("cma", "sepcma", "hybrid", "linesearch"):
         problem.population(np.repeat(z0[None], cfg.popsize, 0), 0.0, batch, keys)
-    if method in ("gradient", "hybrid"):
+    if method in ("gradient", "hybrid", "linesearch"):
         first_order_grads(problem.grouped_value_and_grad, z0, tau, batch, keys, cfg, n)
     compile_s = time.perf_counter() - t0
 
@@ -130,6 +139,25 @@ def run_search(method: str, problem: TuneProblem, z0, batch: dict, keys, cfg: Se
             if log:
                 log(f"{method}  gen {it:3d}  best {track.loss:.4f}  sigma {opt._sigma:.3f}  "
                     f"{track.elapsed():.0f}/{cfg.budget_s:g} s")
+    elif method == "linesearch":
+        ray = RaySearch(z0, hard0, cfg, seed)
+        while it < cfg.max_iterations and track.elapsed() < cfg.budget_s:
+            pushes = 0
+            if ray.needs_gradient:
+                ray.set_directions(first_order_grads(problem.grouped_value_and_grad, ray.z, tau,
+                                                     batch, keys, cfg, n))
+                pushes += n
+            zs = ray.candidates()
+            losses = problem.population(zs, 0.0, batch, keys)
+            ray.tell(zs, losses)
+            for zz, v in zip(zs, losses):
+                track.offer(zz, v)
+            track.tick(pushes + len(zs) * n)
+            it += 1
+            if log:
+                log(f"{method}  it {it:3d}  best {track.loss:.4f}  {ray.describe()}  "
+                    f"{track.elapsed():.0f}/{cfg.budget_s:g} s")
+        extra.update(ray.extra())
     elif method == "es":
         rng = jax.random.PRNGKey(seed)
         z, best, sigma = z0.copy(), _finite(hard0), cfg.sigma0
@@ -184,6 +212,69 @@ def run_search(method: str, problem: TuneProblem, z0, batch: dict, keys, cfg: Se
         extra["iterate_loss"] = iterate_losses     # the hard loss of each Adam iterate
     return dict(method=method, seed=seed, z_best=track.z.tolist(), best_loss=track.loss,
                 compile_s=round(compile_s, 2), iterations=it, curve=track.curve, extra=extra)
+
+
+class RaySearch:
+    """The linesearch method's state for one seed: the incumbent (best hard loss so far), the
+    directions of its last gradient (the batch mean, then each push group's) and the ray's
+    length.
+
+    Each iteration evaluates `popsize` points z - r_j d/|d| with r_j = radius 2^-j; the best
+    replaces the incumbent only if its hard loss is lower (the incumbent never gets worse on
+    the training batch). After a move the next ray starts at 4 r* (capped at 4 ray_radius)
+    and a new gradient is needed; after a failed ray the next direction is tried: the push
+    groups' gradients, then random directions (the batch and point are the same, so the
+    gradient would be too)."""
+
+    def __init__(self, z0, loss0: float, cfg: SearchConfig, seed: int):
+        self.z, self.loss = np.asarray(z0, float), _finite(loss0)
+        self.cfg, self.rng = cfg, np.random.default_rng(seed)
+        self.radius = cfg.ray_radius
+        self.directions: list[np.ndarray] = []
+        self.index = 0
+        self.needs_gradient = True
+        self.moves, self.radii_taken, self.kinds = 0, [], []
+
+    def set_directions(self, group_grads: np.ndarray) -> None:
+        g = np.asarray(group_grads, float)
+        self.directions = [g.mean(0)] + list(g)
+        self.index, self.needs_gradient = 0, False
+
+    def _direction(self) -> tuple[np.ndarray, str]:
+        if self.index < len(self.directions):
+            d = self.directions[self.index]
+            kind = "mean" if self.index == 0 else f"group{self.index - 1}"
+            if np.all(np.isfinite(d)) and np.linalg.norm(d) > 0:
+                return d, kind
+        return self.rng.standard_normal(self.z.shape), "random"
+
+    def candidates(self) -> np.ndarray:
+        """(popsize, k) points along the ray from the incumbent."""
+        d, self._kind = self._direction()
+        d = d / np.linalg.norm(d)
+        self._radii = self.radius * 0.5 ** np.arange(self.cfg.popsize)
+        return self.z[None] - self._radii[:, None] * d[None]
+
+    def tell(self, zs, losses) -> None:
+        losses = np.array([_finite(v) for v in losses])
+        j = int(np.argmin(losses))
+        self.kinds.append(self._kind)
+        if losses[j] < self.loss:
+            self.z, self.loss = np.asarray(zs[j], float), float(losses[j])
+            self.radius = min(4.0 * self._radii[j], 4.0 * self.cfg.ray_radius)
+            self.needs_gradient = True
+            self.moves += 1
+            self.radii_taken.append(float(self._radii[j]))
+        else:
+            self.index += 1
+            self.radii_taken.append(0.0)
+
+    def describe(self) -> str:
+        r = self.radii_taken[-1] if self.radii_taken else 0.0
+        return f"{self._kind} step {r:.3g}" if r else f"{self._kind} no step"
+
+    def extra(self) -> dict:
+        return dict(moves=self.moves, step_radius=self.radii_taken, direction=self.kinds)
 
 
 def tell_generation(opt, track: _Tracker, zs, losses, pushes: int) -> None:

@@ -84,6 +84,13 @@ class TuneSpec:
     # (training, then the shift's if another file), the same for a spec and its `shifted`.
     ensemble: EnsembleRef | None = None
     robot_table: tuple[EnsembleRef, ...] = ()
+    # [model]: ModelParams overrides of the default robot ({field: number}; {} = the embedded
+    # default). A study that must stay on an earlier robot names it here.
+    model: dict[str, float] = dataclasses.field(default_factory=dict)
+
+    def model_params(self) -> ModelParams | None:
+        """The [model] robot (None: the embedded default, ModelParams())."""
+        return ModelParams.from_overrides(self.model) if self.model else None
 
     def reparam(self) -> Reparam:
         return Reparam.make(self.params, self.ranges)
@@ -269,7 +276,7 @@ def _parse_evaluate(ev: dict, seed: int, batch: int, duration: float) -> dict:
 def parse_tune_spec(data: dict) -> TuneSpec:
     """Validate a parsed tune TOML document (SpecError names the key and the allowed range)."""
     _table("top level", data, {"tune", "push", "controller", "randomize", "baseline", "evaluate",
-                               "compare", "study"})
+                               "compare", "study", "model"})
     tune = _parse_tune(data)
     push, jitter = _parse_push(data, tune["duration_s"])
     ctrl_raw = _table("controller", data.get("controller", {}), CONTROLLER_FIELDS)
@@ -290,9 +297,13 @@ def parse_tune_spec(data: dict) -> TuneSpec:
     if table and tune["float64"]:
         raise SpecError("tune.float64: an ensemble ([randomize] or [evaluate.shift] ensemble) "
                         "runs in float32; set tune.float64 = false")
+    model = _parse_model(data.get("model", {}))
+    if model and table:
+        raise SpecError("[model]: an ensemble ([randomize] or [evaluate.shift] ensemble) gives "
+                        "the robots; remove [model] or the ensemble")
     spec = TuneSpec(**tune, push=push, azimuth_jitter_deg=jitter, controller=controller,
                     randomize=randomize, **baseline, **evaluate, raw=data, compare=compare,
-                    shift=shift, study=study, ensemble=ensemble, robot_table=table)
+                    shift=shift, study=study, ensemble=ensemble, robot_table=table, model=model)
     # Start values must lie strictly inside the ranges (their latents are finite).
     for key, policy in [("tune.policy", spec.policy)] + [
             (f"study.policies[{i}]", p) for i, p in enumerate((study or {}).get("policies", []))]:
@@ -308,8 +319,23 @@ def parse_tune_spec(data: dict) -> TuneSpec:
     return spec
 
 
+def _parse_model(table) -> dict[str, float]:
+    """[model]: {ModelParams field: number}, validated (unknown keys and out-of-range values
+    raise SpecError naming the key)."""
+    if not isinstance(table, dict):
+        raise SpecError(f"[model]: expected a table of model parameters, got {table!r}")
+    for k, v in table.items():
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise SpecError(f"model.{k}: expected a number, got {v!r}")
+    try:
+        ModelParams.from_overrides(dict(table))
+    except ValueError as err:
+        raise SpecError(f"[model]: {err}") from None
+    return {k: float(v) for k, v in table.items()}
+
+
 COMPARE_FIELDS = {"methods", "seeds", "budget_s", "popsize", "sigma0", "zo_sigma", "groups",
-                  "learning_rate", "temperature_deg", "push_clip", "eval_n"}
+                  "learning_rate", "temperature_deg", "push_clip", "ray_radius", "eval_n"}
 
 
 def _methods(table: str, c: dict, default: list) -> list:
@@ -346,6 +372,9 @@ def _search_settings(table: str, c: dict, batch: int, popsize: int, budget_s: fl
         # per-push norm before the mean (0: the plain mean; search.first_order_grads)
         push_clip=_number(f"{table}.push_clip", c.get("push_clip", 0.0), 0.0, 1e6,
                           "(x median norm)"),
+        # linesearch: the longest step of its first ray (search.RaySearch)
+        ray_radius=_number(f"{table}.ray_radius", c.get("ray_radius", 2.0), 1e-3, 100.0,
+                           "(latent)"),
         eval_n=_int(f"{table}.eval_n", c.get("eval_n", 4 * batch), 1, 10_000_000))
 
 
@@ -361,7 +390,7 @@ def _parse_compare(raw, batch: int) -> dict:
 
 
 STUDY_FIELDS = {"policies", "methods", "seeds", "budget_s", "popsize", "sigma0", "zo_sigma",
-                "push_clip", "groups", "learning_rate", "temperature_deg", "eval_n",
+                "push_clip", "ray_radius", "groups", "learning_rate", "temperature_deg", "eval_n",
                 "above_impulse_ns", "sep_cma_from", "margin_s", "compile_s", "seeds_side_by_side"}
 
 
@@ -480,6 +509,7 @@ def make_problem(spec: TuneSpec, reparam=None, duration_s: float | None = None,
                  model_params: ModelParams | None = None) -> TuneProblem:
     """The spec's TuneProblem (its reparameterisation, start, loss, horizon, precision and,
     with an ensemble, its RobotSet): what `tkujax tune`, [compare] and [study] run."""
+    model_params = model_params or spec.model_params()
     robots = tune_robots(spec, model_params)
     return TuneProblem(reparam if reparam is not None else spec.policy_reparam(),
                        spec.base_params(), spec.loss,

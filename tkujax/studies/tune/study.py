@@ -369,8 +369,10 @@ def _uses(method: str) -> set[str]:
     out = {"forward"}
     if method in ("cma", "sepcma", "hybrid"):
         out.add("population")
-    if method in ("gradient", "hybrid"):
+    if method in ("gradient", "hybrid", "linesearch"):
         out.add("gradient")
+    if method == "linesearch":
+        out.add("population")
     return out
 
 
@@ -436,7 +438,7 @@ class StudyRunner:
                            sigma0=st["sigma0"], zo_sigma=st["zo_sigma"],
                            groups=st["groups"], learning_rate=st["learning_rate"],
                            clip_norm=spec.clip_norm, temperature_deg=st["temperature_deg"],
-                           push_clip=st["push_clip"])
+                           push_clip=st["push_clip"], ray_radius=st["ray_radius"])
         return problem, rep, z0, variant, m, cfg
 
     def _train(self, seed: int):
@@ -459,7 +461,8 @@ class StudyRunner:
         st = self.spec.study
         row = dict(method=method, policy=policy, n_params=rep.size, seed=seed,
                    cma_variant=variant, budget_s=st["budget_s"],
-                   push_clip=st["push_clip"] if method in ("gradient", "hybrid") else None,
+                   push_clip=(st["push_clip"] if method in ("gradient", "hybrid", "linesearch")
+                              else None),
                    wall_s=r["curve"][-1]["wall_s"], best_loss=r["best_loss"],
                    start_loss=r["curve"][0]["best_loss"], iterations=r["iterations"],
                    compile_s=r["compile_s"], device=str(jax.devices()[0].device_kind))
@@ -471,7 +474,7 @@ class StudyRunner:
                  f"(start {row['start_heldout_fall']:.3f}), {r['iterations']} iterations")
         return dict(row, curve=r["curve"], z_best=r["z_best"], extra=r["extra"],
                     policy_layout=rep.describe(r["z_best"]),
-                    ensembles=ensembles_record(self.spec),
+                    ensembles=ensembles_record(self.spec), model=dict(self.spec.model),
                     devices=[str(d) for d in jax.devices()])
 
     def __call__(self, policy: str, method: str, seed: int) -> dict:
