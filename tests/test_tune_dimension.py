@@ -167,7 +167,9 @@ def test_dimension_specs_parse():
     spec = parse_tune_spec(read_toml("sweeps/tune_dimension.toml"))
     sizes = [spec.policy_reparam(p).size for p in spec.study["policies"]]
     assert max(sizes) >= 64 and len(set(sizes)) >= 3
-    assert set(spec.study["methods"]) == {"cma", "gradient", "hybrid", "es"}
+    assert set(spec.study["methods"]) == {"cma", "gradient", "hybrid", "es", "linesearch"}
+    # The study stays on the robot it started on (no accelerometer low-pass).
+    assert spec.model_params().accel_lowpass_hz == 0.0
     assert len(spec.study["seeds"]) >= 3 and spec.study["budget_s"] >= 120
     # It starts at the recommended controller.
     base = spec.base_params()
