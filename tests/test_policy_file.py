@@ -142,3 +142,43 @@ def test_mjx_sweep_runs_the_schedule(tmp_path):
     np.testing.assert_array_equal(m["fell"], sh["fell"])
     np.testing.assert_allclose(m["step_length_m"], sh["step_length_m"], atol=1e-3)
     np.testing.assert_array_equal(m["fell"], c["fell"])
+
+
+def test_recommended_policy_is_the_study_best_and_runs_by_name(tmp_path):
+    """`recommended_policy()` / `--params recommended`: the shipped file is the dimension
+    study's best policy (results/tune_dimension/best_policy.json, whose held-out evaluation
+    promoted it), an 8-sector schedule of 8 fields that really moves them; a sweep runs it by
+    name (MuJoCo C) and records the schedule, and it steps differently from the scalar set."""
+    from pathlib import Path
+
+    from tkujax.cli import main
+    from tkujax.control.io import recommended_policy
+    from tkujax.control.policy import schedule_to_dict
+
+    params, sched = recommended_policy()
+    study_params, study_sched = load_policy_json(
+        Path(__file__).parents[1] / "results/tune_dimension/best_policy.json")
+    assert dataclasses.asdict(params) == dataclasses.asdict(study_params)
+    assert schedule_to_dict(sched) == schedule_to_dict(study_sched)
+    assert sched.kind == "sectors" and np.shape(sched.table) == (8, 8)
+    assert np.max(np.abs(np.asarray(sched.table))) > 0.1          # a real schedule, not zeros
+    assert load_policy_json("recommended")[1].kind == "sectors"
+    spec_path = tmp_path / "spec.toml"
+    spec_path.write_text('[sweep]\nname = "t"\nseed = 0\nduration_s = 1.2\ncontrol = ["on"]\n'
+                         '[push.grid]\nimpulse_ns = [1.9]\nazimuth_deg = [90, 270]\n'
+                         'onset_s = [0.3]\n')
+    assert main(["sweep", str(spec_path), "--out", str(tmp_path / "pol"), "--params",
+                 "recommended", "--backend", "mujoco"]) == 0
+    manifest = json.loads((tmp_path / "pol" / "manifest.json").read_text())
+    assert manifest["schedule"]["kind"] == "sectors"
+    run_sweep(parse_spec(_read(spec_path)), tmp_path / "scalar",
+              params=ControllerParams.recommended(), quiet=True, backend="mujoco")
+    pol, scalar = load(tmp_path / "pol"), load(tmp_path / "scalar")
+    assert not np.allclose(np.nan_to_num(pol["step_length_m"]),
+                           np.nan_to_num(scalar["step_length_m"]), atol=1e-3)
+
+
+def _read(path):
+    import tomllib
+
+    return tomllib.loads(path.read_text())

@@ -7,6 +7,7 @@ MUJOCO_GL and XLA options first):
 
   tkujax.ModelParams, tkujax.load_model      the TKU-X model (tkujax.model)
   tkujax.ControllerParams                    the paper's controller (tkujax.control)
+  tkujax.recommended_policy                  the recommended recovery policy (params, schedule)
   tkujax.make_push, tkujax.stack_pushes      pushes (tkujax.sim.push)
   tkujax.simulate                            a batch of closed-loop rollouts on MJX
   tkujax.simulate_mujoco                     the same on MuJoCo C (CPU)
@@ -30,6 +31,7 @@ __version__ = "0.2.0"
 _API = {
     "ModelParams": "tkujax.model", "load_model": "tkujax.model",
     "ControllerParams": "tkujax.control",
+    "recommended_policy": "tkujax.control.io",
     "Push": "tkujax.sim.push", "make_push": "tkujax.sim.push", "stack_pushes": "tkujax.sim.push",
     "Series": "tkujax.sim.records", "Outcomes": "tkujax.sim.records",
     "simulate": "tkujax.sim.rollout_mjx", "RolloutConfig": "tkujax.sim.rollout_mjx",

@@ -400,9 +400,9 @@ def _add_sweep_commands(sub) -> None:
     p.add_argument("spec", help="sweep spec, e.g. sweeps/stability_map_cpu.toml")
     p.add_argument("--out", required=True, help="output folder (npz chunks + manifest.json)")
     p.add_argument("--params", default=None,
-                   help="controller parameters JSON (tkujax tune output), or a scheduled "
+                   help="controller parameters JSON (tkujax tune output), a scheduled "
                         "policy file (policy_after.json of tkujax tune, best_policy.json of "
-                        "its [study])")
+                        "its [study]), or 'recommended': the recommended recovery policy")
     p.add_argument("--model", default=None, metavar="FILE.json",
                    help="model parameters JSON (tkujax calibrate's model_params.json)")
     p.add_argument("--max-chunks", type=int, default=None, help="stop after this many new chunks")

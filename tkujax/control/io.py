@@ -124,12 +124,22 @@ def load_controller_params_json(path: str | Path) -> ControllerParams:
     return controller_params_from_dict(data, f"--params {path}")
 
 
+# `--params recommended`: the recommended recovery policy shipped with the package (a copy of
+# the dimension study's best policy, results/tune_dimension/best_policy.json).
+RECOMMENDED_POLICY_NAME = "recommended"
+RECOMMENDED_POLICY_PATH = Path(__file__).with_name("recommended_policy.json")
+
+
 def load_policy_json(path: str | Path):
     """(ControllerParams, Schedule or None) from a parameter file or a policy file
     {"controller": {field: value}, "schedule": {...}} (`save_policy_json`; the study and
-    `tkujax tune` write one for a scheduled policy). ValueError names the file and the key."""
+    `tkujax tune` write one for a scheduled policy). The name "recommended" (not a file) is
+    the recommended recovery policy (`recommended_policy`). ValueError names the file and the
+    key."""
     from tkujax.control.policy import schedule_from_dict
 
+    if str(path) == RECOMMENDED_POLICY_NAME and not Path(path).exists():
+        path = RECOMMENDED_POLICY_PATH
     path = Path(path)
     data = _read_json(path)
     if not is_policy(data):
@@ -140,6 +150,19 @@ def load_policy_json(path: str | Path):
                          f"(allowed: controller, schedule, {', '.join(POLICY_NOTE_KEYS)})")
     params = controller_params_from_dict(data.get("controller"), f"--params {path}: controller")
     return params, schedule_from_dict(data["schedule"], f"--params {path}: schedule")
+
+
+def recommended_policy():
+    """The recommended recovery controller: (ControllerParams, Schedule), the paper's
+    architecture with the recovery extensions, its step timing, gain, triggers and stance gains
+    scheduled over 8 push-direction sectors of the filtered state (80 tuned parameters).
+    Tuned by sep-CMA-ES in the dimension study (results/tune_dimension); on the held-out sets
+    of results/recovery_eval it falls on 20.9 % / 21.3 % of the pushes against 23.4 % / 24.1 %
+    for the scalar `ControllerParams.recommended()`, with no harmed cell
+    (results/tune_dimension/recovery_eval_sectors8). Run it with
+    `tkujax sweep SPEC --params recommended`, or pass both to `simulate`-level code that takes
+    a schedule (`rollout(..., schedule=)`, `make_chunk_fn`'s 4th argument)."""
+    return load_policy_json(RECOMMENDED_POLICY_PATH)
 
 
 # Free-form notes a policy file may carry (where it came from).
