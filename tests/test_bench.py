@@ -124,11 +124,47 @@ def test_unknown_stage_and_variant_fail_early(tmp_path):
 
 
 def test_parse_grad_variants():
-    assert parse_grad_variants("remat=tick;remat=nested,unroll_substeps=3;autotune=0") == [
-        {"remat": "tick"}, {"remat": "nested", "unroll_substeps": 3}, {"autotune": 0}]
-    for bad in ("remat=sometimes", "unroll_ticks=x", "speed=9", "remat"):
+    assert parse_grad_variants("remat=tick;remat=nested,unroll_substeps=3;autotune=0;"
+                               "llvm=0,ptxas=0") == [
+        {"remat": "tick"}, {"remat": "nested", "unroll_substeps": 3}, {"autotune": 0},
+        {"llvm": 0, "ptxas": 0}]
+    for bad in ("remat=sometimes", "unroll_ticks=x", "speed=9", "remat", "llvm=1", "ptxas=x"):
         with pytest.raises(ValueError):
             parse_grad_variants(bad)
+
+
+def test_gradient_compile_variants_pass_their_xla_options(monkeypatch):
+    """Each variant's XLA options reach the compile (and ask for the step's time), its rollout
+    options stay rollout options; on a backend other than the GPU the GPU options are skipped
+    and recorded as such."""
+    import jax
+
+    import tkujax.studies.tune.benchmark as tb
+    from tkujax import bench
+
+    calls = []
+
+    def fake(batch, duration_s, compiler_options=None, rollout_options=None, cached=True,
+             step_repeats=0):
+        calls.append((compiler_options, rollout_options, step_repeats))
+        return dict(batch=batch, cold_s=1.0)
+
+    monkeypatch.setattr(tb, "gradient_compile_times", fake)
+    variants = [{"remat": "substep"}, {"remat": "substep", "llvm": 0, "ptxas": 0},
+                {"autotune": 0}]
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    rows = bench.gradient_compile(8, 0.3, variants)
+    assert calls == [
+        (None, {"remat": "substep"}, 0),
+        ({"xla_backend_optimization_level": 0, "xla_llvm_disable_expensive_passes": True,
+          "xla_gpu_disable_gpuasm_optimizations": True}, {"remat": "substep"}, 3),
+        ({"xla_gpu_autotune_level": 0}, {}, 3)]
+    assert rows[1]["variant"] == {"remat": "substep", "llvm": 0, "ptxas": 0}
+    monkeypatch.setattr(jax, "default_backend", lambda: "cpu")
+    calls.clear()
+    rows = bench.gradient_compile(8, 0.3, variants)
+    assert calls == [(None, {"remat": "substep"}, 0)]
+    assert rows[1]["skipped"] == "llvm, ptxas: GPU only" and rows[2]["skipped"]
 
 
 def test_cli_modes(tmp_path, monkeypatch):

@@ -157,23 +157,40 @@ def gradient_step(batch: int, duration_s: float, repeats: int,
     return benchmark_gradient_step(batch, duration_s, repeats, rollout_options=rollout_options)
 
 
+# XLA options that trade the compiled code's quality for compile time, per gradient variant
+# item (GPU only; `gradient_compile` records the step time beside the compile so that the trade
+# is measured, not assumed): llvm=0 runs LLVM without its optimisation passes on the kernels,
+# ptxas=0 compiles the PTX without ptxas's optimisations.
+COMPILE_SPEED_OPTIONS = {
+    "llvm": {"xla_backend_optimization_level": 0, "xla_llvm_disable_expensive_passes": True},
+    "ptxas": {"xla_gpu_disable_gpuasm_optimizations": True},
+}
+
+
 def parse_grad_variants(text: str) -> list[dict]:
-    """"remat=tick;remat=nested,unroll_substeps=3;autotune=0" -> one dict per variant (keys:
-    remat, unroll_ticks, unroll_substeps, autotune; see gradient_compile)."""
+    """"remat=tick;remat=nested,unroll_substeps=3;autotune=0;llvm=0,ptxas=0" -> one dict per
+    variant (keys: remat, unroll_ticks, unroll_substeps, autotune, llvm, ptxas; see
+    gradient_compile). llvm and ptxas take 0 (their optimisations off) only."""
     out = []
+    keys = ("remat", "unroll_ticks", "unroll_substeps", "autotune", *COMPILE_SPEED_OPTIONS)
     for part in filter(None, (p.strip() for p in text.split(";"))):
         v = {}
         for item in filter(None, (i.strip() for i in part.split(","))):
             key, eq, val = item.partition("=")
-            if not eq or key not in ("remat", "unroll_ticks", "unroll_substeps", "autotune"):
+            if not eq or key not in keys:
                 raise ValueError(f"gradient variant item {item!r}: expected remat=MODE, "
-                                 f"unroll_ticks=K, unroll_substeps=K or autotune=LEVEL")
+                                 f"unroll_ticks=K, unroll_substeps=K, autotune=LEVEL, llvm=0 "
+                                 f"or ptxas=0")
             if key == "remat":
                 from tkujax.sim.rollout_mjx import REMAT_MODES
 
                 if val not in REMAT_MODES:
                     raise ValueError(f"remat={val!r}: one of {REMAT_MODES[2:]}")
                 v[key] = val
+            elif key in COMPILE_SPEED_OPTIONS:
+                if val != "0":
+                    raise ValueError(f"{key}={val!r}: only {key}=0 (its optimisations off)")
+                v[key] = 0
             else:
                 if not val.isdigit():
                     raise ValueError(f"{key}={val!r}: a non-negative integer")
@@ -185,10 +202,13 @@ def parse_grad_variants(text: str) -> list[dict]:
 def gradient_compile(batch: int, duration_s: float, variants: list[dict] | None = None,
                      cached: bool = True) -> list[dict]:
     """Cold (and, with `cached`, from the persistent cache) compile of the tuning gradient, per
-    variant: {"remat": RolloutConfig.remat mode (default "tick", the tuner's), "unroll_ticks",
-    "unroll_substeps": scan unrolling, "autotune": xla_gpu_autotune_level (GPU only)}.
-    Default: the tuner's program with XLA's defaults and, on a GPU, with autotuning off (MJX's
-    matrices are tiny: autotuning their kernels buys little run time and costs compile time)."""
+    variant: {"remat": RolloutConfig.remat mode (default: the tuner's, TUNE_REMAT),
+    "unroll_ticks", "unroll_substeps": scan unrolling, "autotune": xla_gpu_autotune_level,
+    "llvm": 0, "ptxas": 0: COMPILE_SPEED_OPTIONS} (the last three GPU only: skipped on another
+    backend). A variant with XLA options also times the compiled gradient step (step_s), since
+    they trade the code's speed for compile time. Default: the tuner's program with XLA's
+    defaults and, on a GPU, with autotuning off (MJX's matrices are tiny: autotuning their
+    kernels buys little run time and costs compile time)."""
     from tkujax.studies.tune.benchmark import gradient_compile_times
 
     gpu = jax.default_backend() == "gpu"
@@ -197,14 +217,20 @@ def gradient_compile(batch: int, duration_s: float, variants: list[dict] | None 
     out = []
     for v in variants:
         v = dict(v)
-        level = v.pop("autotune", None)
-        if level is not None and not gpu:
-            out.append(dict(variant=dict(v, autotune=level), skipped="autotune: GPU only"))
+        xla = {k: v.pop(k) for k in ("autotune", *COMPILE_SPEED_OPTIONS) if k in v}
+        if xla and not gpu:
+            out.append(dict(variant=dict(v, **xla), skipped=f"{', '.join(xla)}: GPU only"))
             continue
-        opts = {"xla_gpu_autotune_level": level} if level is not None else None
-        row = gradient_compile_times(batch, duration_s, compiler_options=opts,
-                                     rollout_options=v, cached=cached)
-        out.append(dict(row, variant=dict(v, **({"autotune": level} if opts else {}))))
+        opts = {}
+        if "autotune" in xla:
+            opts["xla_gpu_autotune_level"] = xla["autotune"]
+        for k in COMPILE_SPEED_OPTIONS:
+            if k in xla:
+                opts.update(COMPILE_SPEED_OPTIONS[k])
+        row = gradient_compile_times(batch, duration_s, compiler_options=opts or None,
+                                     rollout_options=v, cached=cached,
+                                     step_repeats=3 if opts else 0)
+        out.append(dict(row, variant=dict(v, **xla)))
     return out
 
 
@@ -423,16 +449,16 @@ def summary_markdown(r: dict) -> str:
     if gcs:
         lines += ["", "Compile of the tuning gradient (cold: empty persistent cache; includes "
                   "tracing and lowering):", "",
-                  "| batch | variant | lower s | cold s | cached s | HLO chars |",
-                  "|---|---|---|---|---|---|"]
+                  "| batch | variant | lower s | cold s | cached s | HLO chars | step s |",
+                  "|---|---|---|---|---|---|---|"]
         for gc in gcs:
             v = gc.get("variant", gc.get("compiler_options")) or "tuner defaults"
             if "skipped" in gc:
-                lines.append(f"| - | {v} | skipped: {gc['skipped']} | | | |")
+                lines.append(f"| - | {v} | skipped: {gc['skipped']} | | | | |")
                 continue
             lines.append(f"| {gc['batch']} | {v} | {gc.get('lower_s', '-')} | "
                          f"{gc['cold_s']:.1f} | {gc.get('cached_s', '-')} | "
-                         f"{gc.get('hlo_chars', '-')} |")
+                         f"{gc.get('hlo_chars', '-')} | {gc.get('step_s', '-')} |")
     for comp in r.get("compile_variants") or ([r["compile"]] if r.get("compile") else []):
         lines += ["", f"Compile of the closed loop (batch {comp.get('batch', '-')}, substep "
                   f"unroll {comp.get('unroll_substeps', 1)}): cold {comp['cold_s']:.1f} s, "

@@ -66,13 +66,16 @@ def benchmark_gradient_step(batch: int, duration_s: float, repeats: int = 3,
 
 def gradient_compile_times(batch: int, duration_s: float, remat: bool | str = True,
                            compiler_options: dict | None = None,
-                           rollout_options: dict | None = None, cached: bool = True) -> dict:
+                           rollout_options: dict | None = None, cached: bool = True,
+                           step_repeats: int = 0) -> dict:
     """Compile time of the tuning gradient (value_and_grad of the loss at `batch` pushes x
     `duration_s`): cold, into an empty persistent cache, then (`cached`) from that cache in a
     cleared process state (what a second `tkujax tune` run pays). rollout_options: further
     RolloutConfig fields (remat overrides `remat`; unroll_ticks, unroll_substeps). Also the
     time to trace and lower (lower_s, part of the cold figure) and the size of the lowered
-    program (hlo_chars), which compile time grows with."""
+    program (hlo_chars), which compile time grows with. step_repeats > 0: also the median time
+    of that many calls of the compiled gradient after a warm-up (step_s), for compiler options
+    that trade run time for compile time."""
     from tkujax.studies.compile_cache import fresh_compilation_cache
 
     opts = dict(rollout_options or {})
@@ -97,6 +100,15 @@ def gradient_compile_times(batch: int, duration_s: float, remat: bool | str = Tr
                 out["lower_s"] = round(lower_s, 2)
                 out["hlo_chars"] = len(lowered.as_text())     # not timed
             t0 = time.perf_counter()
-            lowered.compile()
+            exe = lowered.compile()
             out[label] = round(lower_s + time.perf_counter() - t0, 2)
+    if step_repeats > 0:
+        args = (*problem._args(z, DEG, recs, keys), problem._robot_values)
+        jax.block_until_ready(exe(*args))
+        times = []
+        for _ in range(step_repeats):
+            t0 = time.perf_counter()
+            jax.block_until_ready(exe(*args))
+            times.append(time.perf_counter() - t0)
+        out["step_s"] = round(float(np.median(times)), 3)
     return out
