@@ -176,6 +176,12 @@ def test_recommended_policy_is_the_study_best_and_runs_by_name(tmp_path):
     pol, scalar = load(tmp_path / "pol"), load(tmp_path / "scalar")
     assert not np.allclose(np.nan_to_num(pol["step_length_m"]),
                            np.nan_to_num(scalar["step_length_m"]), atol=1e-3)
+    # `tkujax replay` re-simulates a policy sweep's record with its schedule (from the
+    # manifest), so it reproduces the record, also where the scalar set would step otherwise.
+    from tkujax.studies.replay import replay
+
+    for i in range(len(pol["fell"])):
+        assert replay(tmp_path / "pol", i)["identical"], i
 
 
 def _read(path):

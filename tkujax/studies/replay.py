@@ -23,6 +23,7 @@ import numpy as np
 
 from tkujax.control.io import controller_params_from, controller_params_from_dict
 from tkujax.control.params import ControllerParams
+from tkujax.control.policy import schedule_from_dict
 from tkujax.model import ModelParams
 from tkujax.model.io import model_params_from_dict
 from tkujax.sim.rollout_mjx import RolloutConfig
@@ -81,6 +82,10 @@ def replay(run_dir: str | Path, index: int) -> dict:
     model_params = (None if spec.ensemble is not None
                     else model_params_from(manifest.get("model_params")))
     base = controller_params_from(params, spec.controller)
+    # A scheduled policy's sweep (`--params POLICY.json` / `recommended`) replays with its schedule.
+    schedule = (schedule_from_dict(manifest["schedule"],
+                                   f"{run_dir / chunks.MANIFEST}: schedule")
+                if manifest.get("schedule") is not None else None)
     recs = record_inputs(spec)
     lo, hi = chunk * size, min((chunk + 1) * size, n)
     inputs = {k: recs[k][lo:hi] for k in recs if k not in ("push_id", "from_grid")}
@@ -90,7 +95,8 @@ def replay(run_dir: str | Path, index: int) -> dict:
                            with_qpos=True, varied=tuple(sorted(spec.controller_grid)),
                            steps=bool(spec.step_grid),
                            fpga=spec.fpga if spec.arithmetic == "fixed" else None,
-                           fpga_varied=tuple(sorted(spec.fpga_grid)), ensemble=spec.ensemble)
+                           fpga_varied=tuple(sorted(spec.fpga_grid)), ensemble=spec.ensemble,
+                           schedule=schedule)
         res = {k: v[pos] for k, v in res.items()}
     else:
         import jax
@@ -102,7 +108,8 @@ def replay(run_dir: str | Path, index: int) -> dict:
                            ensemble=spec.ensemble)
         one = {k: np.asarray(v[pos:pos + 1], np.float32) for k, v in inputs.items()}
         key = chunk_keys(spec.seed, chunk, padded)[pos:pos + 1]
-        res = jax.tree_util.tree_map(lambda x: np.asarray(x)[0], fn(one, key, traced_params(base)))
+        res = jax.tree_util.tree_map(lambda x: np.asarray(x)[0],
+                                     fn(one, key, traced_params(base), schedule))
     replayed = {k: res[k] for k in OUTCOME_KEYS if k in stored}
     differences = {}
     for k, v in replayed.items():
