@@ -14,9 +14,9 @@ import math
 # (parameters, method): 16 scalars, 48 = sectors4, 80 = sectors8, 128 = mlp (sep-CMA-ES from
 # 64 parameters).
 EVIDENCE = ((16, "cma"), (48, "cma"), (80, "sepcma"), (128, "sepcma"))
-EVIDENCE_NOTE = ("results/tune_dimension (one H100, 42 of 48 runs): CMA-ES at 16 and 48 "
-                 "parameters, sep-CMA-ES at 80 and 128; the gradient and the hybrid made no "
-                 "progress at 16, 48 or 128")
+EVIDENCE_NOTE = ("results/tune_dimension (one H100, all 48 runs and the line search at 128): "
+                 "CMA-ES at 16 and 48 parameters, sep-CMA-ES at 80 and 128; the gradient, the "
+                 "hybrid and the line search made no progress at any size")
 
 
 def recommended_method(n_params: int) -> str:
