@@ -83,10 +83,11 @@ def _model_params(items: list[str], variant: str = "calibrated"):
 
 def _cmd_paper(args) -> int:
     from tkujax.studies.paper import run_paper
-    from tkujax.control.io import load_controller_params_json
+    from tkujax.control.io import load_policy_json
 
-    params = load_controller_params_json(args.params) if args.params else None
+    params, schedule = load_policy_json(args.params) if args.params else (None, None)
     summary = run_paper(Path(args.out), figures=not args.no_figures, params=params,
+                        schedule=schedule,
                         impulse_scale=args.impulse_scale,
                         model_params=_model_params(args.model, args.variant),
                         phases=args.phases, variant=args.variant)
@@ -384,7 +385,9 @@ def _add_robot_commands(sub) -> None:
                         "load a model_params.json (tkujax calibrate output); repeatable, applied "
                         "in order (the controller's geometry follows the model)")
     p.add_argument("--params", default=None,
-                   help="controller parameters JSON (tkujax tune or calibrate output)")
+                   help="controller parameters JSON (tkujax tune or calibrate output), a "
+                        "scheduled policy file, or 'recommended': the recommended recovery "
+                        "policy")
     p.add_argument("--variant", choices=["calibrated", "estimated"], default="calibrated",
                    help="calibrated (default): the robot, ball contact and Kalman noises fitted "
                         "to the paper (tkujax calibrate); estimated: the values before")

@@ -292,33 +292,41 @@ def batched_rollout(model_params: ModelParams | None = None,
                     config: RolloutConfig = RolloutConfig(), settle_s: float = 1.0):
     """jit(vmap(rollout)) over (push, enabled, key) for one model, plus outcomes.
 
-    Returns f(pushes, enabled, keys, params, gyro_noise_std, accel_noise_std) ->
-    (series, outcomes), batched along axis 0; params is shared by the batch. Compiled once
-    per batch shape; cached per model and config.
+    Returns f(pushes, enabled, keys, params, gyro_noise_std, accel_noise_std, schedule=None)
+    -> (series, outcomes), batched along axis 0; params (and a scheduled policy's Schedule,
+    `tkujax.control.policy`) shared by the batch. Compiled once per batch shape (and schedule
+    layout); cached per model and config.
     """
     from tkujax.sim.metrics import outcomes
 
     _, model, index, state = init(model_params, settle_s)
 
-    def one(push, enabled, key, params, gyro_std, accel_std):
+    def one(push, enabled, key, params, gyro_std, accel_std, schedule):
         series = rollout(model, state, push, params, enabled, key, gyro_std, accel_std,
-                         config, index)
+                         config, index, schedule=schedule)
         return series, outcomes(series, push.onset_s)
 
-    return jax.jit(jax.vmap(one, in_axes=(0, 0, 0, None, None, None)))
+    f = jax.jit(jax.vmap(one, in_axes=(0, 0, 0, None, None, None, None)))
+    return lambda pushes, enabled, keys, params, gyro, accel, schedule=None: f(
+        pushes, enabled, keys, params, gyro, accel, schedule)
 
 
 def simulate(pushes: Push, enabled, params: ControllerParams, seed: int = 0,
              gyro_noise_std: float = 0.0, accel_noise_std: float = 0.0,
              model_params: ModelParams | None = None,
-             config: RolloutConfig = RolloutConfig()) -> tuple[Series, Outcomes]:
-    """Run a batch of pushes (stacked Push, leading axis) and return numpy (series, outcomes)."""
+             config: RolloutConfig = RolloutConfig(), schedule=None) -> tuple[Series, Outcomes]:
+    """Run a batch of pushes (stacked Push, leading axis) and return numpy (series, outcomes).
+    schedule: a scheduled policy's Schedule (`tkujax.recommended_policy()` gives one with its
+    params); None: the plain controller."""
     if config.fixed is not None:   # options the fixed-point twin lacks: refused, not ignored
         check_supported(params)
+        if schedule is not None:
+            raise ValueError("scheduled parameters have no fixed-point controller twin; "
+                             "use RolloutConfig(fixed=None)")
     n = int(np.shape(pushes.impulse_ns)[0])
     enabled = jnp.broadcast_to(jnp.asarray(enabled, jnp.float32), (n,))
     keys = jax.random.split(jax.random.PRNGKey(seed), n)
     f = batched_rollout(model_params, config)
     out = f(pushes, enabled, keys, params, jnp.float32(gyro_noise_std),
-            jnp.float32(accel_noise_std))
+            jnp.float32(accel_noise_std), schedule)
     return jax.tree_util.tree_map(np.asarray, out)

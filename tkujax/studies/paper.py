@@ -71,8 +71,9 @@ def variant_setup(variant: str, model_params: ModelParams | None = None
 def run_cases(params: ControllerParams | None = None, model_params: ModelParams | None = None,
               impulse_scale: float = 1.0, config: RolloutConfig = RolloutConfig(),
               onset_s: float = push_lib.PAPER_ONSET_S,
-              contact: push_lib.BallContact = push_lib.BallContact()):
-    """Simulate the 8 cases. Returns (cases, series, outcomes, pushes as numpy dict)."""
+              contact: push_lib.BallContact = push_lib.BallContact(), schedule=None):
+    """Simulate the 8 cases (schedule: a scheduled policy's, with `params`; None: the plain
+    controller). Returns (cases, series, outcomes, pushes as numpy dict)."""
     params = params or ControllerParams.paper(model_params)
     cases = paper_cases()
     pushes = push_lib.stack_pushes([
@@ -80,7 +81,8 @@ def run_cases(params: ControllerParams | None = None, model_params: ModelParams 
                            height_m=contact.contact_height_m(d), onset_s=onset_s)
         for d, b, _ in cases])
     enabled = np.array([1.0 if c == "on" else 0.0 for *_, c in cases], np.float32)
-    series, outcomes = simulate(pushes, enabled, params, model_params=model_params, config=config)
+    series, outcomes = simulate(pushes, enabled, params, model_params=model_params, config=config,
+                                schedule=schedule)
     return cases, series, outcomes, pushes
 
 
@@ -205,7 +207,7 @@ def _figures(out: Path, cases, series) -> list[Path]:
 
 def run_paper(out: Path, figures: bool = True, params: ControllerParams | None = None,
               model_params: ModelParams | None = None, impulse_scale: float = 1.0,
-              phases: int = 15, variant: str = "calibrated") -> str:
+              phases: int = 15, variant: str = "calibrated", schedule=None) -> str:
     """Write table.csv, table.md, series.npz, Figs. 13-16 and (phases > 0) phase.csv and
     phase.md to `out`; return a summary (table.md, then phase.md).
 
@@ -213,7 +215,8 @@ def run_paper(out: Path, figures: bool = True, params: ControllerParams | None =
     labelled as such in table.md. variant: "calibrated" (default) or "estimated" (the model,
     ball contact and Kalman noises before calibration; see `variant_setup`). phases: onsets
     0.75 s + k / phases * 30 ms, k < phases (each a batch of the 8 cases with the table's
-    compiled rollout); 0 skips them.
+    compiled rollout); 0 skips them. schedule: a scheduled policy's Schedule, run with
+    `params` (`tkujax paper --params recommended`); None: the plain controller.
     """
     if not (0.0 < impulse_scale <= 10.0):
         raise ValueError(f"impulse_scale must be in (0, 10], got {impulse_scale!r}")
@@ -225,7 +228,7 @@ def run_paper(out: Path, figures: bool = True, params: ControllerParams | None =
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     cases, series, outcomes, pushes = run_cases(params, model_params, impulse_scale,
-                                                contact=contact)
+                                                contact=contact, schedule=schedule)
     wall = time.perf_counter() - t0
     rows = _rows(cases, outcomes, pushes)
     with open(out / "table.csv", "w", newline="") as fh:
@@ -258,7 +261,8 @@ def run_paper(out: Path, figures: bool = True, params: ControllerParams | None =
     # Phase 0 is the run above; the others change only the onset (a traced value: no compile).
     by_phase = [(0.0, outcomes)] + [
         (k / phases, run_cases(params, model_params, impulse_scale, onset_s=float(
-            push_lib.onset_from_phase(push_lib.PAPER_ONSET_S, k / phases)), contact=contact)[2])
+            push_lib.onset_from_phase(push_lib.PAPER_ONSET_S, k / phases)), contact=contact,
+            schedule=schedule)[2])
         for k in range(1, phases)]
     prow = phase_rows(cases, by_phase)
     with open(out / "phase.csv", "w", newline="") as fh:
