@@ -71,6 +71,8 @@ def test_round_trip_sectors_and_mlp(tmp_path):
     assert load_policy_json(plain) == (base, None)
     with pytest.raises(ValueError, match=r"holds a scheduled policy \(key 'schedule'\)"):
         load_controller_params_json(tmp_path / "mlp.json")
+    with pytest.raises(ValueError, match="--params recommended: .* is scheduled"):
+        load_controller_params_json("recommended")
 
 
 @pytest.mark.parametrize("patch, match", [

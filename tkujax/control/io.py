@@ -111,23 +111,27 @@ def is_policy(data) -> bool:
     return isinstance(data, dict) and "schedule" in data
 
 
+# `--params recommended`: the recommended recovery policy shipped with the package (a copy of
+# the dimension study's best policy, results/tune_dimension/best_policy.json).
+RECOMMENDED_POLICY_NAME = "recommended"
+RECOMMENDED_POLICY_PATH = Path(__file__).with_name("recommended_policy.json")
+
+
 def load_controller_params_json(path: str | Path) -> ControllerParams:
     """ControllerParams from a JSON file {field: value} (SI units, radians), as `tkujax tune`
     and `tkujax calibrate` write it (`--params FILE.json`); string notes of PARAMS_NOTE_KEYS
     are ignored. A policy file (a scheduled controller) is refused: its schedule would be
     silently dropped; `load_policy_json` reads it."""
+    if str(path) == RECOMMENDED_POLICY_NAME and not Path(path).exists():
+        raise ValueError("--params recommended: the recommended recovery policy is scheduled; "
+                         "only `tkujax sweep` and `tkujax paper` run one (the recommended scalar "
+                         "set is results/tune_recovery_ensemble/params_after.json)")
     path = Path(path)
     data = _read_json(path)
     if is_policy(data):
         raise ValueError(f"--params {path}: holds a scheduled policy (key 'schedule'); only "
-                         f"`tkujax sweep --params` runs one")
+                         f"`tkujax sweep` and `tkujax paper` run one")
     return controller_params_from_dict(data, f"--params {path}")
-
-
-# `--params recommended`: the recommended recovery policy shipped with the package (a copy of
-# the dimension study's best policy, results/tune_dimension/best_policy.json).
-RECOMMENDED_POLICY_NAME = "recommended"
-RECOMMENDED_POLICY_PATH = Path(__file__).with_name("recommended_policy.json")
 
 
 def load_policy_json(path: str | Path):
