@@ -117,12 +117,17 @@ RECOMMENDED_POLICY_NAME = "recommended"
 RECOMMENDED_POLICY_PATH = Path(__file__).with_name("recommended_policy.json")
 
 
+def _names_recommended(path: str | Path) -> bool:
+    """`--params recommended` (and no file of that name here)."""
+    return str(path) == RECOMMENDED_POLICY_NAME and not Path(path).exists()
+
+
 def load_controller_params_json(path: str | Path) -> ControllerParams:
     """ControllerParams from a JSON file {field: value} (SI units, radians), as `tkujax tune`
     and `tkujax calibrate` write it (`--params FILE.json`); string notes of PARAMS_NOTE_KEYS
     are ignored. A policy file (a scheduled controller) is refused: its schedule would be
     silently dropped; `load_policy_json` reads it."""
-    if str(path) == RECOMMENDED_POLICY_NAME and not Path(path).exists():
+    if _names_recommended(path):
         raise ValueError("--params recommended: the recommended recovery policy is scheduled; "
                          "only `tkujax sweep` and `tkujax paper` run one (the recommended scalar "
                          "set is results/tune_recovery_ensemble/params_after.json)")
@@ -142,7 +147,7 @@ def load_policy_json(path: str | Path):
     key."""
     from tkujax.control.policy import schedule_from_dict
 
-    if str(path) == RECOMMENDED_POLICY_NAME and not Path(path).exists():
+    if _names_recommended(path):
         path = RECOMMENDED_POLICY_PATH
     path = Path(path)
     data = _read_json(path)
