@@ -320,9 +320,6 @@ def simulate(pushes: Push, enabled, params: ControllerParams, seed: int = 0,
     params); None: the plain controller."""
     if config.fixed is not None:   # options the fixed-point twin lacks: refused, not ignored
         check_supported(params)
-        if schedule is not None:
-            raise ValueError("scheduled parameters have no fixed-point controller twin; "
-                             "use RolloutConfig(fixed=None)")
     n = int(np.shape(pushes.impulse_ns)[0])
     enabled = jnp.broadcast_to(jnp.asarray(enabled, jnp.float32), (n,))
     keys = jax.random.split(jax.random.PRNGKey(seed), n)
