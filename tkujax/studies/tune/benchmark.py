@@ -45,14 +45,9 @@ def benchmark_gradient_step(batch: int, duration_s: float, repeats: int = 3,
     z = reparam.latent_of(base)
     tau = 1.0 * DEG
     t0 = time.perf_counter()
-    problem.value_and_grad(z, tau, recs, keys)
+    _, _, g = problem.value_and_grad(z, tau, recs, keys)
     compile_s = time.perf_counter() - t0
-    times = []
-    for _ in range(max(repeats, 1)):
-        t0 = time.perf_counter()
-        _, _, g = problem.value_and_grad(z, tau, recs, keys)
-        times.append(time.perf_counter() - t0)
-    sec = float(np.median(times))
+    sec = _median_call_s(lambda: problem.value_and_grad(z, tau, recs, keys), repeats)
     try:
         stats = jax.devices()[0].memory_stats()
     except Exception:  # noqa: BLE001 - backends without memory stats
@@ -104,11 +99,17 @@ def gradient_compile_times(batch: int, duration_s: float, remat: bool | str = Tr
             out[label] = round(lower_s + time.perf_counter() - t0, 2)
     if step_repeats > 0:
         args = (*problem._args(z, DEG, recs, keys), problem._robot_values)
-        jax.block_until_ready(exe(*args))
-        times = []
-        for _ in range(step_repeats):
-            t0 = time.perf_counter()
-            jax.block_until_ready(exe(*args))
-            times.append(time.perf_counter() - t0)
-        out["step_s"] = round(float(np.median(times)), 3)
+        jax.block_until_ready(exe(*args))                                  # warm-up
+        out["step_s"] = round(_median_call_s(
+            lambda: jax.block_until_ready(exe(*args)), step_repeats), 3)
     return out
+
+
+def _median_call_s(call, repeats: int) -> float:
+    """Median wall time of max(repeats, 1) calls of `call` (which must block until done)."""
+    times = []
+    for _ in range(max(repeats, 1)):
+        t0 = time.perf_counter()
+        call()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
