@@ -78,6 +78,63 @@ def pitch_roll_from_quat(quat: jax.Array) -> tuple[jax.Array, jax.Array]:
     return xp.arctan2(zx, zz), xp.arctan2(-zy, zz)
 
 
+def without_sensors(model: mjx.Model) -> mjx.Model:
+    """The model with MuJoCo's sensor stage off (mjDSBL_SENSOR): `mjx.forward` then computes
+    no sensor, and `d.sensordata` keeps its old values."""
+    off = int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
+    return model.replace(opt=model.opt.replace(disableflags=model.opt.disableflags | off))
+
+
+def imu_reading(model: mjx.Model, d: mjx.Data, index) -> tuple[jax.Array, jax.Array]:
+    """The gyro (rad/s) and accelerometer (m/s^2) readings of `index`'s IMU sites (a
+    `tkujax.sim.setup.ModelIndex`), from a state after `mjx.forward` and before the integrator.
+
+    The formulas are MJX's own (mujoco/mjx/_src/sensor.py: sensor_vel's GYRO, sensor_acc's
+    ACCELEROMETER, with its body accelerations from `mjx.rne_postconstraint`), so the values are
+    the sensordata that `mjx.step` writes, up to float rounding (a sum over fewer terms).
+    Computed alone, they skip what the full sensor stage also computes every step: the eight
+    sole touch sensors (contact forces, ray distances), which the closed loop needs once per
+    control tick (`touch_sensordata`)."""
+    rot = d.site_xmat[index.gyro_site]
+    gyro = rot.T @ d.cvel[index.gyro_body, :3]
+    b = index.accel_body
+    cacc = _body_acceleration(model, d, index)
+    rot, cvel = d.site_xmat[index.accel_site], d.cvel[b]
+    dif = d.site_xpos[index.accel_site] - d.subtree_com[index.accel_root]
+    ang = rot.T @ cvel[:3]
+    lin = rot.T @ (cvel[3:] - jnp.cross(dif, cvel[:3]))
+    acc = rot.T @ (cacc[3:] - jnp.cross(dif, cacc[:3]))
+    return gyro, acc + jnp.cross(ang, lin)
+
+
+def _body_acceleration(model: mjx.Model, d: mjx.Data, index) -> jax.Array:
+    """cacc (6,) of the accelerometer's body: for a body whose parent is the world (TKU-X's
+    IMU is on its floating base) MJX's forward pass of `rne_postconstraint` for that body alone
+    (mujoco/mjx/_src/smooth.py, `_forward`, the same operations); the whole pass otherwise."""
+    if index.accel_parent != 0:
+        return mjx.rne_postconstraint(model, d)._impl.cacc[index.accel_body]
+    if model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_GRAVITY:
+        cacc0 = jnp.zeros(6, d.qvel.dtype)
+    else:
+        cacc0 = jnp.concatenate((jnp.zeros(3, d.qvel.dtype), -model.opt.gravity))
+    # Only the body's own dofs: the other terms of MJX's masked sum over every dof are exact
+    # zeros (products of zero; x + 0 = x).
+    dofs = slice(index.accel_dofs[0], index.accel_dofs[0] + index.accel_dofs[1])
+    return cacc0 + d.cdof_dot[dofs].T @ d.qvel[dofs] + d.cdof[dofs].T @ d.qacc[dofs]
+
+
+def touch_sensordata(model: mjx.Model, d: mjx.Data) -> jax.Array:
+    """The sensordata of a state after a step with its touch sensors computed again (MJX's
+    acceleration-stage sensor code, run once on a view of the model whose other sensors are
+    left out of that stage). Touch sensors read the step's contact forces and site poses, which
+    the integrator leaves as they were, so their entries equal those the step itself writes
+    (an accelerometer's would not: it reads qvel, which the integrator changed; read the IMU
+    from `imu_reading`). The other entries are not updated."""
+    touch = model.sensor_type == mujoco.mjtSensor.mjSENS_TOUCH
+    view = model.replace(sensor_needstage=np.where(touch, model.sensor_needstage, 0))
+    return mjx.sensor_acc(view, d).sensordata
+
+
 def step_holding(model: mjx.Model, state: mjx.Data, ctrl: jax.Array, n_steps: int):
     """Step one robot `n_steps` physics steps holding actuator targets `ctrl` (nu,).
 

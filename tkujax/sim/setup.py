@@ -46,6 +46,15 @@ class ModelIndex:
     # gyro_lowpass_hz); 0 = no filter, the rollouts read the instantaneous sensor value.
     accel_alpha: float = 0.0
     gyro_alpha: float = 0.0
+    # The IMU's sites, their bodies and the accelerometer body's tree root (the rollout computes
+    # the two IMU sensors itself every physics step: tkujax.sim.physics.imu_reading).
+    gyro_site: int = -1
+    gyro_body: int = -1
+    accel_site: int = -1
+    accel_body: int = -1
+    accel_root: int = -1
+    accel_parent: int = -1          # the accelerometer body's parent (0: a root body)
+    accel_dofs: tuple[int, int] = (0, 0)   # its (first dof, number of dofs)
 
     @property
     def imu_filtered(self) -> bool:
@@ -67,6 +76,9 @@ class ModelIndex:
         spheres = [g for g in pair_geoms if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_SPHERE]
         boxes = [g for g in pair_geoms if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_BOX]
         sensor_adr = lambda n: int(model.sensor_adr[model.sensor(n).id])  # noqa: E731
+        site_of = lambda n: int(model.sensor_objid[model.sensor(n).id])  # noqa: E731
+        gyro_site, accel_site = site_of("gyro"), site_of("accel")
+        accel_body = int(model.site_bodyid[accel_site])
         return ModelIndex(
             leg_actuators=np.array([model.actuator(n).id for n in LEG_ACTUATORS]),
             chest_body=chest, chest_stand_z=float(data.xpos[chest][2]),
@@ -77,7 +89,12 @@ class ModelIndex:
             sphere_geoms=np.array(spheres, dtype=int), sphere_radii=model.geom_size[spheres, 0],
             box_geoms=np.array(boxes, dtype=int), box_half_sizes=model.geom_size[boxes],
             ankle_sites=(model.site("r_ankle").id, model.site("l_ankle").id),
-            stand_ctrl=np.array(model.key("stand").ctrl), timestep_s=float(model.opt.timestep))
+            stand_ctrl=np.array(model.key("stand").ctrl), timestep_s=float(model.opt.timestep),
+            gyro_site=gyro_site, gyro_body=int(model.site_bodyid[gyro_site]),
+            accel_site=accel_site, accel_body=accel_body,
+            accel_root=int(model.body_rootid[accel_body]),
+            accel_parent=int(model.body_parentid[accel_body]),
+            accel_dofs=(int(model.body_dofadr[accel_body]), int(model.body_dofnum[accel_body])))
 
 
 @functools.lru_cache(maxsize=8)
