@@ -1,6 +1,8 @@
 """`tkujax bench`: throughput of the same TKU-X push sweep, measured side by side.
 
-  a. raw MJX stepping of TKU-X holding fixed targets (no controller): physics steps/s;
+  a. raw MJX stepping of TKU-X holding fixed targets (no controller): physics steps/s (its
+     program reads no sensor, so XLA drops MuJoCo's sensor stage: the closed loop computes
+     its IMU alone each step, `tkujax.sim.physics.imu_reading`);
   b. the closed-loop sweep (sensors, controller, metrics): physics steps/s and pushes/s;
   c. the CPU peer: MuJoCo C physics across all cores with the JAX controller between ticks
      (when tkujax.sim.rollout_mujoco is available);
