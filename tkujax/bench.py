@@ -64,11 +64,16 @@ def _push_batch(n: int, seed: int = 0) -> dict:
     return {k: jnp.asarray(v, jnp.float32) for k, v in cols.items()}
 
 
-def raw_stepping(batch: int, n_steps: int, repeats: int) -> dict:
+def raw_program(batch: int, n_steps: int):
+    """(jit(vmap) of `n_steps` raw MJX steps holding the stand targets, its batched state)."""
     host, model, _, stand = init(settle_s=0.0)         # the keyframe itself, unsettled
-    state = physics.batch_state(stand, batch)
     ctrl = jnp.asarray(host.key("stand").ctrl, jnp.float32)
     run = jax.jit(jax.vmap(lambda d: physics.step_holding(model, d, ctrl, n_steps)[0].qpos))
+    return run, physics.batch_state(stand, batch)
+
+
+def raw_stepping(batch: int, n_steps: int, repeats: int) -> dict:
+    run, state = raw_program(batch, n_steps)
     sec = _timed(lambda: run(state), repeats)
     return dict(batch=batch, steps=n_steps, seconds=sec, physics_steps_per_s=batch * n_steps / sec)
 

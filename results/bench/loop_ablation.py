@@ -12,49 +12,34 @@ slow (13.5), with GEMM autotuning off too, while the bench's own raw row stayed 
 """
 import json
 import os
-import statistics
 import sys
 import time
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 
 from tkujax import bench_profile
-from tkujax.bench import _push_batch, traced_paper_params
+from tkujax.bench import _push_batch, raw_program, traced_paper_params
 from tkujax.sim import physics
-from tkujax.sim.setup import init
 
 OUT = Path(os.environ.get("OUT", "/tmp/out"))
 batch, names = int(sys.argv[1]), sys.argv[2].split(";")
 params = traced_paper_params()
 recs = _push_batch(batch)
 keys = jax.random.split(jax.random.PRNGKey(0), batch)
-host, model, _, keyframe = init(settle_s=0.0)
 rows = []
 for name in names:
     variant, seconds = name.split("@")
-    n_steps = int(round(float(seconds) / host.opt.timestep))
+    n_steps = int(round(float(seconds) / physics.host_model().opt.timestep))
     if variant == "benchraw":
-        ctrl = jnp.asarray(host.key("stand").ctrl, jnp.float32)
-
-        def raw(d, c=ctrl, n=n_steps):
-            return physics.step_holding(model, d, c, n)[0].qpos
-
-        fn = jax.jit(jax.vmap(raw))
-        args = (physics.batch_state(keyframe, batch),)
+        fn, state = raw_program(batch, n_steps)
+        args = (state,)
     else:
         fn, args = bench_profile._loop_fn(variant, float(seconds)), (recs, keys, params)
     t0 = time.time()
     exe = fn.lower(*args).compile()
     compile_s = time.time() - t0
-    jax.block_until_ready(exe(*args))
-    times = []
-    for _ in range(5):
-        t0 = time.perf_counter()
-        jax.block_until_ready(exe(*args))
-        times.append(time.perf_counter() - t0)
-    sec = statistics.median(times)
+    sec = bench_profile._time_calls(lambda exe=exe, args=args: exe(*args), 5)
     rows.append(dict(name=name, batch=batch, compile_s=round(compile_s, 1), seconds=sec,
                      ms_per_15_steps=1e3 * sec / n_steps * 15))
     print(json.dumps(rows[-1]), flush=True)
