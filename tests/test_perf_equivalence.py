@@ -92,6 +92,8 @@ def test_loop_options_keep_the_outcomes():
     ref = {k: np.asarray(v) for k, v in make_chunk_fn((), 1.5)(*args).items()}
     out = loop_fn(1.5, dict(remat="nested", unroll_substeps=2))(*args)
     _assert_outcomes(out, ref, exact=False)
+    # The sweeps run the flat loop; the nested one gives the same outcomes.
+    _assert_outcomes(loop_fn(1.5, dict(loop="nested"))(*args), ref, exact=False)
 
 
 def test_rollout_config_checks_its_options():
@@ -103,6 +105,9 @@ def test_rollout_config_checks_its_options():
 
     with pytest.raises(ValueError, match="remat"):
         _checkpoints("sometimes")
+    with pytest.raises(ValueError, match="unknown profile variant 'loop=spiral'"):
+        from tkujax.bench_profile import _variant_config
+        _variant_config("loop=spiral")
     for mode in (False, True, "none", "tick", "tick_nocse", "tick_dots", "substep", "nested"):
         _checkpoints(mode)
     from tkujax.sim.push import Push
@@ -110,8 +115,51 @@ def test_rollout_config_checks_its_options():
 
     _, model, index, state = init()
     push = Push(*(jnp.float32(v) for v in (1.0, 0.0, 0.36, 0.02, 0.3)))
+    with pytest.raises(ValueError, match="RolloutConfig.loop must be one of"):
+        jax.eval_shape(lambda: rollout(model, state, push, ControllerParams.paper(), 1.0,
+                                       jax.random.PRNGKey(0),
+                                       config=RolloutConfig(duration_s=0.06, loop="spiral"),
+                                       index=index))
     with pytest.raises(ValueError, match="ablate"):
         jax.eval_shape(lambda: rollout(model, state, push, ControllerParams.paper(), 1.0,
                                        jax.random.PRNGKey(0),
                                        config=RolloutConfig(duration_s=0.06, ablate=("x",)),
                                        index=index))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("fixed", [None, "latency"])
+def test_flat_loop_gives_the_nested_series(fixed):
+    """The flat loop (one scan over physics steps, the tick and the records in conds) is the
+    nested loop's arithmetic: every Series field agrees to float rounding, for the float
+    controller (sensor noise on) and for the fixed-point twin whose fractional servo latency
+    switches commands in mid-tick (servo substep 6 of 15)."""
+    from tkujax.control.fixed import FixedPointConfig, servo_switch_substep
+    from tkujax.sim.push import Push
+    from tkujax.sim.rollout_mjx import RolloutConfig, rollout
+    from tkujax.sim.setup import init
+
+    cfg = (FixedPointConfig(straight_through=False, latency_ticks=1, latency_frac=0.4)
+           if fixed else None)
+    _, model, index, state = init()
+    if cfg is not None:
+        assert servo_switch_substep(cfg, 15) == 6
+    push = Push(*(jnp.float32(v) for v in (1.6, 0.0, 0.36, 0.02, 0.03)))
+
+    def run(loop):
+        config = RolloutConfig(duration_s=0.45, fixed=cfg, loop=loop)
+        f = jax.jit(lambda key: rollout(model, state, push, ControllerParams.paper(), 1.0, key,
+                                        0.02, 0.1, config, index))
+        return jax.tree.map(np.asarray, f(jax.random.PRNGKey(5)))
+
+    nested, flat = run("nested"), run("flat")
+    assert nested.t.shape == flat.t.shape == (15,)
+    np.testing.assert_array_equal(flat.t, nested.t)
+    for name in nested.keys():
+        a, b = nested[name], flat[name]
+        if a is None:
+            assert b is None, name
+            continue
+        np.testing.assert_allclose(b, a, rtol=1e-4, atol=1e-5, err_msg=name)
+    # Not a trivial match: the push moved the robot and the controller began its step.
+    assert np.ptp(nested.pitch) > 1e-3 and nested.gate.max() > 0.5

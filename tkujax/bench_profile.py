@@ -11,7 +11,7 @@ branch at trace time, so the other parts' program is unchanged), at one batch an
   no_wrench       no push wrench computed per substep (xfrc_applied stays 0)
   no_records      no Series and no outcomes: the pelvis height per tick is the only output
   shared_model    one model for the batch (no per-push model fields: randomize_model)
-  physics_only    all of the above at once: the tick/substep scans around mjx.step
+  physics_only    all of the above at once: the loop around the physics step
   raw             one flat scan of mjx.step holding the stand targets, as many steps, from the
                   same settled state (the bench's raw-MJX figure, in this loop's units)
 
@@ -24,11 +24,13 @@ piece cannot fuse with its neighbours: an upper bound of its share in the closed
 
 Extra variants (`variants=`): "no_push" (the full program, every impulse 0: what the pushed,
 falling states cost the physics, expected ~0), "unroll_substeps=K" / "unroll_ticks=K" (scan
-unrolling of the full loop), measured the same way. The variants are lowered one after the
-other and compiled in parallel threads (compile time is not what this measures; default up to
-8 threads). Compiled so, on an H100 at batch 1,024, the raw loop ran 13.6 ms per tick against
-11.9 ms compiled alone: compare rows within one profile, and take absolute figures from
-`results/bench/loop_ablation.py`, which compiles one variant after the other.
+unrolling), "loop=nested" / "loop=flat" (`RolloutConfig.loop`; the sweeps' SWEEP_LOOP
+otherwise), and "A+B" (both: "physics_only+loop=nested"), measured the same way. Every variant
+is compiled with the sweeps' XLA options (SWEEP_COMPILER_OPTIONS). The variants are lowered one
+after the other and compiled in parallel threads (compile time is not what this measures;
+default up to 8 threads). Compiled so, on an H100 at batch 1,024, the raw loop ran 13.6 ms per
+tick against 11.9 ms compiled alone: compare rows within one profile, and take absolute figures
+from `results/bench/loop_ablation.py`, which compiles one variant after the other.
 `trace_dir`: a `jax.profiler` trace of one run of the full loop, whose op names carry the
 rollout's named scopes (sensors, controller, physics/push_wrench, physics/mjx_step,
 records), summed by scope in `trace_scopes` (best effort: events matched by name).
@@ -64,7 +66,15 @@ _SHARED_MODEL = ("shared_model", "physics_only")
 
 
 def _variant_config(name: str) -> dict:
-    """RolloutConfig fields of a variant name (see the module docstring)."""
+    """RolloutConfig fields of a variant name (see the module docstring); "A+B" combines the
+    fields of A and B (e.g. "physics_only+loop=flat")."""
+    from tkujax.sim.rollout_mjx import LOOPS
+
+    if "+" in name:
+        fields: dict = {}
+        for part in name.split("+"):
+            fields.update(_variant_config(part))
+        return fields
     if name in ("full", "no_push", "shared_model", "raw"):
         return {}
     if name in _ABLATE:
@@ -72,14 +82,17 @@ def _variant_config(name: str) -> dict:
     key, _, val = name.partition("=")
     if key in ("unroll_substeps", "unroll_ticks") and val.isdigit() and int(val) >= 1:
         return {key: int(val)}
-    raise ValueError(f"unknown profile variant {name!r}; known: {DEFAULT_VARIANTS} and "
-                     f"unroll_substeps=K, unroll_ticks=K")
+    if key == "loop" and val in LOOPS:
+        return {"loop": val}
+    raise ValueError(f"unknown profile variant {name!r}; known: {DEFAULT_VARIANTS}, "
+                     f"unroll_substeps=K, unroll_ticks=K, loop=L (L in {LOOPS}), and A+B")
 
 
 def _loop_fn(name: str, duration_s: float):
     """jit(vmap) of (records, keys, params) -> outputs for a variant name."""
-    return loop_fn(duration_s, _variant_config(name), shared_model=name in _SHARED_MODEL,
-                   raw=name == "raw")
+    parts = name.split("+")
+    return loop_fn(duration_s, _variant_config(name),
+                   shared_model=any(p in _SHARED_MODEL for p in parts), raw=name == "raw")
 
 
 def loop_fn(duration_s: float, config_fields: dict | None = None, shared_model: bool = False,
@@ -93,7 +106,7 @@ def loop_fn(duration_s: float, config_fields: dict | None = None, shared_model: 
     from tkujax.sim.randomize import randomize_model
     from tkujax.sim.rollout_mjx import RolloutConfig, rollout
     from tkujax.sim.setup import init
-    from tkujax.studies.sweep import OUTCOME_KEYS
+    from tkujax.studies.sweep import OUTCOME_KEYS, SWEEP_COMPILER_OPTIONS, SWEEP_LOOP
 
     host, model, index, state = init()
     if raw:
@@ -103,8 +116,10 @@ def loop_fn(duration_s: float, config_fields: dict | None = None, shared_model: 
         def flat(rec, key, params):
             return physics.step_holding(model, _per_robot(state, rec), ctrl, n_steps)[0].qpos[2]
 
-        return jax.jit(jax.vmap(flat, in_axes=(0, 0, None)))
-    config = RolloutConfig(duration_s=duration_s, **(config_fields or {}))
+        return jax.jit(jax.vmap(flat, in_axes=(0, 0, None)),
+                       compiler_options=SWEEP_COMPILER_OPTIONS)
+    fields = {"loop": SWEEP_LOOP} | (config_fields or {})   # the sweeps' loop unless overridden
+    config = RolloutConfig(duration_s=duration_s, **fields)
 
     def one(rec, key, params):
         push = Push(rec["impulse_ns"], jnp.radians(rec["azimuth_deg"]), rec["height_m"],
@@ -124,7 +139,7 @@ def loop_fn(duration_s: float, config_fields: dict | None = None, shared_model: 
         out = rollout_outcomes(series, push.onset_s)
         return {k: out[k] for k in OUTCOME_KEYS}
 
-    return jax.jit(jax.vmap(one, in_axes=(0, 0, None)))
+    return jax.jit(jax.vmap(one, in_axes=(0, 0, None)), compiler_options=SWEEP_COMPILER_OPTIONS)
 
 
 def _per_robot(state, rec):

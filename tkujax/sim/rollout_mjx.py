@@ -4,7 +4,9 @@ Per control period (30 ms): read the IMU (through its low-pass when the model ha
 optional Gaussian noise), run `controller_step`,
 quantise the leg targets to the servos' 0.088 deg resolution (straight-through gradient), hold
 them for `substeps` physics steps while the push's force acts through `xfrc_applied`. A
-`lax.scan` over periods; `jax.vmap` over pushes, controller parameters and model parameters.
+`lax.scan` over periods, each with a scan over its substeps (`RolloutConfig.loop="nested"`), or
+one scan over physics steps with the period's work in `lax.cond`s (`"flat"`, the sweeps');
+`jax.vmap` over pushes, controller parameters and model parameters.
 
 With `RolloutConfig.fixed` set, the fixed-point controller (`tkujax.control.fixed`) runs
 instead, through `tick.control_tick_fx`; its fractional latency splits each tick's substep scan
@@ -57,9 +59,18 @@ class RolloutConfig:
     # unchanged by this field: the choice is a Python branch on None at trace time).
     fixed: FixedPointConfig | None = None
     # lax.scan unrolling of the control-tick scan and of each tick's physics-substep scan
-    # (1: a rolled loop, the default program). Same arithmetic, another loop structure.
+    # (1: a rolled loop, the default program); in the flat loop, unroll_substeps unrolls its
+    # scan over physics steps and unroll_ticks is unused. Same arithmetic, another structure.
     unroll_ticks: int = 1
     unroll_substeps: int = 1
+    # The loop structure (LOOPS): "nested", a scan over control ticks, each with a scan over
+    # its physics substeps; "flat", one scan over physics steps, the control tick and the
+    # Series row in `lax.cond`s on the step counter (not batched, so vmap keeps them branches;
+    # remat's tick checkpoint then wraps the control tick alone). The same arithmetic: the
+    # Series agree to float rounding (XLA fuses the two programs differently). The sweeps run
+    # "flat" (tkujax.studies.sweep.SWEEP_LOOP, with its XLA options: faster at batch 1,024 on
+    # a GPU); gradients and `simulate` keep "nested".
+    loop: str = "nested"
     # Benchmark-only stand-ins (`tkujax bench --profile`; () everywhere else), each a Python
     # branch at trace time, see ABLATIONS: "noise": no sensor-noise draws; "controller": no
     # controller, the leg targets hold the stand pose; "wrench": no push wrench (xfrc_applied
@@ -71,6 +82,7 @@ _quantise = quantise_targets   # the name the C backend and older code use
 
 REMAT_MODES = (False, True, "none", "tick", "tick_nocse", "tick_dots", "substep", "nested")
 ABLATIONS = ("noise", "controller", "wrench", "records")
+LOOPS = ("nested", "flat")
 
 
 def _checkpoints(remat: bool | str):
@@ -212,6 +224,8 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
     if not ablate <= set(ABLATIONS):
         raise ValueError(f"RolloutConfig.ablate: unknown {sorted(ablate - set(ABLATIONS))}; "
                          f"allowed {ABLATIONS}")
+    if config.loop not in LOOPS:
+        raise ValueError(f"RolloutConfig.loop must be one of {LOOPS}, got {config.loop!r}")
     wrap_tick, wrap_substep = _checkpoints(config.remat)
     scan_substeps = functools.partial(jax.lax.scan, unroll=config.unroll_substeps)
 
@@ -253,8 +267,10 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
 
     physics_step = wrap_substep(physics_step)
 
-    def tick(carry, tick_key):
-        d, imu, ctrl_state = carry
+    def control(imu, ctrl_state, tick_key):
+        """One control tick: the IMU reading (with noise) through the controller. Returns
+        (ctrl_state, command, earlier command, out): with a fractional servo latency (the
+        fixed-point twin, switch > 0) the earlier command holds until substep `switch`."""
         with jax.named_scope("sensors"):
             gyro, accel = imu
             if "noise" not in ablate:
@@ -274,33 +290,89 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
                 ctrl_state, legs, prev, out = control_tick_fx(ctrl_state, gyro, accel, params,
                                                               enabled, config.quantise_targets,
                                                               fixed)
-        with jax.named_scope("physics"):
-            if fixed is not None and switch > 0:
-                # Fractional latency: the previous command holds until the static switch substep.
-                d = d.replace(ctrl=stand_ctrl.at[legs_slice].set(prev.astype(dtype)))
-                (d, imu), _ = scan_substeps(physics_step, (d, imu), None, length=switch)
-            d = d.replace(ctrl=stand_ctrl.at[legs_slice].set(legs.astype(dtype)))
-            (d, imu), _ = scan_substeps(physics_step, (d, imu), None, length=substeps - switch)
+        command = stand_ctrl.at[legs_slice].set(legs.astype(dtype))
+        earlier = (stand_ctrl.at[legs_slice].set(prev.astype(dtype)) if switch > 0
+                   else command)
+        return ctrl_state, command, earlier, out
+
+    def records(d, out, ctrl_state):
+        """The Series row at the end of a tick (the pelvis height alone when ablated)."""
         if "records" in ablate:
-            return (d, imu, ctrl_state), d.qpos[2]
+            return d.qpos[2]
         with jax.named_scope("records"):
             d = d.replace(sensordata=physics.touch_sensordata(model, d))   # the sole sensors
             pitch, roll = physics.pitch_roll_from_quat(d.qpos[3:7])
             zmp, fsr_total = _zmp(idx, d)
-            series = recording.tick_series(
+            return recording.tick_series(
                 t=d.time, pitch=pitch, roll=roll, zmp_xy=zmp, fsr_total=fsr_total,
                 com=d.subtree_com[1], r_ankle=d.site_xpos[r_ankle], l_ankle=d.site_xpos[l_ankle],
                 pelvis_z=d.qpos[2], lowest_body_z=_lowest_body_point(idx, d), out=out,
                 ctrl_state=ctrl_state, qpos=d.qpos if config.record_qpos else None)
-        return (d, imu, ctrl_state), series
 
-    carry = (state, imu_read(state),
-             controller_init(params, dtype) if fixed is None else
-             controller_init_fx(params, fixed, dtype))
-    carry = _seed_carry(carry, (push, params, schedule, enabled, gyro_noise_std,
-                                accel_noise_std))
-    _, series = jax.lax.scan(wrap_tick(tick), carry, jax.random.split(key, n_ticks),
-                             unroll=config.unroll_ticks)
+    def tick(carry, tick_key):
+        d, imu, ctrl_state = carry
+        ctrl_state, command, earlier, out = control(imu, ctrl_state, tick_key)
+        with jax.named_scope("physics"):
+            if switch > 0:
+                # Fractional latency: the previous command holds until the static switch substep.
+                d = d.replace(ctrl=earlier)
+                (d, imu), _ = scan_substeps(physics_step, (d, imu), None, length=switch)
+            d = d.replace(ctrl=command)
+            (d, imu), _ = scan_substeps(physics_step, (d, imu), None, length=substeps - switch)
+        return (d, imu, ctrl_state), records(d, out, ctrl_state)
+
+    init_ctrl = (controller_init(params, dtype) if fixed is None else
+                 controller_init_fx(params, fixed, dtype))
+    seeds = (push, params, schedule, enabled, gyro_noise_std, accel_noise_std)
+    tick_keys = jax.random.split(key, n_ticks)
+    if config.loop == "nested":
+        carry = _seed_carry((state, imu_read(state), init_ctrl), seeds)
+        _, series = jax.lax.scan(wrap_tick(tick), carry, tick_keys, unroll=config.unroll_ticks)
+        return series
+
+    # The flat loop: one scan over n_ticks * substeps physics steps. Step i opens tick
+    # i // substeps when i % substeps == 0 (the controller) and closes it when
+    # i % substeps == substeps - 1 (its Series row, written into a buffer in the carry). The
+    # conds' predicates come from the scan counter alone, so under vmap they stay branches
+    # (a batched predicate would make vmap run both sides and select).
+    control_branch = wrap_tick(control)
+    shapes = jax.eval_shape(control_branch, imu_read(state), init_ctrl, tick_keys[0])
+    zeros = lambda tree: jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), tree)  # noqa: E731
+    out0 = zeros(shapes[3])
+    row = jax.eval_shape(records, state, out0, init_ctrl)
+    buffer0 = jax.tree.map(lambda a: jnp.zeros((n_ticks,) + a.shape, a.dtype), row)
+
+    def flat_step(carry, i):
+        d, imu, ctrl_state, out, command, buffer = carry
+        k, j = i // substeps, i % substeps
+
+        def open_tick(operands):
+            d, imu, ctrl_state, out, command = operands
+            ctrl_state, command, earlier, out = control_branch(imu, ctrl_state, tick_keys[k])
+            return ctrl_state, out, command, earlier
+
+        def keep(operands):
+            d, imu, ctrl_state, out, command = operands
+            return ctrl_state, out, command, d.ctrl
+
+        ctrl_state, out, command, ctrl = jax.lax.cond(j == 0, open_tick, keep,
+                                                      (d, imu, ctrl_state, out, command))
+        if switch > 0:
+            ctrl = jnp.where(j == switch, command, ctrl)
+        (d, imu), _ = physics_step((d.replace(ctrl=ctrl), imu), None)
+
+        def close_tick(buffer):
+            new = records(d, out, ctrl_state)
+            return jax.tree.map(lambda b, x: jax.lax.dynamic_update_index_in_dim(b, x, k, 0),
+                                buffer, new)
+
+        buffer = jax.lax.cond(j == substeps - 1, close_tick, lambda b: b, buffer)
+        return (d, imu, ctrl_state, out, command, buffer), None
+
+    carry = _seed_carry((state, imu_read(state), init_ctrl, out0, state.ctrl, buffer0), seeds)
+    (*_, series), _ = jax.lax.scan(flat_step, carry,
+                                   jnp.arange(n_ticks * substeps, dtype=jnp.int32),
+                                   unroll=config.unroll_substeps)
     return series
 
 

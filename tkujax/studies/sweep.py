@@ -58,6 +58,15 @@ from tkujax.studies.spec import (FPGA_COLUMN, ROBOT_ID_COLUMN, EnsembleRef, Spec
 # tick) took 10x the compile (results/bench/README.md); `tkujax bench --unroll-substeps 1,3`
 # times the choices again.
 SWEEP_UNROLL_SUBSTEPS = 1
+# The sweeps' loop structure (RolloutConfig.loop) and XLA options. One flat scan over physics
+# steps, with the control tick and the records in lax.conds, and CUDA graphs (command buffers)
+# for runs of any length between loops and library calls (XLA's default leaves runs shorter
+# than 5 kernels out): on an H100 at batch 1,024 the closed loop then costs 12.8 ms per control
+# tick against 14.4 nested with XLA's defaults, and raw MJX 11.9 either way; neither change
+# alone gains (results/bench/README.md, session 12). XLA options are per program here, not
+# process-wide; on a CPU the GPU option is ignored.
+SWEEP_LOOP = "flat"
+SWEEP_COMPILER_OPTIONS = {"xla_gpu_graph_min_graph_size": 1}
 
 OUTCOME_KEYS = ("fell", "diverged", "recovery_time_s", "step_length_m", "step_width_m",
                 "peak_incl_deg", "capture_point_m", "capture_point_y_m", "zmp_excursion_m")
@@ -153,7 +162,7 @@ def _make_chunk_fn(varied, duration_s, model_params, with_qpos, steps, fixed, en
         robots = ensemble_robots(ensemble)
         model, index, state = robots.base_model, robots.index, robots.base_state
     config = RolloutConfig(duration_s=duration_s, record_qpos=with_qpos, fixed=fixed,
-                           unroll_substeps=unroll)
+                           unroll_substeps=unroll, loop=SWEEP_LOOP)
 
     def one(rec, key, base_params, schedule, robot_values=None):
         push = Push(rec["impulse_ns"], jnp.radians(rec["azimuth_deg"]), rec["height_m"],
@@ -178,9 +187,10 @@ def _make_chunk_fn(varied, duration_s, model_params, with_qpos, steps, fixed, en
         def chunk(batch, keys, params, schedule=None):
             return jax.vmap(one, in_axes=(0, 0, None, None))(batch, keys, params, schedule)
 
-        return jax.jit(chunk)
+        return jax.jit(chunk, compiler_options=SWEEP_COMPILER_OPTIONS)
     # The members' values are arguments of the program, not constants baked into it.
-    fn = jax.jit(jax.vmap(one, in_axes=(0, 0, None, None, None)))
+    fn = jax.jit(jax.vmap(one, in_axes=(0, 0, None, None, None)),
+                 compiler_options=SWEEP_COMPILER_OPTIONS)
     values = robots.values()
     return lambda batch, keys, params, schedule=None: fn(batch, keys, params, schedule, values)
 
