@@ -337,8 +337,7 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
     # (a batched predicate would make vmap run both sides and select).
     control_branch = wrap_tick(control)
     shapes = jax.eval_shape(control_branch, imu_read(state), init_ctrl, tick_keys[0])
-    zeros = lambda tree: jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), tree)  # noqa: E731
-    out0 = zeros(shapes[3])
+    out0 = jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), shapes[3])
     row = jax.eval_shape(records, state, out0, init_ctrl)
     buffer0 = jax.tree.map(lambda a: jnp.zeros((n_ticks,) + a.shape, a.dtype), row)
 
@@ -346,17 +345,15 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
         d, imu, ctrl_state, out, command, buffer = carry
         k, j = i // substeps, i % substeps
 
-        def open_tick(operands):
-            d, imu, ctrl_state, out, command = operands
+        def open_tick(imu, ctrl_state, out, command, ctrl):
             ctrl_state, command, earlier, out = control_branch(imu, ctrl_state, tick_keys[k])
             return ctrl_state, out, command, earlier
 
-        def keep(operands):
-            d, imu, ctrl_state, out, command = operands
-            return ctrl_state, out, command, d.ctrl
+        def keep(imu, ctrl_state, out, command, ctrl):
+            return ctrl_state, out, command, ctrl
 
         ctrl_state, out, command, ctrl = jax.lax.cond(j == 0, open_tick, keep,
-                                                      (d, imu, ctrl_state, out, command))
+                                                      imu, ctrl_state, out, command, d.ctrl)
         if switch > 0:
             ctrl = jnp.where(j == switch, command, ctrl)
         (d, imu), _ = physics_step((d.replace(ctrl=ctrl), imu), None)
