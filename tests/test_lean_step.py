@@ -19,7 +19,7 @@ from tkujax.sim import physics
 from tkujax.sim import rollout_mjx as sim
 from tkujax.sim.mjx_import import mjx
 from tkujax.sim.push import Push
-from tkujax.sim.setup import init
+from tkujax.sim.setup import imu_indices, init
 
 
 def _moving(host, qpos0, seed=0):
@@ -108,13 +108,8 @@ def test_imu_on_a_child_body_uses_the_whole_acceleration_pass():
     host = mujoco.MjModel.from_xml_string(_ARM)
     data = mujoco.MjData(host)
     data.qvel[:] = np.random.default_rng(1).normal(0.0, 1.0, host.nv)
-    site = host.site("imu").id
-    body = int(host.site_bodyid[site])
-    index = types.SimpleNamespace(
-        gyro_site=site, gyro_body=body, accel_site=site, accel_body=body,
-        accel_root=int(host.body_rootid[body]), accel_parent=int(host.body_parentid[body]),
-        accel_dofs=(int(host.body_dofadr[body]), int(host.body_dofnum[body])))
-    assert index.accel_parent != 0
+    index = types.SimpleNamespace(**imu_indices(host))
+    assert index.accel_body == host.body("arm").id and index.accel_parent != 0
     model = physics.without_sensors(mjx.put_model(host))
     d = mjx.forward(model, mjx.put_data(host, data))
     gyro, accel = physics.imu_reading(model, d, index)

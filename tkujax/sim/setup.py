@@ -76,9 +76,6 @@ class ModelIndex:
         spheres = [g for g in pair_geoms if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_SPHERE]
         boxes = [g for g in pair_geoms if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_BOX]
         sensor_adr = lambda n: int(model.sensor_adr[model.sensor(n).id])  # noqa: E731
-        site_of = lambda n: int(model.sensor_objid[model.sensor(n).id])  # noqa: E731
-        gyro_site, accel_site = site_of("gyro"), site_of("accel")
-        accel_body = int(model.site_bodyid[accel_site])
         return ModelIndex(
             leg_actuators=np.array([model.actuator(n).id for n in LEG_ACTUATORS]),
             chest_body=chest, chest_stand_z=float(data.xpos[chest][2]),
@@ -90,11 +87,19 @@ class ModelIndex:
             box_geoms=np.array(boxes, dtype=int), box_half_sizes=model.geom_size[boxes],
             ankle_sites=(model.site("r_ankle").id, model.site("l_ankle").id),
             stand_ctrl=np.array(model.key("stand").ctrl), timestep_s=float(model.opt.timestep),
-            gyro_site=gyro_site, gyro_body=int(model.site_bodyid[gyro_site]),
-            accel_site=accel_site, accel_body=accel_body,
-            accel_root=int(model.body_rootid[accel_body]),
-            accel_parent=int(model.body_parentid[accel_body]),
-            accel_dofs=(int(model.body_dofadr[accel_body]), int(model.body_dofnum[accel_body])))
+            **imu_indices(model))
+
+
+def imu_indices(model: mujoco.MjModel, gyro: str = "gyro", accel: str = "accel") -> dict:
+    """ModelIndex's IMU fields (gyro_site ... accel_dofs) for the gyro and accelerometer
+    sensors named `gyro` and `accel`: what `tkujax.sim.physics.imu_reading` reads."""
+    site_of = lambda n: int(model.sensor_objid[model.sensor(n).id])  # noqa: E731
+    gyro_site, accel_site = site_of(gyro), site_of(accel)
+    body = int(model.site_bodyid[accel_site])
+    return dict(gyro_site=gyro_site, gyro_body=int(model.site_bodyid[gyro_site]),
+                accel_site=accel_site, accel_body=body, accel_root=int(model.body_rootid[body]),
+                accel_parent=int(model.body_parentid[body]),
+                accel_dofs=(int(model.body_dofadr[body]), int(model.body_dofnum[body])))
 
 
 @functools.lru_cache(maxsize=8)
