@@ -134,7 +134,11 @@ def _push_wrench(idx: ModelIndex, d: mjx.Data, push: Push) -> jax.Array:
     local = jnp.stack([0.0, 0.0, (push.height_m - idx.chest_stand_z) / idx.chest_stand_cos])
     point = d.xpos[idx.chest_body] + d.xmat[idx.chest_body] @ local
     torque = jnp.cross(point - d.xipos[idx.chest_body], force)
-    return jnp.zeros_like(d.xfrc_applied).at[idx.chest_body].set(jnp.concatenate([force, torque]))
+    # A select on a static one-hot row rather than a scatter into zeros: the same values (and
+    # a NaN wrench stays on its body), as elementwise code that XLA can fuse with its readers.
+    row = (np.arange(d.xfrc_applied.shape[0]) == idx.chest_body)[:, None]
+    return jnp.where(row, jnp.concatenate([force, torque])[None, :],
+                     jnp.zeros_like(d.xfrc_applied))
 
 
 def _runs(ids) -> list[tuple[int, int]]:
