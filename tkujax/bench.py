@@ -45,9 +45,11 @@ from tkujax.studies.sweep import (SWEEP_COMPILER_OPTIONS, SWEEP_UNROLL_SUBSTEPS,
 
 
 def _timed(fn, repeats: int) -> float:
-    jax.block_until_ready(fn())            # warm-up (and compile)
+    """Median wall time of max(repeats, 1) calls of `fn` after one warm-up call (which also
+    compiles); `fn` returns device arrays, waited for."""
+    jax.block_until_ready(fn())
     times = []
-    for _ in range(repeats):
+    for _ in range(max(repeats, 1)):
         t0 = time.perf_counter()
         jax.block_until_ready(fn())
         times.append(time.perf_counter() - t0)

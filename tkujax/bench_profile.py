@@ -44,7 +44,6 @@ import gzip
 import json
 import os
 import re
-import statistics
 import time
 from pathlib import Path
 
@@ -52,6 +51,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from tkujax.bench import _timed as _time_calls   # results/bench scripts use this name
 from tkujax.sim import physics
 
 # no_push is left out by default: MJX's cost does not depend on the state (static contact
@@ -158,16 +158,6 @@ def _n_ticks(duration_s: float) -> int:
     from tkujax.sim.push import CONTROL_PERIOD_S
 
     return int(round(duration_s / CONTROL_PERIOD_S))
-
-
-def _time_calls(fn, repeats: int) -> float:
-    jax.block_until_ready(fn())    # warm-up (already compiled: first-run effects only)
-    times = []
-    for _ in range(max(repeats, 1)):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn())
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
 
 
 def profile_closed_loop(batch: int, duration_s: float = 0.3, repeats: int = 1,
