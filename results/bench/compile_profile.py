@@ -1,11 +1,16 @@
 """Where the tuning gradient's cold compile goes: XLA's own passes and code generation, from a
 jax.profiler trace of the compile (XLA annotates each HLO pass, LLVM and ptxas step), per
-variant of the program; session 13, kept as run:
+variant of the program; session 13 (after its runs, thread lines are keyed by index as well
+as name: two threads were both "python3" and one hid the other in serial_threads_top):
 
     python results/bench/compile_profile.py BATCH 'grad;grad:loop=flat;split;split@autotune=0'
 
 A variant is PROGRAM[:ROLLOUT_KEY=VALUE,...][@XLA_OPTION=VALUE,...]. PROGRAM "grad" is the
 tuner's value_and_grad (tkujax.studies.tune.benchmark.bench_spec at BATCH pushes x 1.5 s);
+"split" the same gradient as two programs, the forward pass keeping its residuals (jax.vjp)
+and the backward pass, the backward traced and compiled while the forward compiles in a
+thread ("split_seq": one after the other); the profiler is on during their tracing too, which
+slows the Python part;
 rollout keys go to RolloutConfig (loop, remat, unroll_substeps); XLA options (short names in
 SHORT, or full xla_* names) go to jax.jit's compiler_options. Each variant: an empty persistent
 cache, cleared in-process caches, trace, lower and compile timed apart, the compile profiled.
@@ -56,7 +61,7 @@ def self_times(xplane_path):
     lines = []
     per_line = {}
     for plane in pd.planes:
-        for line in plane.lines:
+        for i, line in enumerate(plane.lines):
             ev = sorted(((e.start_ns, e.duration_ns, e.name) for e in line.events),
                         key=lambda t: (t[0], -t[1]))
             if not ev:
@@ -79,7 +84,7 @@ def self_times(xplane_path):
                 stack.append([start + dur, name, 0, dur])
             while stack:
                 pop()
-            key = f"{plane.name}/{line.name}"
+            key = f"{plane.name}/{line.name}#{i}"     # threads may share a name
             lines.append((key, round(busy, 1)))
             per_line[key] = sorted(((n[:100], round(ms, 1)) for n, ms in mine.items()
                                     if not n.startswith("$")), key=lambda x: -x[1])[:25]
