@@ -81,6 +81,42 @@ def test_stages_written_incrementally_failure_recorded(tmp_path, monkeypatch, ca
     assert "| 16 | 1 | 1.6e+03 | 1.28e+03 | 16 | 0.80 |" in md and "| cpu_peer | failed" in md
 
 
+def test_resume_runs_only_the_unfinished_stages(tmp_path, monkeypatch):
+    """A run cut by its budget, resumed: the finished stages are kept (not run again), the
+    skipped and failed ones run, total_wall_s adds the runs up; other settings are refused by
+    name."""
+    out = tmp_path / "b.json"
+    seen = []
+    _fake_stages(monkeypatch, seen, out)
+    clock = iter(range(0, 10_000, 10))     # each perf_counter() call: 10 s later; a stage
+    monkeypatch.setattr(bench.time, "perf_counter", lambda: float(next(clock)))  # takes 4
+    run_bench(out, batches=(8, 16), compile_batch=0, cpu_batch=4, budget_s=55, quiet=True)
+    first = json.loads(out.read_text())
+    status = {st["name"]: st["status"] for st in first["stages"]}
+    assert status == {"raw_8": "done", "closed_loop_8": "done", "raw_16": "skipped",
+                      "closed_loop_16": "skipped", "cpu_peer": "skipped"}
+    seen.clear()
+    run_bench(out, batches=(8, 16), compile_batch=0, cpu_batch=4, quiet=True, resume=True)
+    second = json.loads(out.read_text())
+    assert [name for name, _ in seen] == ["raw_16", "closed_loop_16", "cpu_peer"]
+    assert [(st["name"], st["status"]) for st in second["stages"]] == [
+        ("raw_8", "done"), ("closed_loop_8", "done"), ("raw_16", "done"),
+        ("closed_loop_16", "done"), ("cpu_peer", "failed")]
+    assert [r["batch"] for r in second["raw"]] == [8, 16]
+    assert [r["batch"] for r in second["closed_loop"]] == [8, 16]
+    assert second["runs"] == 2 and second["complete"]
+    assert second["total_wall_s"] > first["total_wall_s"] > 0
+    assert "over 2 runs (resumed)" in out.with_suffix(".md").read_text()
+    seen.clear()
+    run_bench(out, batches=(8, 16), compile_batch=0, cpu_batch=4, quiet=True, resume=True)
+    assert [name for name, _ in seen] == ["cpu_peer"]       # only the failed stage again
+    with pytest.raises(ValueError, match="batches was \\[8, 16\\], now \\[8\\]"):
+        run_bench(out, batches=(8,), compile_batch=0, cpu_batch=4, quiet=True, resume=True)
+    fresh = tmp_path / "fresh.json"
+    run_bench(fresh, batches=(8,), compile_batch=0, cpu_batch=0, quiet=True, resume=True)
+    assert "runs" not in json.loads(fresh.read_text())       # nothing to resume: a new run
+
+
 def test_loop_structures_timed_side_by_side(tmp_path, monkeypatch):
     """--unroll-substeps 1,15: one raw run per batch, one closed loop per structure, each in
     its own stage and row; a bad structure fails before any stage runs."""
@@ -190,6 +226,8 @@ def test_cli_modes(tmp_path, monkeypatch):
     assert cli.main(["bench", "--out", out, "--stages", "gradient_compile", "--grad-variants",
                      "remat=tick_nocse", "--grad-cold-only", "--budget-s", "300"]) == 0
     assert cli.main(["bench", "--out", out, "--unroll-substeps", "1,15"]) == 0
+    assert cli.main(["bench", "--out", out, "--full", "--resume"]) == 0
+    assert calls.pop()["resume"] is True
     for bad in ("0", "x"):
         with pytest.raises(SystemExit, match="--unroll-substeps"):
             cli.main(["bench", "--out", out, "--unroll-substeps", bad])
@@ -198,6 +236,7 @@ def test_cli_modes(tmp_path, monkeypatch):
     assert default["batches"] == MODES["default"]["batches"] == (1024, 65536)
     assert default["grad_batch"] is None and default["grad_compile_batch"] == 0
     assert default["stages"] is None and default["profile_batches"] == ()
+    assert default["resume"] is False
     assert full["batches"] == (1024, 4096, 16384, 65536) and full["repeats"] == 5
     assert full["grad_batch"] == 1024 and full["mode"] == "full"
     assert prof["stages"] == ("profile",) and prof["profile_batches"] == (2, 4)

@@ -268,12 +268,16 @@ class _Stages:
     """Runs the bench's stages one by one: progress on stderr, each stage's wall time and
     status in result["stages"], the JSON (and .md) rewritten after each stage, so that a run
     cut short keeps what finished. A failing stage is recorded and the next one runs; with
-    `budget_s`, a stage that would start after the budget is recorded as skipped."""
+    `budget_s`, a stage that would start after the budget is recorded as skipped. Stages named
+    in `done` (a resumed run's finished ones) are kept as recorded and not run again;
+    `wall_before_s` (the earlier runs' wall time) is added to `total_wall_s`."""
 
-    def __init__(self, out: Path, result: dict, budget_s: float | None, quiet: bool):
+    def __init__(self, out: Path, result: dict, budget_s: float | None, quiet: bool,
+                 done: frozenset = frozenset(), wall_before_s: float = 0.0):
         self.out, self.result, self.budget_s, self.quiet = out, result, budget_s, quiet
+        self.done, self.wall_before_s = done, wall_before_s
         self.t0 = time.perf_counter()
-        result["stages"] = []
+        result.setdefault("stages", [])
 
     def log(self, msg: str) -> None:
         if not self.quiet:
@@ -281,6 +285,9 @@ class _Stages:
                   flush=True)
 
     def run(self, name: str, fn) -> None:
+        if name in self.done:
+            self.log(f"{name}: done in an earlier run, kept")
+            return
         rec = dict(name=name)
         elapsed = time.perf_counter() - self.t0
         if self.budget_s is not None and elapsed > self.budget_s:
@@ -298,13 +305,40 @@ class _Stages:
                 traceback.print_exc(file=sys.stderr)
             rec["wall_s"] = round(time.perf_counter() - t, 2)
             self.log(f"{name}: {rec['status']} in {rec['wall_s']:.1f} s")
+        if self.result.get("runs", 1) > 1:
+            rec["run"] = self.result["runs"]
         self.result["stages"].append(rec)
         self.write()
 
     def write(self, complete: bool = False) -> None:
-        self.result["total_wall_s"] = round(time.perf_counter() - self.t0, 2)
+        self.result["total_wall_s"] = round(
+            self.wall_before_s + time.perf_counter() - self.t0, 2)
         self.result["complete"] = complete
         _write(self.out, self.result)
+
+
+def _resumed(out: Path, settings: dict, device_kind: str, versions: dict) -> dict | None:
+    """The earlier run in `out` to go on with (None when there is none), its unfinished
+    stages' records dropped: they run again. Refused, naming the key, when the earlier run
+    was made with other settings, on another kind of device or with other versions: its
+    figures would not compare with this run's."""
+    if not out.exists():
+        return None
+    prior = json.loads(out.read_text())
+    if "settings" not in prior:
+        raise ValueError(f"{out}: cannot resume: the file has no 'settings' record (written "
+                         f"by an older tkujax); rerun without --resume")
+    now = dict(settings, device_kind=device_kind, versions=versions)
+    then = dict(prior["settings"], device_kind=prior.get("device_kind"),
+                versions=prior.get("versions"))
+    for key in sorted(set(now) | set(then)):
+        if now.get(key) != then.get(key):
+            raise ValueError(f"{out}: cannot resume: {key} was {then.get(key)!r}, now "
+                             f"{now.get(key)!r}; rerun with the same options, or without "
+                             f"--resume")
+    prior["stages"] = [s for s in prior.get("stages", []) if s.get("status") == "done"]
+    prior["runs"] = prior.get("runs", 1) + 1
+    return prior
 
 
 def run_bench(out: str | Path, batches=MODES["default"]["batches"], duration_s: float = 1.5,
@@ -317,7 +351,8 @@ def run_bench(out: str | Path, batches=MODES["default"]["batches"], duration_s: 
               profile_variants=None, compile_workers: int | None = None,
               trace_dir: str | Path | None = None, grad_variants: list[dict] | None = None,
               grad_cached: bool = True, budget_s: float | None = None,
-              unroll_substeps: tuple[int, ...] | None = None, quiet: bool = False) -> dict:
+              unroll_substeps: tuple[int, ...] | None = None, quiet: bool = False,
+              resume: bool = False) -> dict:
     """The bench (module docstring). The size arguments default to the "default" mode (MODES);
     `stages`: the STAGE_GROUPS to run (None: those the sizes enable, plus "profile" when
     `profile_batches` is given). `unroll_substeps`: the closed loop's loop structures to
@@ -344,12 +379,30 @@ def run_bench(out: str | Path, batches=MODES["default"]["batches"], duration_s: 
     if any(int(u) < 1 for u in unrolls):
         raise ValueError(f"unroll_substeps must be >= 1, got {list(unrolls)}")
     dev = jax.devices()[0]
-    result = dict(mode=mode, stages_requested=list(stages), device=str(dev),
-                  device_kind=getattr(dev, "device_kind", dev.platform),
-                  n_devices=jax.device_count(), platform=platform.platform(),
-                  versions=package_versions(("jax", "jaxlib", "mujoco", "mujoco-mjx")),
-                  repeats=repeats, duration_s=duration_s, raw=[], closed_loop=[])
-    run = _Stages(out, result, budget_s, quiet)
+    device_kind = getattr(dev, "device_kind", dev.platform)
+    versions = package_versions(("jax", "jaxlib", "mujoco", "mujoco-mjx"))
+    # What the figures depend on: a resumed run must have been made with the same.
+    settings = dict(
+        mode=mode, stages=list(stages), batches=[int(b) for b in batches],
+        duration_s=duration_s, raw_steps=raw_steps, repeats=repeats, cpu_batch=cpu_batch,
+        grad_batch=grad_batch, compile_batch=compile_batch, scaling_batch=scaling_batch,
+        grad_compile_batch=grad_compile_batch, grad_variants=grad_variants,
+        grad_cached=grad_cached, unroll_substeps=[int(u) for u in unrolls],
+        profile_batches=[int(b) for b in profile_batches],
+        profile_duration_s=profile_duration_s, profile_repeats=profile_repeats,
+        profile_variants=list(profile_variants) if profile_variants else None,
+        n_devices=jax.device_count())
+    result = _resumed(out, settings, device_kind, versions) if resume else None
+    wall_before_s = result.get("total_wall_s", 0.0) if result else 0.0
+    if result is None:
+        result = dict(mode=mode, stages_requested=list(stages), device=str(dev),
+                      device_kind=device_kind, n_devices=jax.device_count(),
+                      platform=platform.platform(), versions=versions, repeats=repeats,
+                      duration_s=duration_s, raw=[], closed_loop=[], settings=settings)
+    done = frozenset(s["name"] for s in result.get("stages", []))
+    run = _Stages(out, result, budget_s, quiet, done, wall_before_s)
+    if result.get("runs", 1) > 1:
+        run.log(f"resuming {out}: {len(done)} stage(s) kept from earlier run(s)")
     compiled = {}
 
     result["unroll_substeps"] = list(unrolls)
@@ -377,10 +430,12 @@ def run_bench(out: str | Path, batches=MODES["default"]["batches"], duration_s: 
             result["cpu_peer"] = cpu_peer(cpu_batch, duration_s, repeats)
         run.run("cpu_peer", stage_cpu)
     if "profile" in stages:
-        result["profile"] = []
+        result.setdefault("profile", [])
         variants = tuple(profile_variants or bench_profile.DEFAULT_VARIANTS)
         for b in profile_batches:
             def stage_profile(b=b):
+                # An unfinished earlier attempt's partial rows go; this attempt's replace them.
+                result["profile"] = [q for q in result["profile"] if q.get("batch") != b]
                 p = {}
                 result["profile"].append(p)     # filled, and written, row by row
                 bench_profile.profile_closed_loop(
@@ -396,7 +451,7 @@ def run_bench(out: str | Path, batches=MODES["default"]["batches"], duration_s: 
             result["gradient_step"] = gradient_step(grad_batch, duration_s, repeats)
         run.run("gradient_step", stage_grad)
     if "gradient_compile" in stages and grad_compile_batch:
-        result["gradient_compile"] = []
+        result.setdefault("gradient_compile", [])
         gpu = jax.default_backend() == "gpu"
         variants = grad_variants if grad_variants is not None else (
             [{}] + ([{"autotune": 0}] if gpu else []))
@@ -486,6 +541,7 @@ def summary_markdown(r: dict) -> str:
                   + (f" ({s['error'][:120]})" if s.get("error") else "")
                   + f" | {s.get('wall_s', '-')} |" for s in r["stages"]]
         lines += ["", f"Total wall time: {r.get('total_wall_s', 0):.1f} s"
+                  + (f" over {r['runs']} runs (resumed)" if r.get("runs", 1) > 1 else "")
                   + ("" if r.get("complete") else " (incomplete: the run was cut short or is "
                      "still going)") + "."]
     return "\n".join(lines) + "\n"

@@ -257,7 +257,7 @@ def _cmd_bench(args) -> int:
                                      if v.strip()) if args.profile_variants else None,
               compile_workers=args.compile_workers, trace_dir=args.trace,
               grad_variants=grad_variants, grad_cached=not args.grad_cold_only,
-              budget_s=args.budget_s, unroll_substeps=unrolls)
+              budget_s=args.budget_s, unroll_substeps=unrolls, resume=args.resume)
     result = json.loads(Path(args.out).read_text())
     print(summary_markdown(result))
     return 0 if all(st["status"] != "failed" for st in result["stages"]) else 1
@@ -536,6 +536,9 @@ def _add_study_commands(sub) -> None:
                    help="folder for a jax.profiler trace of the full loop (profile stage)")
     p.add_argument("--budget-s", type=float, default=None,
                    help="skip the stages that would start after this many seconds")
+    p.add_argument("--resume", action="store_true",
+                   help="go on with the run in --out (same options, device kind and versions): "
+                        "its finished stages are kept, the others run; total_wall_s adds up")
     p.add_argument("--unroll-substeps", default=None,
                    help="closed loop's loop structures to compile and time, a comma list of "
                         "substep-scan unrollings (1: rolled; 15: the whole 30 ms tick at 2 ms), "
