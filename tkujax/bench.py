@@ -18,7 +18,7 @@ Two sizes (MODES): "default" (a, b at 1,024 and 65,536, c, e: a few minutes on o
 "full" (a, b at four batches, c, d, e, f and the multi-device scaling). Every stage is timed;
 progress goes to stderr, and the JSON and its .md are rewritten after each stage with
 `stages` (name, status, wall_s), `total_wall_s` and `complete`, so a run cut short keeps what
-finished.
+finished, and `run_bench(resume=True)` (`--resume`) goes on with it.
 """
 
 from __future__ import annotations
