@@ -10,6 +10,10 @@ Its gradient with respect to theta, built two ways:
 
   python results/bench/adjoint_compile.py BATCH N_STEPS autodiff|adjoint [OUT.jsonl]
 
+and the same two with the whole MJX state (mjx.Data) as the carry, as in the closed loop:
+`autodiff_data` (jax.checkpoint per step) and `adjoint_data` (tkujax.sim.adjoint.iterate,
+which stores the leaves a step reads).
+
 One program per process, into an empty persistent cache: trace + lower and XLA's compile timed
 apart, the run time (median of 3), and the gradient (to compare the two).
 """
@@ -63,7 +67,29 @@ def main(batch: int, n_steps: int, how: str, out: str | None) -> None:
         (_, g), _ = jax.lax.scan(bwd, (zero, jnp.zeros_like(theta)), xs, reverse=True)
         return g
 
-    fn = {"autodiff": jax.vmap(jax.grad(loss_autodiff)), "adjoint": jax.vmap(grad_adjoint)}[how]
+    def loss_data(theta, adjoint):
+        def step_d(d):
+            return mjx.euler(lean, mjx.forward(lean, d.replace(ctrl=theta)))
+
+        if adjoint:
+            from tkujax.sim.adjoint import iterate
+
+            def step_z(c):
+                d, acc = c
+                d = step_d(d)
+                return d, acc + d.qpos[2]
+            _, acc = iterate(step_z, (state, jnp.zeros((), state.qpos.dtype)), n_steps)
+            return acc / n_steps
+
+        def body(d, _):
+            d = jax.checkpoint(step_d)(d)
+            return d, d.qpos[2]
+        _, z = jax.lax.scan(body, state, None, length=n_steps)
+        return jnp.mean(z)
+
+    fn = {"autodiff": jax.vmap(jax.grad(loss_autodiff)), "adjoint": jax.vmap(grad_adjoint),
+          "autodiff_data": jax.vmap(jax.grad(lambda t: loss_data(t, False))),
+          "adjoint_data": jax.vmap(jax.grad(lambda t: loss_data(t, True)))}[how]
     thetas = theta0 + 0.01 * jax.random.normal(jax.random.PRNGKey(0), (batch, theta0.size))
     with fresh_compilation_cache():
         t0 = time.perf_counter()
