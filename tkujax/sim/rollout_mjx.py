@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from tkujax.sim import adjoint, physics
+from tkujax.sim import physics
 from tkujax.control.controller import ControllerOutput, StepOverride, controller_init
 from tkujax.control.fixed import (FixedPointConfig, check_supported, controller_init_fx,
                                   servo_switch_substep)
@@ -53,9 +53,7 @@ class RolloutConfig:
     # tick (the program True always gave); "tick_nocse": the same with prevent_cse=False (JAX's
     # advice inside scan); "tick_dots": each tick, saving the results of matrix products
     # (jax.checkpoint_policies.dots_with_no_batch_dims_saveable); "substep": each physics
-    # substep instead; "nested": each tick and each substep; "adjoint": no checkpoint, each
-    # tick's substep loop differentiated by a hand-built adjoint (`tkujax.sim.adjoint`: the
-    # same gradient, a program XLA compiles faster on a GPU; nested loop only). See REMAT_MODES.
+    # substep instead; "nested": each tick and each substep. See REMAT_MODES.
     remat: bool | str = False
     # The FPGA twin of the controller (issue 15); None: the float controller (its program is
     # unchanged by this field: the choice is a Python branch on None at trace time).
@@ -82,8 +80,7 @@ class RolloutConfig:
 
 _quantise = quantise_targets   # the name the C backend and older code use
 
-REMAT_MODES = (False, True, "none", "tick", "tick_nocse", "tick_dots", "substep", "nested",
-               "adjoint")
+REMAT_MODES = (False, True, "none", "tick", "tick_nocse", "tick_dots", "substep", "nested")
 ABLATIONS = ("noise", "controller", "wrench", "records")
 LOOPS = ("nested", "flat")
 
@@ -93,7 +90,7 @@ def _checkpoints(remat: bool | str):
     if remat not in REMAT_MODES:
         raise ValueError(f"RolloutConfig.remat must be one of {REMAT_MODES}, got {remat!r}")
     same = lambda f: f   # noqa: E731
-    if remat in (False, "none", "adjoint"):     # adjoint: the substep loop's own VJP
+    if remat in (False, "none"):
         return same, same
     if remat in (True, "tick"):
         return jax.checkpoint, same
@@ -234,17 +231,7 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
     if config.loop not in LOOPS:
         raise ValueError(f"RolloutConfig.loop must be one of {LOOPS}, got {config.loop!r}")
     wrap_tick, wrap_substep = _checkpoints(config.remat)
-    if config.remat == "adjoint":
-        if config.loop != "nested":
-            raise ValueError("RolloutConfig.remat='adjoint' differentiates the nested loop's "
-                             f"substep loops; got loop={config.loop!r}")
-
-        def scan_substeps(step, carry, xs, length):
-            """lax.scan of `step` over `length` substeps, its VJP a hand-built adjoint."""
-            return adjoint.iterate(lambda c: step(c, None)[0], carry, length,
-                                   config.unroll_substeps), None
-    else:
-        scan_substeps = functools.partial(jax.lax.scan, unroll=config.unroll_substeps)
+    scan_substeps = functools.partial(jax.lax.scan, unroll=config.unroll_substeps)
 
     def imu_read(d):
         return (d.sensordata[idx.gyro_adr:idx.gyro_adr + 3],
