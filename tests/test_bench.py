@@ -34,6 +34,18 @@ def test_bench_end_to_end(tmp_path):
     assert "| 4 |" in md and "CPU peer" in md and "Total wall time" in md
 
 
+def test_gradient_step_line_says_when_its_first_call_read_the_cache():
+    base = dict(device_kind="cpu", n_devices=1, versions={}, repeats=1, duration_s=1.5, raw=[],
+                closed_loop=[])
+    step = dict(batch=8, duration_s=1.5, n_params=8, remat="substep", float64=False,
+                seconds=2.0, pushes_per_s=4.0, first_call_s=38.0, peak_device_bytes=None,
+                grad_finite=True)
+    cold = summary_markdown(dict(base, gradient_step=dict(step, first_call_cache_hits=0)))
+    warm = summary_markdown(dict(base, gradient_step=dict(step, first_call_cache_hits=1)))
+    assert "first call (compile) 38 s," in cold and "persistent cache" not in cold
+    assert "first call (compile) 38 s (read from the persistent cache" in warm
+
+
 def _fake_stages(monkeypatch, seen: list, out):
     """Instant stand-ins for the measuring functions; each checks that the JSON on disk
     already holds every stage before it (written incrementally)."""

@@ -502,9 +502,11 @@ def summary_markdown(r: dict) -> str:
         lines += ["", f"Gradient step (reverse mode through the closed loop, batch {g['batch']} x "
                   f"{g['duration_s']} s, {g['n_params']} parameters, remat {g['remat']}, float64 "
                   f"{g['float64']}): {g['seconds']:.2f} s per step = {g['pushes_per_s']:.3g} "
-                  f"pushes/s, first call (compile) {g['first_call_s']:.0f} s, peak device "
-                  f"memory of the process (earlier stages included; run --stages "
-                  f"gradient_step alone for the step's own) "
+                  f"pushes/s, first call (compile) {g['first_call_s']:.0f} s"
+                  + (" (read from the persistent cache: not a cold compile)"
+                     if g.get("first_call_cache_hits") else "") + ", peak device "
+                  "memory of the process (earlier stages included; run --stages "
+                  "gradient_step alone for the step's own) "
                   + (f"{g['peak_device_bytes'] / 2**30:.2f} GiB" if g['peak_device_bytes']
                      else "n/a") + f", gradient finite: {g['grad_finite']}."]
     md = r.get("multi_device")

@@ -1,5 +1,6 @@
 """A fresh persistent compilation cache for a block: cold compile timings (`tkujax bench`, the
-gradient benchmark of `tkujax.studies.tune.benchmark`)."""
+gradient benchmark of `tkujax.studies.tune.benchmark`); and a count of the compiles a block
+read from the persistent cache (a "first call" that read it was not a cold compile)."""
 
 from __future__ import annotations
 
@@ -28,3 +29,23 @@ def fresh_compilation_cache():
         jax.config.update("jax_compilation_cache_dir", old_dir)
         jax.config.update("jax_persistent_cache_min_compile_time_secs", old_min)
         cc.reset_cache()
+
+
+_CACHE_HIT_EVENT = "/jax/compilation_cache/cache_hits"
+
+
+@contextlib.contextmanager
+def persistent_cache_hits():
+    """Counts the compiles in the block that JAX read from the persistent cache: yields a dict
+    whose "hits" grows as they happen (JAX's monitoring event for a cache hit)."""
+    count = {"hits": 0}
+
+    def listener(event: str, **_) -> None:
+        if event == _CACHE_HIT_EVENT:
+            count["hits"] += 1
+
+    jax.monitoring.register_event_listener(listener)
+    try:
+        yield count
+    finally:
+        jax.monitoring.unregister_event_listener(listener)

@@ -7,6 +7,7 @@ import time
 import jax
 import numpy as np
 
+from tkujax.studies.compile_cache import persistent_cache_hits
 from tkujax.studies.tune.problem import TuneProblem
 from tkujax.studies.tune.reparam import DEG, PAPER_TUNABLE
 from tkujax.studies.tune.spec import parse_tune_spec, sample_pushes
@@ -44,9 +45,10 @@ def benchmark_gradient_step(batch: int, duration_s: float, repeats: int = 3,
     keys = jax.random.split(jax.random.PRNGKey(0), batch)
     z = reparam.latent_of(base)
     tau = 1.0 * DEG
-    t0 = time.perf_counter()
-    _, _, g = problem.value_and_grad(z, tau, recs, keys)
-    compile_s = time.perf_counter() - t0
+    with persistent_cache_hits() as hits:
+        t0 = time.perf_counter()
+        _, _, g = problem.value_and_grad(z, tau, recs, keys)
+        compile_s = time.perf_counter() - t0
     sec = _median_call_s(lambda: problem.value_and_grad(z, tau, recs, keys), repeats)
     try:
         stats = jax.devices()[0].memory_stats()
@@ -54,6 +56,7 @@ def benchmark_gradient_step(batch: int, duration_s: float, repeats: int = 3,
         stats = None
     peak = int(stats["peak_bytes_in_use"]) if stats and "peak_bytes_in_use" in stats else None
     return dict(batch=batch, duration_s=duration_s, seconds=sec, first_call_s=round(compile_s, 2),
+                first_call_cache_hits=hits["hits"],
                 pushes_per_s=batch / sec, physics_steps_per_s=batch * problem.steps_per_push / sec,
                 peak_device_bytes=peak, remat=remat, float64=float64, rollout_options=opts,
                 grad_finite=bool(np.all(np.isfinite(g))), n_params=reparam.size)
