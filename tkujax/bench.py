@@ -268,16 +268,15 @@ class _Stages:
     """Runs the bench's stages one by one: progress on stderr, each stage's wall time and
     status in result["stages"], the JSON (and .md) rewritten after each stage, so that a run
     cut short keeps what finished. A failing stage is recorded and the next one runs; with
-    `budget_s`, a stage that would start after the budget is recorded as skipped. Stages named
-    in `done` (a resumed run's finished ones) are kept as recorded and not run again;
-    `wall_before_s` (the earlier runs' wall time) is added to `total_wall_s`."""
+    `budget_s`, a stage that would start after the budget is recorded as skipped. A resumed
+    `result` (`_resumed`) already records its finished stages: they are kept and not run
+    again, and its `total_wall_s` (the earlier runs' wall time) is added to this run's."""
 
-    def __init__(self, out: Path, result: dict, budget_s: float | None, quiet: bool,
-                 done: frozenset = frozenset(), wall_before_s: float = 0.0):
+    def __init__(self, out: Path, result: dict, budget_s: float | None, quiet: bool):
         self.out, self.result, self.budget_s, self.quiet = out, result, budget_s, quiet
-        self.done, self.wall_before_s = done, wall_before_s
+        self.done = frozenset(s["name"] for s in result.setdefault("stages", []))
+        self.wall_before_s = result.get("total_wall_s", 0.0)
         self.t0 = time.perf_counter()
-        result.setdefault("stages", [])
 
     def log(self, msg: str) -> None:
         if not self.quiet:
@@ -393,16 +392,14 @@ def run_bench(out: str | Path, batches=MODES["default"]["batches"], duration_s: 
         profile_variants=list(profile_variants) if profile_variants else None,
         n_devices=jax.device_count())
     result = _resumed(out, settings, device_kind, versions) if resume else None
-    wall_before_s = result.get("total_wall_s", 0.0) if result else 0.0
     if result is None:
         result = dict(mode=mode, stages_requested=list(stages), device=str(dev),
                       device_kind=device_kind, n_devices=jax.device_count(),
                       platform=platform.platform(), versions=versions, repeats=repeats,
                       duration_s=duration_s, raw=[], closed_loop=[], settings=settings)
-    done = frozenset(s["name"] for s in result.get("stages", []))
-    run = _Stages(out, result, budget_s, quiet, done, wall_before_s)
+    run = _Stages(out, result, budget_s, quiet)
     if result.get("runs", 1) > 1:
-        run.log(f"resuming {out}: {len(done)} stage(s) kept from earlier run(s)")
+        run.log(f"resuming {out}: {len(run.done)} stage(s) kept from earlier run(s)")
     compiled = {}
 
     result["unroll_substeps"] = list(unrolls)
