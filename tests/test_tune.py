@@ -332,6 +332,33 @@ def test_every_search_method_improves_a_known_landscape(method):
     assert r["iterations"] <= 60 and r["curve"][-1]["pushes"] > 8
 
 
+def test_warm_up_runs_the_calls_side_by_side_and_returns_what_each_returned():
+    """The calls overlap (each waits for the other's signal: one after the other, the first
+    would time out), the results are keyed by name, and a call's error reaches the caller."""
+    import threading
+
+    from tkujax.studies.tune.search import warm_up
+
+    a_started, b_started = threading.Event(), threading.Event()
+
+    def a():
+        a_started.set()
+        return b_started.wait(10.0)
+
+    def b():
+        b_started.set()
+        return a_started.wait(10.0)
+
+    assert warm_up({"a": a, "b": b}) == {"a": True, "b": True}
+    assert warm_up({"x": lambda: 1, "y": lambda: 2}, parallel=False) == {"x": 1, "y": 2}
+
+    def broken():
+        raise ValueError("bad call")
+
+    with pytest.raises(ValueError, match="bad call"):
+        warm_up({"ok": lambda: 1, "broken": broken})
+
+
 class _Counting(_Quadratic):
     """_Quadratic that counts gradient calls, optionally with a gradient pointing the wrong way
     (a first-order gradient blind to what the hard loss does)."""

@@ -35,7 +35,7 @@ from tkujax.studies.tune.problem import _np, _x64
 from tkujax.studies.tune.reparam import CPU_COMPILER_OPTIONS, DEG
 from tkujax.studies.tune.search import (METHODS, RaySearch, SearchConfig, _adam, _finite,
                                         _Tracker, alpha_order_mix, clipped_group_means,
-                                        one_plus_one_step, tell_generation)
+                                        one_plus_one_step, tell_generation, warm_up)
 
 
 class LockstepFunctions:
@@ -186,16 +186,17 @@ def run_search_lockstep(method: str, problem, z0, batches, keys, cfg: SearchConf
 
     # Compile (excluded from the budget): call what this method uses once, at the shapes the
     # loop uses (every seed's start loss comes from the forward call, as in run_search).
+    # Side by side (search.warm_up): the compiles overlap, the longest (the gradient) first.
     t0 = time.perf_counter()
-    hard0 = fns.forward(Z0, 0.0, batch, keys)[0]
-    if method in ("cma", "sepcma"):
-        fns.population(np.repeat(Z0[:, None], cfg.popsize, 1), 0.0, batch, keys)
-    if method == "hybrid":
-        fns.population(np.repeat(Z0[:, None], 1 + 2 * pairs, 1), 0.0, batch, keys)
-    if method == "linesearch":
-        fns.population(np.repeat(Z0[:, None], cfg.popsize, 1), 0.0, batch, keys)
+    calls = {}
     if method in ("gradient", "hybrid", "linesearch"):
-        _first_order(fns, Z0, tau, batch, keys, cfg, n)
+        calls["gradient"] = lambda: _first_order(fns, Z0, tau, batch, keys, cfg, n)
+    if method in ("cma", "sepcma", "hybrid", "linesearch"):
+        width = 1 + 2 * pairs if method == "hybrid" else cfg.popsize
+        calls["population"] = lambda: fns.population(np.repeat(Z0[:, None], width, 1), 0.0,
+                                                     batch, keys)
+    calls["forward"] = lambda: fns.forward(Z0, 0.0, batch, keys)[0]
+    hard0 = warm_up(calls)["forward"]
     compile_s = time.perf_counter() - t0
 
     tracks = [_Tracker(z0, h, n) for h in hard0]

@@ -39,6 +39,7 @@ Pushes simulated count a value-and-gradient rollout as one push.
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import math
 import time
@@ -116,11 +117,7 @@ def run_search(method: str, problem: TuneProblem, z0, batch: dict, keys, cfg: Se
     t0 = time.perf_counter()
     if hasattr(problem, "with_off_survived"):
         batch = problem.with_off_survived(batch, keys)
-    hard0 = problem.forward(z0, 0.0, batch, keys)[0]
-    if method in ("cma", "sepcma", "hybrid", "linesearch"):
-        problem.population(np.repeat(z0[None], cfg.popsize, 0), 0.0, batch, keys)
-    if method in ("gradient", "hybrid", "linesearch"):
-        first_order_grads(problem.grouped_value_and_grad, z0, tau, batch, keys, cfg, n)
+    hard0 = warm_up_calls(method, problem, z0, batch, keys, cfg)["forward"]
     compile_s = time.perf_counter() - t0
 
     track = _Tracker(z0, hard0, n)
@@ -302,6 +299,37 @@ def clipped_group_means(per_push: np.ndarray, groups: int, clip: float) -> np.nd
     g = g * np.minimum(1.0, cap / np.maximum(norms, 1e-30))[..., None]
     n, k = g.shape
     return g.reshape(groups, n // groups, k).mean(1)
+
+
+def warm_up(calls: dict[str, Callable[[], object]], parallel: bool = True) -> dict:
+    """Call each function once ({name: result}): the first call of a jitted function compiles
+    it. parallel: in one thread each, started in the order given (the longest compile first),
+    so that XLA's compiles, which release the GIL, overlap; only the tracing stays serial. A
+    call's error is raised here. The results are the same either way (the same programs)."""
+    if not parallel or len(calls) < 2:
+        return {name: call() for name, call in calls.items()}
+    with concurrent.futures.ThreadPoolExecutor(len(calls), "tkujax-warm-up") as pool:
+        futures = {name: pool.submit(call) for name, call in calls.items()}
+        return {name: f.result() for name, f in futures.items()}
+
+
+def warm_up_calls(method: str, problem, z0, batch: dict, keys, cfg: SearchConfig,
+                  parallel: bool = True) -> dict:
+    """What `method` calls, each once, side by side (`warm_up`): the forward (its hard loss
+    under "forward"), the population call of cfg.popsize (cma, sepcma, hybrid, linesearch) and
+    the grouped first-order gradient (gradient, hybrid, linesearch). parallel=False: one after
+    the other (results/bench/warmup_parallel.py compares the two)."""
+    tau = cfg.temperature_deg * DEG
+    z0 = np.asarray(z0, float)
+    calls = {}
+    if method in ("gradient", "hybrid", "linesearch"):
+        calls["gradient"] = lambda: first_order_grads(problem.grouped_value_and_grad, z0, tau,
+                                                      batch, keys, cfg, len(keys))
+    if method in ("cma", "sepcma", "hybrid", "linesearch"):
+        calls["population"] = lambda: problem.population(np.repeat(z0[None], cfg.popsize, 0),
+                                                         0.0, batch, keys)
+    calls["forward"] = lambda: problem.forward(z0, 0.0, batch, keys)[0]
+    return warm_up(calls, parallel)
 
 
 def first_order_grads(value_and_grad_groups, z, tau, batch, keys, cfg: SearchConfig,
