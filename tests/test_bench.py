@@ -171,6 +171,32 @@ def test_unknown_stage_and_variant_fail_early(tmp_path):
     assert not (tmp_path / "b.json").exists()
 
 
+@pytest.mark.parametrize("kw, message", [
+    (dict(batches=(1024, -5)), r"batches \(each\) must be an integer in \[1, 10000000\], got -5"),
+    (dict(batches=(2.5,)), r"batches \(each\).*got 2.5"),
+    (dict(repeats=0), r"repeats must be an integer in \[1, 100000\], got 0"),
+    (dict(duration_s=-1.0), r"duration_s must be in \(0, 60\] seconds, got -1.0"),
+    (dict(cpu_batch=-1), r"cpu_batch must be an integer in \[0, 10000000\], got -1"),
+    (dict(profile_batches=(0,)), r"profile_batches \(each\).*got 0"),
+    (dict(compile_workers=0), r"compile_workers must be an integer in \[1, 256\], got 0"),
+    (dict(budget_s=-1), r"budget_s must be in \[0, 1e6\] seconds, got -1"),
+])
+def test_bad_sizes_fail_before_any_stage_naming_the_argument(tmp_path, kw, message):
+    with pytest.raises(ValueError, match=message):
+        run_bench(tmp_path / "b.json", **kw)
+    assert not (tmp_path / "b.json").exists()
+
+
+def test_cli_names_the_option_of_a_bad_integer_list(tmp_path, capsys):
+    from tkujax import cli
+
+    assert cli.main(["bench", "--out", str(tmp_path / "b.json"), "--batches", "0,abc"]) == 2
+    assert "--batches: a comma list of integers, got '0,abc'" in capsys.readouterr().err
+    assert cli.main(["bench", "--out", str(tmp_path / "b.json"), "--batches", "-5"]) == 2
+    assert "batches (each) must be an integer in [1, 10000000], got -5" in \
+        capsys.readouterr().err
+
+
 def test_parse_grad_variants():
     assert parse_grad_variants("remat=tick;remat=nested,unroll_substeps=3;autotune=0;"
                                "llvm=0,ptxas=0") == [

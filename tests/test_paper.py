@@ -235,6 +235,19 @@ def test_render_case_rejects_unknown_case(tmp_path):
             paper.render_case(case, True, tmp_path / "x.gif")
 
 
+def test_render_frames_rejects_bad_sizes_before_rendering():
+    """Checked before any renderer starts, so it holds without EGL too."""
+    import mujoco
+
+    from tkujax import render
+
+    model = mujoco.MjModel.from_xml_string("<mujoco/>")
+    for name, kw in (("width", dict(width=-5)), ("height", dict(height=0)),
+                     ("width", dict(width=480.0))):
+        with pytest.raises(ValueError, match=rf"{name} must be an integer in \[16, 4096\]"):
+            render.render_frames(model, np.zeros((1, 0)), **kw)
+
+
 @pytest.mark.slow          # compiles its own unbatched rollout (~40 s+ on a CPU)
 def test_render_case_writes_gif(tmp_path):
     from tkujax import render

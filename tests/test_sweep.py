@@ -94,6 +94,14 @@ def test_spec_conflicts_and_empty():
         load_spec(ROOT / "sweeps" / "no_such.toml")
 
 
+def test_bad_run_options_name_the_option(tmp_path):
+    """Options of a run (not the spec) are checked before anything runs or is written."""
+    for bad in (0, -1, 1.5, True):
+        with pytest.raises(ValueError, match=rf"max_chunks must be an integer >= 1.*{bad!r}"):
+            run_sweep(TINY, tmp_path / "s", max_chunks=bad, quiet=True)
+    assert not (tmp_path / "s").exists()
+
+
 def test_shipped_specs_expand():
     n = {f.stem: len(load_spec(f).records()["push_id"]) for f in (ROOT / "sweeps").glob("*.toml")
          if not f.stem.startswith(("tune", "calibrate", "convergence"))}   # their own formats

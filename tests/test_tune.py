@@ -359,6 +359,20 @@ def test_warm_up_runs_the_calls_side_by_side_and_returns_what_each_returned():
         warm_up({"ok": lambda: 1, "broken": broken})
 
 
+def test_iterations_override_is_checked_like_the_spec_key(tmp_path):
+    from pathlib import Path
+
+    from tkujax.studies.spec import SpecError
+    from tkujax.studies.tune import run_tune
+
+    for bad in (0, -1, 2.5):
+        with pytest.raises(SpecError, match=r"iterations \(tune.iterations\): expected an "
+                           rf"integer in \[1, 100000\], got {bad!r}"):
+            run_tune(Path(__file__).resolve().parents[1] / "sweeps" / "tune_cpu.toml",
+                     tmp_path / "t", iterations=bad)
+    assert not (tmp_path / "t").exists()
+
+
 class _Counting(_Quadratic):
     """_Quadratic that counts gradient calls, optionally with a gradient pointing the wrong way
     (a first-order gradient blind to what the hard loss does)."""

@@ -340,6 +340,41 @@ def _resumed(out: Path, settings: dict, device_kind: str, versions: dict) -> dic
     return prior
 
 
+MAX_BATCH = 10_000_000
+
+
+def _check_sizes(**sizes) -> None:
+    """The bench's sizes at the edge, before any stage runs: a ValueError names the argument,
+    its allowed range and the value (a batch of -5 or a duration of -1 s would otherwise fail
+    inside a stage, or run nothing)."""
+    def whole(name, v, lo, hi=MAX_BATCH):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not lo <= v <= hi:
+            raise ValueError(f"{name} must be an integer in [{lo}, {hi}], got {v!r}")
+
+    def seconds(name, v, hi):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v <= hi:
+            raise ValueError(f"{name} must be in (0, {hi}] seconds, got {v!r}")
+
+    for name in ("batches", "profile_batches"):
+        for b in sizes[name]:
+            whole(f"{name} (each)", b, 1)
+    for name in ("raw_steps", "repeats", "profile_repeats"):
+        whole(name, sizes[name], 1, 100_000)
+    for name in ("compile_batch", "grad_compile_batch"):
+        whole(name, sizes[name], 0)
+    for name in ("cpu_batch", "grad_batch", "scaling_batch"):     # None or 0: skipped
+        if sizes[name] is not None:
+            whole(name, sizes[name], 0)
+    if sizes["compile_workers"] is not None:
+        whole("compile_workers", sizes["compile_workers"], 1, 256)
+    seconds("duration_s", sizes["duration_s"], 60)
+    seconds("profile_duration_s", sizes["profile_duration_s"], 60)
+    b = sizes["budget_s"]           # 0: every stage skipped (the run's record alone)
+    if b is not None and (isinstance(b, bool) or not isinstance(b, (int, float))
+                          or not 0 <= b <= 1e6):
+        raise ValueError(f"budget_s must be in [0, 1e6] seconds, got {b!r}")
+
+
 def run_bench(out: str | Path, batches=MODES["default"]["batches"], duration_s: float = 1.5,
               raw_steps: int = 300, repeats: int = MODES["default"]["repeats"],
               cpu_batch: int | None = 256, grad_batch: int | None = None,
@@ -359,6 +394,12 @@ def run_bench(out: str | Path, batches=MODES["default"]["batches"], duration_s: 
     written to `out` (JSON) and its .md."""
     from tkujax import bench_profile
 
+    _check_sizes(batches=batches, duration_s=duration_s, raw_steps=raw_steps, repeats=repeats,
+                 cpu_batch=cpu_batch, grad_batch=grad_batch, compile_batch=compile_batch,
+                 scaling_batch=scaling_batch, grad_compile_batch=grad_compile_batch,
+                 profile_batches=profile_batches, profile_duration_s=profile_duration_s,
+                 profile_repeats=profile_repeats, compile_workers=compile_workers,
+                 budget_s=budget_s)
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     if stages is None:

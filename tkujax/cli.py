@@ -215,16 +215,21 @@ def _cmd_bench(args) -> int:
 
     mode = "full" if args.full else "default"
     sizes = dict(MODES[mode])
-    ints = lambda text: tuple(int(b) for b in text.split(",") if b.strip())  # noqa: E731
+    def ints(option: str, text: str) -> tuple[int, ...]:
+        try:
+            return tuple(int(b) for b in text.split(",") if b.strip())
+        except ValueError:
+            raise ValueError(f"{option}: a comma list of integers, got {text!r}") from None
+
     if args.batches is not None:
-        sizes["batches"] = ints(args.batches)
+        sizes["batches"] = ints("--batches", args.batches)
     for key in ("repeats", "cpu_batch", "grad_batch", "compile_batch", "scaling_batch",
                 "grad_compile_batch"):
         if getattr(args, key) is not None:
             sizes[key] = getattr(args, key)
     stages = tuple(x.strip() for x in args.stages.split(",") if x.strip()) if args.stages \
         else None
-    profile_batches = ints(args.profile_batches) if (args.profile or (
+    profile_batches = ints("--profile-batches", args.profile_batches) if (args.profile or (
         stages and "profile" in stages)) else ()
     if args.profile and stages and "profile" not in stages:
         stages = stages + ("profile",)
@@ -232,7 +237,7 @@ def _cmd_bench(args) -> int:
     unrolls = None
     if args.unroll_substeps:
         try:
-            unrolls = ints(args.unroll_substeps)
+            unrolls = ints("--unroll-substeps", args.unroll_substeps)
         except ValueError:
             unrolls = (0,)
         if not unrolls or min(unrolls) < 1:

@@ -41,6 +41,9 @@ def render_frames(model: mujoco.MjModel, qpos_seq: np.ndarray, width: int = 480,
                   height: int = 400, azimuth_deg: float = 215.0,
                   track_xy: bool = True) -> list[np.ndarray]:
     """RGB frames (height, width, 3) uint8 for each row of `qpos_seq` (n, nq)."""
+    for name, v in (("width", width), ("height", height)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 16 <= v <= 4096:
+            raise ValueError(f"{name} must be an integer in [16, 4096] pixels, got {v!r}")
     data = mujoco.MjData(model)
     cam = _camera(azimuth_deg)
     scene_option = mujoco.MjvOption()

@@ -452,6 +452,9 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
     boundary). schedule: a scheduled policy's Schedule (`tkujax.control.io.load_policy_json`),
     applied with `params` in every control-on run; the manifest and the spec hash record it.
     """
+    if max_chunks is not None and (isinstance(max_chunks, bool) or not isinstance(max_chunks, int)
+                                   or max_chunks < 1):
+        raise ValueError(f"max_chunks must be an integer >= 1 (or None: all), got {max_chunks!r}")
     spec = spec if isinstance(spec, SweepSpec) else load_spec(spec)
     if spec.ensemble is not None and model_params is not None:
         raise SpecError("[randomize] ensemble gives the sweep's robots: give either it or a "

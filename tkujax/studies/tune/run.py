@@ -27,8 +27,9 @@ from tkujax.studies.tune.problem import _x64
 from tkujax.studies.tune.policy import save_policy
 from tkujax.studies.tune.report import plot_outputs, summary_markdown
 from tkujax.studies.tune.search import SearchConfig, run_search
-from tkujax.studies.tune.spec import (TuneSpec, ensembles_record, grid_pushes, load_tune_spec,
-                                      make_problem, parse_tune_spec, sample_pushes, shifted)
+from tkujax.studies.tune.spec import (TuneSpec, _int, ensembles_record, grid_pushes,
+                                      load_tune_spec, make_problem, parse_tune_spec,
+                                      sample_pushes, shifted)
 
 # The shifted held-out pushes use evaluate.seed + SHIFT_SEED (as [compare] does for seed 0).
 SHIFT_SEED = 1000
@@ -49,8 +50,9 @@ def run_tune(spec: TuneSpec | dict | str | Path, out_dir: str | Path, quiet: boo
         spec = parse_tune_spec(spec)
     elif not isinstance(spec, TuneSpec):
         spec = load_tune_spec(spec)
-    if iterations is not None:
-        spec = dataclasses.replace(spec, iterations=int(iterations))
+    if iterations is not None:      # checked like the spec's own tune.iterations
+        spec = dataclasses.replace(spec, iterations=_int("iterations (tune.iterations)",
+                                                         iterations, 1, 100_000))
     if spec.study is not None:
         from tkujax.studies.tune.study import run_study
 
