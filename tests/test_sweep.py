@@ -100,6 +100,10 @@ def test_bad_run_options_name_the_option(tmp_path):
         with pytest.raises(ValueError, match=rf"max_chunks must be an integer >= 1.*{bad!r}"):
             run_sweep(TINY, tmp_path / "s", max_chunks=bad, quiet=True)
     assert not (tmp_path / "s").exists()
+    from tkujax.studies.maps import make_maps
+
+    with pytest.raises(FileNotFoundError, match=r"holds no sweep \(manifest.json not found\)"):
+        make_maps(tmp_path)
 
 
 def test_shipped_specs_expand():

@@ -25,7 +25,7 @@ import numpy as np
 
 from tkujax.control.io import controller_params_from_dict
 from tkujax.control.params import ControllerParams
-from tkujax.studies import capturability
+from tkujax.studies import capturability, chunks
 from tkujax.sim.push import onset_phase, peak_on_sample_phase
 from tkujax.studies.spec import PHASE_KEY, parse_spec
 from tkujax.studies.sweep import load
@@ -474,7 +474,9 @@ def make_maps(out_dir: str | Path, params: ControllerParams | None = None) -> di
     import matplotlib.pyplot as plt
 
     out_dir = Path(out_dir)
-    manifest = json.loads((out_dir / "manifest.json").read_text())
+    manifest = chunks.read_manifest(out_dir)
+    if not manifest:
+        raise FileNotFoundError(f"{out_dir} holds no sweep ({chunks.MANIFEST} not found)")
     everything, rec, grid, n_diverged = _records(out_dir, manifest)
     params = params or controller_params_from_dict(
         manifest.get("controller_params", {}), f"{out_dir / 'manifest.json'}: controller_params",
