@@ -271,6 +271,38 @@ def test_replay_reproduces_a_record(reference, tmp_path, capsys):
         assert "rendering is unavailable" in text.err
 
 
+def test_replay_of_an_older_manifest_fills_what_it_lacks_as_the_code_was(reference, tmp_path,
+                                                                        capsys):
+    """A manifest without fields added since (an older tkujax wrote it): the IMU low-pass takes
+    the value from before it existed (none), not today's default, and the replay says which
+    fields it filled, with what."""
+    import shutil
+
+    from tkujax.cli import main
+    from tkujax.model import ModelParams
+    from tkujax.studies.replay import MODEL_FIELDS_BEFORE, model_params_from, replay
+
+    _, out, rec = reference
+    assert replay(out, 0)["fields_missing"] == {}
+    old = tmp_path / "old"
+    shutil.copytree(out, old)
+    manifest = json.loads((old / chunks.MANIFEST).read_text())
+    assert manifest["model_params"]["accel_lowpass_hz"] == ModelParams().accel_lowpass_hz > 0
+    for name in MODEL_FIELDS_BEFORE:
+        del manifest["model_params"][name]
+    del manifest["controller_params"]["stance_ankle_kp"]
+    (old / chunks.MANIFEST).write_text(json.dumps(manifest))
+    assert model_params_from(manifest["model_params"]).accel_lowpass_hz == 0.0
+    i = int(np.flatnonzero(rec["control"])[0])
+    result = replay(old, i)
+    assert result["fields_missing"] == {"model_params.accel_lowpass_hz": 0.0,
+                                        "model_params.gyro_lowpass_hz": 0.0,
+                                        "controller_params.stance_ankle_kp": 0.0}
+    assert not result["identical"]        # the sweep ran with today's 7.5 Hz low-pass
+    assert main(["replay", str(old), "--index", str(i)]) in (0, 1)
+    assert "its manifest lacks 3 field(s)" in capsys.readouterr().out
+
+
 def test_load_as_frame(reference):
     pd = pytest.importorskip("pandas")
     frame = load(reference[1], as_frame=True)

@@ -131,6 +131,11 @@ def _cmd_replay(args) -> int:
               f"rounding in {sorted(result['differences'])}")
     else:
         print(f"replayed outcome DIFFERS from the stored one: {result['differences']}")
+    if result["fields_missing"]:
+        print(f"note: an older tkujax wrote this sweep; its manifest lacks "
+              f"{len(result['fields_missing'])} field(s) of today's model and controller, "
+              f"replayed as {fmt(result['fields_missing'])} (a difference may be the code's "
+              "change since, not the record's fault)")
     if args.out:
         from tkujax import render
 

@@ -17,6 +17,7 @@ layer does not draw).
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -34,13 +35,42 @@ from tkujax.studies.sweep import (OUTCOME_KEYS, chunk_keys, make_chunk_fn, mujoc
 
 RTOL, ATOL = 1e-4, 1e-5     # "identical" numbers; fell and diverged must be equal exactly
 
+# A sweep written by an older tkujax lacks the model fields added since. Such a field takes the
+# value that reproduces the code from before it existed, not today's default: the IMU low-pass
+# filters (session 8) were absent, so the controller read the instantaneous sample (0 = none).
+# A missing controller field takes its default, which is its feature off (stance feedback 0,
+# cp_trigger 0, max_steps 1, ...), as the code was before the field existed.
+MODEL_FIELDS_BEFORE = {"accel_lowpass_hz": 0.0, "gyro_lowpass_hz": 0.0}
+
 
 def model_params_from(d: dict | None) -> ModelParams | None:
     """ModelParams from its manifest form (dataclasses.asdict), validated by the model's JSON
-    loader (tkujax.model.io), or None for the default."""
+    loader (tkujax.model.io), or None for the default. Fields the manifest lacks (an older
+    tkujax wrote it) take MODEL_FIELDS_BEFORE's values, else today's defaults."""
     if not d:
         return None
-    return model_params_from_dict(d, "manifest model_params")
+    before = {k: v for k, v in MODEL_FIELDS_BEFORE.items() if k not in d}
+    return model_params_from_dict(dict(d, **before), "manifest model_params")
+
+
+def fields_missing(manifest: dict) -> dict[str, object]:
+    """{"model_params.FIELD" / "controller_params.FIELD": the value the replay uses} for every
+    field of today's ModelParams and ControllerParams that the manifest does not record: the
+    sweep was written by an older tkujax, and a different outcome may be the code's change
+    since, not a fault of the record."""
+    out: dict[str, object] = {}
+    model = manifest.get("model_params")
+    if model:
+        for f in dataclasses.fields(ModelParams):
+            if f.name not in model:
+                value = MODEL_FIELDS_BEFORE.get(f.name, getattr(ModelParams(), f.name))
+                out[f"model_params.{f.name}"] = value
+    params = manifest.get("controller_params")
+    if params is not None:
+        for f in dataclasses.fields(ControllerParams):
+            if f.name not in params:
+                out[f"controller_params.{f.name}"] = getattr(ControllerParams(), f.name)
+    return out
 
 
 def _stored_record(run_dir: Path, manifest: dict, chunk: int, pos: int) -> dict:
@@ -58,7 +88,8 @@ def replay(run_dir: str | Path, index: int) -> dict:
     Returns dict(index, chunk, backend, stored, replayed (outcome columns), same_outcome
     (fell and diverged equal), identical (every column within RTOL/ATOL), differences
     {column: (stored, replayed)}, qpos (n_ticks, nq), control_period_s, model_params (the
-    record's robot: its ensemble member, or the sweep's model; None: the default))."""
+    record's robot: its ensemble member, or the sweep's model; None: the default),
+    fields_missing (`fields_missing`: what an older manifest lacks, and the value used))."""
     run_dir = Path(run_dir)
     manifest = chunks.read_manifest(run_dir)
     if not manifest:
@@ -122,6 +153,7 @@ def replay(run_dir: str | Path, index: int) -> dict:
                 replayed={k: np.asarray(v).item() for k, v in replayed.items()},
                 same_outcome=not ({"fell", "diverged"} & set(differences)),
                 identical=not differences, differences=differences,
+                fields_missing=fields_missing(manifest),
                 qpos=np.asarray(res["qpos"], np.float64),
                 model_params=(model_params if spec.ensemble is None else
                               spec.ensemble.members[int(stored["robot_id"])]),
