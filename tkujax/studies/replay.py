@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from tkujax.control.io import controller_params_from, controller_params_from_dict
+from tkujax.control.fixed.config import FixedPointConfig
 from tkujax.control.params import ControllerParams
 from tkujax.control.policy import schedule_from_dict
 from tkujax.model import ModelParams
@@ -54,10 +55,12 @@ def model_params_from(d: dict | None) -> ModelParams | None:
 
 
 def fields_missing(manifest: dict) -> dict[str, object]:
-    """{"model_params.FIELD" / "controller_params.FIELD": the value the replay uses} for every
-    field of today's ModelParams and ControllerParams that the manifest does not record: the
-    sweep was written by an older tkujax, and a different outcome may be the code's change
-    since, not a fault of the record."""
+    """{"model_params.FIELD" / "controller_params.FIELD" / "fixed_point_defaults.FIELD": the
+    value the replay uses} for every field of today's ModelParams, ControllerParams and (a
+    fixed-point sweep) FixedPointConfig that the manifest does not record: the sweep was
+    written by an older tkujax, and a different outcome may be the code's change since, not a
+    fault of the record. (A fixed-point field takes today's default: for ik_guard_bits, 4
+    where the code before issue 25 had the equivalent of 0.)"""
     out: dict[str, object] = {}
     model = manifest.get("model_params")
     if model:
@@ -70,6 +73,11 @@ def fields_missing(manifest: dict) -> dict[str, object]:
         for f in dataclasses.fields(ControllerParams):
             if f.name not in params:
                 out[f"controller_params.{f.name}"] = getattr(ControllerParams(), f.name)
+    fixed = manifest.get("fixed_point_defaults")
+    if fixed is not None:     # a fixed-point sweep replays on today's FixedPointConfig defaults
+        for f in dataclasses.fields(FixedPointConfig):
+            if f.name not in fixed:
+                out[f"fixed_point_defaults.{f.name}"] = getattr(FixedPointConfig(), f.name)
     return out
 
 
