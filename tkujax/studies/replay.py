@@ -61,24 +61,16 @@ def fields_missing(manifest: dict) -> dict[str, object]:
     written by an older tkujax, and a different outcome may be the code's change since, not a
     fault of the record. (A fixed-point field takes today's default: for ik_guard_bits, 4
     where the code before issue 25 had the equivalent of 0.)"""
-    out: dict[str, object] = {}
-    model = manifest.get("model_params")
-    if model:
-        for f in dataclasses.fields(ModelParams):
-            if f.name not in model:
-                value = MODEL_FIELDS_BEFORE.get(f.name, getattr(ModelParams(), f.name))
-                out[f"model_params.{f.name}"] = value
-    params = manifest.get("controller_params")
-    if params is not None:
-        for f in dataclasses.fields(ControllerParams):
-            if f.name not in params:
-                out[f"controller_params.{f.name}"] = getattr(ControllerParams(), f.name)
-    fixed = manifest.get("fixed_point_defaults")
-    if fixed is not None:     # a fixed-point sweep replays on today's FixedPointConfig defaults
-        for f in dataclasses.fields(FixedPointConfig):
-            if f.name not in fixed:
-                out[f"fixed_point_defaults.{f.name}"] = getattr(FixedPointConfig(), f.name)
-    return out
+    # (key, what the manifest records, the values the replay uses). model_params_from fills
+    # the model as replay does; None (no model recorded: the default robot) reports nothing.
+    recorded = [("model_params", manifest.get("model_params"),
+                 model_params_from(manifest.get("model_params"))),
+                ("controller_params", manifest.get("controller_params"), ControllerParams()),
+                ("fixed_point_defaults", manifest.get("fixed_point_defaults"),
+                 FixedPointConfig())]
+    return {f"{key}.{f.name}": getattr(used, f.name)
+            for key, fields, used in recorded if fields is not None and used is not None
+            for f in dataclasses.fields(used) if f.name not in fields}
 
 
 def _stored_record(run_dir: Path, manifest: dict, chunk: int, pos: int) -> dict:
