@@ -185,20 +185,28 @@ def parse_grad_variants(text: str) -> list[dict]:
     variant (keys: remat, unroll_ticks, unroll_substeps, autotune, llvm, ptxas; see
     gradient_compile). llvm and ptxas take 0 (their optimisations off) only."""
     out = []
-    keys = ("remat", "unroll_ticks", "unroll_substeps", "autotune", *COMPILE_SPEED_OPTIONS)
+    keys = ("remat", "unroll_ticks", "unroll_substeps", "kinematics", "autotune",
+            *COMPILE_SPEED_OPTIONS)
     for part in filter(None, (p.strip() for p in text.split(";"))):
         v = {}
         for item in filter(None, (i.strip() for i in part.split(","))):
             key, eq, val = item.partition("=")
             if not eq or key not in keys:
                 raise ValueError(f"gradient variant item {item!r}: expected remat=MODE, "
-                                 f"unroll_ticks=K, unroll_substeps=K, autotune=LEVEL, llvm=0 "
+                                 f"unroll_ticks=K, unroll_substeps=K, kinematics=mjx|compact, "
+                                 f"autotune=LEVEL, llvm=0 "
                                  f"or ptxas=0")
             if key == "remat":
                 from tkujax.sim.rollout_mjx import REMAT_MODES
 
                 if val not in REMAT_MODES:
                     raise ValueError(f"remat={val!r}: one of {REMAT_MODES[2:]}")
+                v[key] = val
+            elif key == "kinematics":
+                from tkujax.sim.rollout_mjx import KINEMATICS
+
+                if val not in KINEMATICS:
+                    raise ValueError(f"kinematics={val!r}: one of {KINEMATICS}")
                 v[key] = val
             elif key in COMPILE_SPEED_OPTIONS:
                 if val != "0":

@@ -1,0 +1,175 @@
+"""MJX's forward kinematics in a compact program.
+
+`mjx.forward` starts with `smooth.kinematics`, whose `scan.body_tree` traces its per-body
+function once for every (tree depth, joint signature, parent's signature) group: for TKU-X
+that is half of one physics step's program and of its gradient, and XLA's compile time grows
+with the program (docs/performance.md). `kinematics` computes the same fields with MJX's own
+formulas (`math.rotate`, `quat_mul`, `axis_angle_to_quat`), traced once for all bodies:
+1. each body's pose in its parent's frame, its joints applied in order (joint slots padded to
+   the widest body with zero-angle hinges at the origin: exact identities);
+2. world poses by doubling: a body's pose is composed with its ancestor's, and the ancestor
+   pointer jumps to that ancestor's own, ceil(log2(depth)) passes unrolled (3 for TKU-X),
+   with no loop in the program (a loop over the depth, tried first, ran the GPU gradient
+   step 44 % slower).
+The products are associated differently from MJX's parent-by-parent chain, so the fields agree
+to float rounding, not bit for bit (tests/test_kinematics.py: MuJoCo C to 1e-12 in float64).
+
+Supported joints: hinge and slide anywhere, free as a body's only joint (MuJoCo allows it on
+top-level bodies only). `supports(model)` says whether a model qualifies; `forward` falls back
+to MJX's own kinematics otherwise.
+"""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from mujoco.mjx._src import collision_driver, constraint, math, sensor, smooth, solver, support
+from mujoco.mjx._src import forward as mjx_forward
+
+from .mjx_import import mjx
+
+_FREE, _BALL = int(mujoco.mjtJoint.mjJNT_FREE), int(mujoco.mjtJoint.mjJNT_BALL)
+_SLIDE = int(mujoco.mjtJoint.mjJNT_SLIDE)
+
+
+def supports(model: mjx.Model) -> bool:
+    """Whether `kinematics` handles the model: no ball joint, free joints alone in their body,
+    no mocap body."""
+    types = np.asarray(model.jnt_type)
+    free_bodies = np.asarray(model.jnt_bodyid)[types == _FREE]
+    return (not np.any(types == _BALL) and model.nmocap == 0
+            and bool(np.all(np.asarray(model.body_jntnum)[free_bodies] == 1)))
+
+
+def _layout(model: mjx.Model) -> dict:
+    """Static (numpy) structure: per body and joint slot the joint id (-1: padding), each
+    body's parent, and whether the body's one joint is free."""
+    nbody = model.nbody
+    jntnum, jntadr = np.asarray(model.body_jntnum), np.asarray(model.body_jntadr)
+    types = np.asarray(model.jnt_type)
+    slots = max(1, int(jntnum.max(initial=0)))
+    joint = np.full((nbody, slots), -1, np.int64)
+    for b in range(nbody):
+        joint[b, :jntnum[b]] = jntadr[b] + np.arange(jntnum[b])
+    free_body = np.array([jntnum[b] == 1 and types[jntadr[b]] == _FREE for b in range(nbody)],
+                         dtype=bool)
+    parent = np.asarray(model.body_parentid)
+    return dict(joint=joint, parent=parent, free_body=free_body, types=types)
+
+
+def _compose(pos_a, quat_a, pos_b, quat_b):
+    """Pose a, then pose b in a's frame (MJX's formulas: a body's pose from its parent's)."""
+    return pos_a + math.rotate(pos_b, quat_a), math.quat_mul(quat_a, quat_b)
+
+
+def kinematics(model: mjx.Model, d: mjx.Data) -> mjx.Data:
+    """`mujoco.mjx._src.smooth.kinematics` for a model that `supports` accepts."""
+    lay = _layout(model)
+    joint, parent, types, free = lay["joint"], lay["parent"], lay["types"], lay["free_body"]
+    nbody, slots = joint.shape
+    qadr = np.asarray(model.jnt_qposadr)
+    pad = joint < 0
+    jid = np.where(pad, 0, joint)
+    dtype = d.qpos.dtype
+    z_axis = jnp.array([0.0, 0.0, 1.0], dtype)
+    # Per body and slot: joint position, axis and displacement q - q0 (padding: origin, z, 0).
+    no_q = pad | (types[jid] == _FREE)
+    jnt_pos = jnp.where(pad[..., None], 0.0, model.jnt_pos[jid]).astype(dtype)
+    jnt_axis = jnp.where(pad[..., None], z_axis, model.jnt_axis[jid]).astype(dtype)
+    qslot = np.where(no_q, 0, qadr[jid])
+    disp = jnp.where(no_q, 0.0, d.qpos[qslot] - model.qpos0[qslot])
+    slide = ~pad & (types[jid] == _SLIDE)
+    # A free joint's body pose is its qpos (the quaternion normalised, and written back).
+    fadr = qadr[np.where(free, jid[:, 0], 0)]
+    free_pos = d.qpos[fadr[:, None] + np.arange(3)]
+    free_quat = jax.vmap(math.normalize)(d.qpos[fadr[:, None] + 3 + np.arange(4)])
+
+    def local(bpos, bquat, jpos, jaxis, q, sl, fpos, fquat, is_free):
+        """The body's pose in its parent's frame, and its joints' anchors and axes in it."""
+        pos, quat = bpos, bquat
+        anchors, axes = [], []
+        for s in range(slots):
+            anchor = math.rotate(jpos[s], quat) + pos
+            axis = math.rotate(jaxis[s], quat)
+            anchors.append(anchor)
+            axes.append(axis)
+            hinge_quat = math.quat_mul(quat, math.axis_angle_to_quat(jaxis[s], q[s]))
+            hinge_pos = anchor - math.rotate(jpos[s], hinge_quat)
+            pos = jnp.where(sl[s], pos + axis * q[s], hinge_pos)
+            quat = jnp.where(sl[s], quat, hinge_quat)
+        anchors, axes = jnp.stack(anchors), jnp.stack(axes)
+        anchors = anchors.at[0].set(jnp.where(is_free, fpos, anchors[0]))
+        axes = axes.at[0].set(jnp.where(is_free, z_axis, axes[0]))
+        return jnp.where(is_free, fpos, pos), jnp.where(is_free, fquat, quat), anchors, axes
+
+    pos, quat, anchors, axes = jax.vmap(local)(
+        model.body_pos.astype(dtype), model.body_quat.astype(dtype), jnt_pos, jnt_axis, disp,
+        slide, free_pos, free_quat, free)
+    # World poses by doubling: each pass composes a body's pose (so far relative to `up`) with
+    # that of `up`, then `up` skips to its own `up`; the world (body 0) is the identity, so
+    # ceil(log2(depth)) passes, unrolled, with no loop in the program.
+    rel_pos, rel_quat = pos, quat
+    up = parent.copy()
+    while np.any(up != 0):
+        rel_pos, rel_quat = jax.vmap(_compose)(rel_pos[up], rel_quat[up], rel_pos, rel_quat)
+        up = up[up]
+    xpos, xquat = rel_pos, rel_quat
+    # Joint anchors and axes: from the body's frame into the world by its parent's pose.
+    ppos, pquat = xpos[parent], xquat[parent]
+    xanchor = jax.vmap(jax.vmap(_compose_point, (None, None, 0)))(ppos, pquat, anchors)
+    xaxis = jax.vmap(jax.vmap(math.rotate, (0, None)))(axes, pquat)
+    body_of, slot_of = np.nonzero(~pad)     # row-major: joint ids in order (body_jntadr)
+    xanchor, xaxis = xanchor[body_of, slot_of], xaxis[body_of, slot_of]
+    xmat = jax.vmap(math.quat_to_mat)(xquat)
+    qpos = d.qpos
+    if np.any(free):
+        qpos = qpos.at[fadr[free][:, None] + 3 + np.arange(4)].set(free_quat[free])
+
+    v_local_to_global = jax.vmap(support.local_to_global)
+    xipos, ximat = v_local_to_global(xpos, xquat, model.body_ipos, model.body_iquat)
+    d = d.replace(qpos=qpos, xanchor=xanchor, xaxis=xaxis, xpos=xpos)
+    d = d.replace(xquat=xquat, xmat=xmat, xipos=xipos, ximat=ximat)
+    if model.ngeom:
+        geom_xpos, geom_xmat = v_local_to_global(
+            xpos[model.geom_bodyid], xquat[model.geom_bodyid], model.geom_pos, model.geom_quat)
+        d = d.replace(geom_xpos=geom_xpos, geom_xmat=geom_xmat)
+    if model.nsite:
+        site_xpos, site_xmat = v_local_to_global(
+            xpos[model.site_bodyid], xquat[model.site_bodyid], model.site_pos, model.site_quat)
+        d = d.replace(site_xpos=site_xpos, site_xmat=site_xmat)
+    return d
+
+
+def _compose_point(pos, quat, point):
+    return pos + math.rotate(point, quat)
+
+
+def fwd_position(model: mjx.Model, d: mjx.Data) -> mjx.Data:
+    """`mjx_forward.fwd_position` with `kinematics` in place of MJX's."""
+    d = kinematics(model, d)
+    d = smooth.com_pos(model, d)
+    d = smooth.camlight(model, d)
+    d = smooth.tendon(model, d)
+    d = smooth.crb(model, d)
+    d = smooth.tendon_armature(model, d)
+    d = smooth.factor_m(model, d)
+    d = collision_driver.collision(model, d)
+    d = constraint.make_constraint(model, d)
+    return smooth.transmission(model, d)
+
+
+def forward(model: mjx.Model, d: mjx.Data) -> mjx.Data:
+    """`mjx.forward` with `kinematics` in place of MJX's (MJX's own when `supports` says no)."""
+    if not supports(model):
+        return mjx.forward(model, d)
+    d = fwd_position(model, d)
+    d = sensor.sensor_pos(model, d)
+    d = mjx_forward.fwd_velocity(model, d)
+    d = sensor.sensor_vel(model, d)
+    d = mjx_forward.fwd_actuation(model, d)
+    d = mjx_forward.fwd_acceleration(model, d)
+    if d._impl.efc_J.size == 0:
+        return d.replace(qacc=d.qacc_smooth)
+    d = solver.solve(model, d)
+    return sensor.sensor_acc(model, d)
