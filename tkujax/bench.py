@@ -185,7 +185,7 @@ def parse_grad_variants(text: str) -> list[dict]:
     variant (keys: remat, unroll_ticks, unroll_substeps, autotune, llvm, ptxas; see
     gradient_compile). llvm and ptxas take 0 (their optimisations off) only."""
     out = []
-    keys = ("remat", "unroll_ticks", "unroll_substeps", "kinematics", "autotune",
+    keys = ("remat", "unroll_ticks", "unroll_substeps", "tree_passes", "autotune",
             *COMPILE_SPEED_OPTIONS)
     for part in filter(None, (p.strip() for p in text.split(";"))):
         v = {}
@@ -193,7 +193,7 @@ def parse_grad_variants(text: str) -> list[dict]:
             key, eq, val = item.partition("=")
             if not eq or key not in keys:
                 raise ValueError(f"gradient variant item {item!r}: expected remat=MODE, "
-                                 f"unroll_ticks=K, unroll_substeps=K, kinematics=mjx|compact, "
+                                 f"unroll_ticks=K, unroll_substeps=K, tree_passes=mjx|compact, "
                                  f"autotune=LEVEL, llvm=0 "
                                  f"or ptxas=0")
             if key == "remat":
@@ -202,11 +202,11 @@ def parse_grad_variants(text: str) -> list[dict]:
                 if val not in REMAT_MODES:
                     raise ValueError(f"remat={val!r}: one of {REMAT_MODES[2:]}")
                 v[key] = val
-            elif key == "kinematics":
-                from tkujax.sim.rollout_mjx import KINEMATICS
+            elif key == "tree_passes":
+                from tkujax.sim.rollout_mjx import TREE_PASSES
 
-                if val not in KINEMATICS:
-                    raise ValueError(f"kinematics={val!r}: one of {KINEMATICS}")
+                if val not in TREE_PASSES:
+                    raise ValueError(f"tree_passes={val!r}: one of {TREE_PASSES}")
                 v[key] = val
             elif key in COMPILE_SPEED_OPTIONS:
                 if val != "0":

@@ -525,7 +525,7 @@ def _add_study_commands(sub) -> None:
     p.add_argument("--grad-variants", default=None,
                    help="gradient compile variants, ';'-separated, each a ','-list of "
                         "remat=none|tick|tick_nocse|tick_dots|substep|nested, unroll_ticks=K, "
-                        "unroll_substeps=K, kinematics=mjx|compact, autotune=LEVEL, llvm=0, "
+                        "unroll_substeps=K, tree_passes=mjx|compact, autotune=LEVEL, llvm=0, "
                         "ptxas=0 (the last three "
                         "GPU only; they also time the step); e.g. "
                         "'remat=tick;remat=tick_nocse;remat=nested'")

@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from tkujax.sim import kinematics, physics
+from tkujax.sim import physics, tree_passes
 from tkujax.control.controller import ControllerOutput, StepOverride, controller_init
 from tkujax.control.fixed import (FixedPointConfig, check_supported, controller_init_fx,
                                   servo_switch_substep)
@@ -71,11 +71,12 @@ class RolloutConfig:
     # "flat" (tkujax.studies.sweep.SWEEP_LOOP, with its XLA options: faster at batch 1,024 on
     # a GPU); gradients and `simulate` keep "nested".
     loop: str = "nested"
-    # Forward kinematics inside each physics step (KINEMATICS): "mjx", MJX's own
-    # (`smooth.kinematics`, its per-body function traced once per body group); "level", the
-    # same formulas traced once and looped over the tree's depth (tkujax.sim.kinematics: a
-    # third smaller step program; MJX's own for a model it does not support).
-    kinematics: str = "mjx"
+    # MJX's passes over the body tree inside each physics step (TREE_PASSES): "mjx", MJX's own
+    # (`mjx.forward`); "compact", tkujax.sim.tree_passes: the kinematics, com_vel and rne with
+    # MJX's formulas in a program 41 % smaller (each of MJX's per-body functions is traced once
+    # per body group), equal to float rounding. The tuner runs "compact" (TUNE_TREE_PASSES);
+    # the sweeps keep "mjx", so their committed results replay bit for bit on the same device.
+    tree_passes: str = "mjx"
     # Benchmark-only stand-ins (`tkujax bench --profile`; () everywhere else), each a Python
     # branch at trace time, see ABLATIONS: "noise": no sensor-noise draws; "controller": no
     # controller, the leg targets hold the stand pose; "wrench": no push wrench (xfrc_applied
@@ -88,7 +89,7 @@ _quantise = quantise_targets   # the name the C backend and older code use
 REMAT_MODES = (False, True, "none", "tick", "tick_nocse", "tick_dots", "substep", "nested")
 ABLATIONS = ("noise", "controller", "wrench", "records")
 LOOPS = ("nested", "flat")
-KINEMATICS = ("mjx", "compact")
+TREE_PASSES = ("mjx", "compact")
 
 
 def _checkpoints(remat: bool | str):
@@ -236,9 +237,9 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
                          f"allowed {ABLATIONS}")
     if config.loop not in LOOPS:
         raise ValueError(f"RolloutConfig.loop must be one of {LOOPS}, got {config.loop!r}")
-    if config.kinematics not in KINEMATICS:
-        raise ValueError(f"RolloutConfig.kinematics must be one of {KINEMATICS}, "
-                         f"got {config.kinematics!r}")
+    if config.tree_passes not in TREE_PASSES:
+        raise ValueError(f"RolloutConfig.tree_passes must be one of {TREE_PASSES}, "
+                         f"got {config.tree_passes!r}")
     wrap_tick, wrap_substep = _checkpoints(config.remat)
     scan_substeps = functools.partial(jax.lax.scan, unroll=config.unroll_substeps)
 
@@ -257,7 +258,7 @@ def rollout(model: mjx.Model, state: mjx.Data, push: Push, params: ControllerPar
     # (physics.touch_sensordata): on an H100 at batch 1,024, stepping that computes every
     # sensor ran 15 % slower than stepping that computes none.
     lean_model = physics.without_sensors(model)
-    forward = kinematics.forward if config.kinematics == "compact" else mjx.forward
+    forward = tree_passes.forward if config.tree_passes == "compact" else mjx.forward
     if model.opt.integrator != mujoco.mjtIntegrator.mjINT_EULER:
         raise ValueError(f"the MJX rollout steps with the Euler integrator; the model has "
                          f"integrator {model.opt.integrator}")

@@ -51,12 +51,13 @@ def _x64(enabled: bool):
 # step 2.98 s vs 4.63 s, peak memory 1.55 vs 2.93 GB, the cold compile 103 s vs 124 s; the
 # gradient is the same function (checkpointing changes what is stored, not the values).
 TUNE_REMAT = "substep"
-# The tuner's physics steps run tkujax.sim.kinematics (RolloutConfig.kinematics="compact"):
-# MJX's formulas, each body's pose composed with its ancestors' by doubling, in a program a
-# third smaller than MJX's kinematics. On one H200 at batch 256 x 1.5 s the gradient's cold
-# compile took 0.67x MJX's (results/bench/README.md, session 16); the values agree with MJX's
-# to float rounding, so a tuner loss differs from a sweep's by rounding, not by model.
-TUNE_KINEMATICS = "compact"
+# The tuner's physics steps run tkujax.sim.tree_passes (RolloutConfig.tree_passes="compact"):
+# MJX's kinematics, com_vel and rne with MJX's formulas, equal to float rounding, in a program
+# that XLA compiles in about half the time. On one H200 at batch 256 x 1.5 s the gradient's cold
+# compile took 41.0 s against 76.9 s with MJX's passes, and its step at 1,024 ran 2.32 s
+# against 2.65 s (results/bench/README.md, session 16). A tuner loss so differs from a sweep's
+# by rounding, not by model.
+TUNE_TREE_PASSES = "compact"
 
 
 class TuneProblem:
@@ -87,12 +88,12 @@ class TuneProblem:
         self.reparam, self.base, self.loss_cfg = reparam, base, loss_cfg
         self.float64 = float64
         # rollout_options: further static RolloutConfig fields (unroll_ticks, unroll_substeps,
-        # kinematics; remat may be a RolloutConfig remat mode): `tkujax bench --grad-variants`.
+        # tree_passes; remat may be a RolloutConfig remat mode): `tkujax bench --grad-variants`.
         # remat=True (tune.remat) checkpoints each physics substep (TUNE_REMAT).
         self.config = RolloutConfig(duration_s=duration_s,
                                     remat=TUNE_REMAT if remat is True else remat,
                                     quantise_targets=quantise_targets,
-                                    **{"kinematics": TUNE_KINEMATICS, **(rollout_options or {})})
+                                    **{"tree_passes": TUNE_TREE_PASSES, **(rollout_options or {})})
         self.robots = robots
         if robots is None:
             host, self.model, self.index, self.state = init(model_params, float64=float64)

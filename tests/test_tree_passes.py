@@ -1,4 +1,4 @@
-"""tkujax.sim.kinematics: MJX's forward kinematics in a compact program (the tuner's).
+"""tkujax.sim.tree_passes: MJX's tree passes in a compact program (the tuner's).
 
 References: MuJoCo C's own kinematics (mj_kinematics, float64) for TKU-X away from its stand
 pose and for a small model with every supported joint layout (a floating base, a body with two
@@ -14,7 +14,7 @@ import pytest
 from mujoco.mjx._src import smooth
 
 from tkujax.control.params import ControllerParams
-from tkujax.sim import kinematics, physics
+from tkujax.sim import physics, tree_passes
 from tkujax.sim import rollout_mjx as sim
 from tkujax.sim.mjx_import import mjx
 from tkujax.sim.push import make_push, stack_pushes
@@ -78,9 +78,9 @@ def test_compact_kinematics_is_mujocos_in_float64(which):
         host = mujoco.MjModel.from_xml_string(LAYOUTS)
     with jax.enable_x64(True):
         model = mjx.put_model(host)
-        assert kinematics.supports(model)
+        assert tree_passes.supports(model)
         data = mjx.make_data(model)
-        ours_fn = jax.jit(lambda q: kinematics.kinematics(model, data.replace(qpos=q)))
+        ours_fn = jax.jit(lambda q: tree_passes.kinematics(model, data.replace(qpos=q)))
         mjx_fn = jax.jit(lambda q: smooth.kinematics(model, data.replace(qpos=q)))
         for seed in range(3):
             qpos = _random_qpos(host, seed)
@@ -91,6 +91,32 @@ def test_compact_kinematics_is_mujocos_in_float64(which):
             # MJX writes free joints' normalised quaternions back into qpos (MuJoCo C does not).
             np.testing.assert_allclose(np.asarray(ours.qpos),
                                        np.asarray(mjx_fn(jnp.asarray(qpos)).qpos), atol=1e-15)
+
+
+@pytest.mark.parametrize("which", ["tkux", "layouts"])
+def test_compact_velocity_passes_are_mujocos_in_float64(which):
+    """com_vel (cvel, cdof_dot) and rne (qfrc_bias) from sums over the tree's matrices,
+    against MuJoCo C's mj_forward, the model moving in every dof."""
+    host = init()[0] if which == "tkux" else mujoco.MjModel.from_xml_string(LAYOUTS)
+    rng = np.random.default_rng(3)
+    with jax.enable_x64(True):
+        model = mjx.put_model(host)
+        data = mjx.make_data(model)
+
+        @jax.jit
+        def run(q, v):
+            d = tree_passes.fwd_position(model, data.replace(qpos=q, qvel=v))
+            return tree_passes.rne(model, tree_passes.com_vel(model, d))
+
+        for _ in range(2):
+            qpos, qvel = _random_qpos(host, 5), rng.normal(0.0, 1.0, host.nv)
+            ref = mujoco.MjData(host)
+            ref.qpos[:], ref.qvel[:] = qpos, qvel
+            mujoco.mj_forward(host, ref)
+            ours = run(jnp.asarray(qpos), jnp.asarray(qvel))
+            for f in ("cvel", "cdof_dot", "qfrc_bias"):
+                np.testing.assert_allclose(np.asarray(getattr(ours, f)), getattr(ref, f),
+                                           atol=1e-10, err_msg=f)
 
 
 @pytest.fixture(scope="module")
@@ -111,7 +137,7 @@ def test_compact_kinematics_matches_mjx_and_its_gradient(tkux32):
             return sum(jnp.sum(weights[k] * getattr(d, k)) for k in FIELDS)
         return jax.jit(jax.value_and_grad(f))
 
-    (v_ours, g_ours), (v_mjx, g_mjx) = loss(kinematics.kinematics)(state.qpos), \
+    (v_ours, g_ours), (v_mjx, g_mjx) = loss(tree_passes.kinematics)(state.qpos), \
         loss(smooth.kinematics)(state.qpos)
     np.testing.assert_allclose(v_ours, v_mjx, rtol=1e-5)
     np.testing.assert_allclose(g_ours, g_mjx, rtol=1e-4, atol=1e-4 * float(jnp.max(
@@ -126,7 +152,7 @@ def test_compact_program_is_smaller_than_mjxs(tkux32):
         return len(jax.jit(lambda q: fn(model, state.replace(qpos=q)).xpos).lower(
             state.qpos).as_text())
 
-    assert size(kinematics.kinematics) < 0.5 * size(smooth.kinematics)
+    assert size(tree_passes.kinematics) < 0.5 * size(smooth.kinematics)
 
 
 def test_unsupported_model_falls_back_to_mjx():
@@ -134,16 +160,16 @@ def test_unsupported_model_falls_back_to_mjx():
 <mujoco><worldbody><body><joint type="ball"/><geom size=".1" mass="1"/></body></worldbody>
 </mujoco>""")
     model = mjx.put_model(host)
-    assert not kinematics.supports(model)
+    assert not tree_passes.supports(model)
     d = mjx.make_data(model).replace(qpos=jnp.array([0.9, 0.1, 0.2, 0.3]))
-    ours, ref = kinematics.forward(model, d), mjx.forward(model, d)
+    ours, ref = tree_passes.forward(model, d), mjx.forward(model, d)
     np.testing.assert_array_equal(np.asarray(ours.xquat), np.asarray(ref.xquat))
 
 
 def test_paper_cases_with_compact_kinematics_keep_their_outcomes():
     """The paper's eight ball pushes (`tkujax paper`, 2.4 s each): MJX's kinematics and the
     compact one give the same falls, and inclinations within float32 rounding's growth."""
-    ours = run_cases(config=sim.RolloutConfig(kinematics="compact"))
+    ours = run_cases(config=sim.RolloutConfig(tree_passes="compact"))
     ref = run_cases()
     np.testing.assert_array_equal(ours[2]["fell"], ref[2]["fell"])
     np.testing.assert_allclose(ours[2]["peak_incl_deg"], ref[2]["peak_incl_deg"], rtol=0.02)
@@ -151,10 +177,10 @@ def test_paper_cases_with_compact_kinematics_keep_their_outcomes():
 
 def test_unknown_kinematics_is_named():
     pushes = stack_pushes([make_push(1.0)])
-    with pytest.raises(ValueError, match="RolloutConfig.kinematics.*'fast'"):
+    with pytest.raises(ValueError, match="RolloutConfig.tree_passes.*'fast'"):
         sim.simulate(pushes, np.ones(1, np.float32), ControllerParams.paper(),
-                     config=sim.RolloutConfig(kinematics="fast"))
+                     config=sim.RolloutConfig(tree_passes="fast"))
 
 
 def test_physics_without_sensors_supports_compact():
-    assert kinematics.supports(physics.without_sensors(init()[1]))
+    assert tree_passes.supports(physics.without_sensors(init()[1]))

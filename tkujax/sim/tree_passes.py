@@ -1,22 +1,26 @@
-"""MJX's forward kinematics in a compact program.
+"""MJX's passes over the body tree (kinematics, com_vel, rne) in a compact program.
 
-`mjx.forward` starts with `smooth.kinematics`, whose `scan.body_tree` traces its per-body
-function once for every (tree depth, joint signature, parent's signature) group: for TKU-X
-that is half of one physics step's program and of its gradient, and XLA's compile time grows
-with the program (docs/performance.md). `kinematics` computes the same fields with MJX's own
-formulas (`math.rotate`, `quat_mul`, `axis_angle_to_quat`), traced once for all bodies:
-1. each body's pose in its parent's frame, its joints applied in order (joint slots padded to
-   the widest body with zero-angle hinges at the origin: exact identities);
-2. world poses by doubling: a body's pose is composed with its ancestor's, and the ancestor
-   pointer jumps to that ancestor's own, ceil(log2(depth)) passes unrolled (3 for TKU-X),
-   with no loop in the program (a loop over the depth, tried first, ran the GPU gradient
-   step 44 % slower).
-The products are associated differently from MJX's parent-by-parent chain, so the fields agree
-to float rounding, not bit for bit (tests/test_kinematics.py: MuJoCo C to 1e-12 in float64).
+`mjx.forward` runs these through `scan.body_tree`, which traces its per-body function once for
+every (tree depth, joint signature, parent's signature) group: 11 groups for TKU-X's
+kinematics, 11 for com_vel and 10 for rne's accelerations. Together that was over half of one
+physics step's program and of its gradient, and XLA's compile time grows with the program
+(docs/performance.md). Here the same fields come from MJX's own formulas (`math.rotate`,
+`quat_mul`, `axis_angle_to_quat`, `motion_cross`, `inert_mul`), traced once for all bodies:
+- kinematics: each body's pose in its parent's frame, its joints applied in order (joint slots
+  padded to the widest body with zero-angle hinges at the origin: exact identities); then world
+  poses by doubling: a body's pose is composed with its ancestor's and the ancestor pointer
+  jumps to that ancestor's own, ceil(log2(depth)) passes unrolled (3 for TKU-X), with no loop
+  in the program (a loop over the depth, tried first, ran the GPU gradient step 44 % slower);
+- com_vel and rne: the tree's sums (velocities and accelerations down from the world, forces
+  up from the leaves) as products with static 0/1 matrices (`_tree_sums`).
+Sums and products are associated differently from MJX's parent-by-parent chain, so the fields
+agree to float rounding, not bit for bit (tests/test_tree_passes.py: MuJoCo C to 1e-12 and
+1e-10 in float64). On one H200 the tuning gradient's cold compile takes 41.0 s against 76.9 s
+with MJX's passes (results/bench/README.md, session 16).
 
 Supported joints: hinge and slide anywhere, free as a body's only joint (MuJoCo allows it on
 top-level bodies only). `supports(model)` says whether a model qualifies; `forward` falls back
-to MJX's own kinematics otherwise.
+to `mjx.forward` otherwise.
 """
 from __future__ import annotations
 
@@ -24,7 +28,8 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from mujoco.mjx._src import collision_driver, constraint, math, sensor, smooth, solver, support
+from mujoco.mjx._src import (collision_driver, constraint, math, passive, sensor, smooth,
+                             solver, support)
 from mujoco.mjx._src import forward as mjx_forward
 
 from .mjx_import import mjx
@@ -145,6 +150,82 @@ def _compose_point(pos, quat, point):
     return pos + math.rotate(point, quat)
 
 
+def _tree_sums(model: mjx.Model) -> dict:
+    """Static (numpy) 0/1 matrices of the tree's sums:
+    to_body[b, j]: dof j moves body b (its body is b or an ancestor of b);
+    before[i, j]: dof j comes before dof i on the way from the world (an ancestor body's, an
+      earlier joint of the same body, or a free joint's translation before its rotation);
+    subtree[b, c]: body c is in b's subtree."""
+    nbody, nv = model.nbody, model.nv
+    parent = np.asarray(model.body_parentid)
+    dof_body, dof_jnt = np.asarray(model.dof_bodyid), np.asarray(model.dof_jntid)
+    types = np.asarray(model.jnt_type)
+    anc = np.zeros((nbody, nbody), bool)          # anc[b, c]: c is b or an ancestor of b
+    for b in range(nbody):
+        c = b
+        while True:
+            anc[b, c] = True
+            if c == 0:
+                break
+            c = parent[c]
+    to_body = anc[:, dof_body]
+    strict = anc & ~np.eye(nbody, dtype=bool)
+    jadr = np.asarray(model.jnt_dofadr)
+    free_rot = np.array([types[dof_jnt[i]] == _FREE and i - jadr[dof_jnt[i]] >= 3
+                         for i in range(nv)], bool)
+    before = (strict[dof_body][:, dof_body]
+              | ((dof_body[:, None] == dof_body[None, :]) & (dof_jnt[None, :] < dof_jnt[:, None]))
+              | (free_rot[:, None] & (dof_jnt[:, None] == dof_jnt[None, :])
+                 & (np.arange(nv)[None, :] < jadr[dof_jnt][:, None] + 3)))
+    free_trans = np.array([types[dof_jnt[i]] == _FREE and i - jadr[dof_jnt[i]] < 3
+                           for i in range(nv)], bool)
+    return dict(to_body=to_body, before=before, subtree=anc.T, free_trans=free_trans)
+
+
+def com_vel(model: mjx.Model, d: mjx.Data) -> mjx.Data:
+    """`mujoco.mjx._src.smooth.com_vel` (cvel, cdof_dot) as sums over the tree's static
+    matrices (`_tree_sums`) instead of a scan over body groups."""
+    t = _tree_sums(model)
+    dtype = d.qvel.dtype
+    moved = d.cdof * d.qvel[:, None]                       # each dof's velocity, (nv, 6)
+    cvel = jnp.asarray(t["to_body"], dtype) @ moved
+    vel_before = jnp.asarray(t["before"], dtype) @ moved
+    cdof_dot = jax.vmap(math.motion_cross)(vel_before, d.cdof)
+    cdof_dot = jnp.where(t["free_trans"][:, None], 0.0, cdof_dot)
+    return d.replace(cvel=cvel, cdof_dot=cdof_dot)
+
+
+def rne(model: mjx.Model, d: mjx.Data) -> mjx.Data:
+    """`mujoco.mjx._src.smooth.rne` (flg_acc=False: the bias forces qfrc_bias) with its two
+    tree scans as sums over static matrices."""
+    t = _tree_sums(model)
+    dtype = d.qvel.dtype
+    if model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_GRAVITY:
+        cacc0 = jnp.zeros(6, dtype)
+    else:
+        cacc0 = jnp.concatenate((jnp.zeros(3, dtype), -model.opt.gravity.astype(dtype)))
+    cacc = cacc0 + jnp.asarray(t["to_body"], dtype) @ (d.cdof_dot * d.qvel[:, None])
+
+    def frc(cinert, cacc, cvel):
+        f = math.inert_mul(cinert, cacc)
+        return f + math.motion_cross_force(cvel, math.inert_mul(cinert, cvel))
+
+    loc_cfrc = jax.vmap(frc)(d._impl.cinert, cacc, d.cvel)
+    cfrc = jnp.asarray(t["subtree"], dtype) @ loc_cfrc
+    qfrc_bias = jax.vmap(jnp.dot)(d.cdof, cfrc[np.asarray(model.dof_bodyid)])
+    return d.replace(qfrc_bias=qfrc_bias)
+
+
+def fwd_velocity(model: mjx.Model, d: mjx.Data) -> mjx.Data:
+    """`mjx_forward.fwd_velocity` with `com_vel` and `rne` in place of MJX's."""
+    d = d.tree_replace({"_impl.actuator_velocity": d._impl.actuator_moment @ d.qvel,
+                        "_impl.ten_velocity": d._impl.ten_J @ d.qvel})
+    d = com_vel(model, d)
+    d = passive.passive(model, d)
+    d = rne(model, d)
+    return smooth.tendon_bias(model, d)
+
+
 def fwd_position(model: mjx.Model, d: mjx.Data) -> mjx.Data:
     """`mjx_forward.fwd_position` with `kinematics` in place of MJX's."""
     d = kinematics(model, d)
@@ -160,12 +241,13 @@ def fwd_position(model: mjx.Model, d: mjx.Data) -> mjx.Data:
 
 
 def forward(model: mjx.Model, d: mjx.Data) -> mjx.Data:
-    """`mjx.forward` with `kinematics` in place of MJX's (MJX's own when `supports` says no)."""
+    """`mjx.forward` with `kinematics`, `com_vel` and `rne` in place of MJX's (`mjx.forward`
+    itself when `supports` says no)."""
     if not supports(model):
         return mjx.forward(model, d)
     d = fwd_position(model, d)
     d = sensor.sensor_pos(model, d)
-    d = mjx_forward.fwd_velocity(model, d)
+    d = fwd_velocity(model, d)
     d = sensor.sensor_vel(model, d)
     d = mjx_forward.fwd_actuation(model, d)
     d = mjx_forward.fwd_acceleration(model, d)

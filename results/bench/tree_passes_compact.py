@@ -1,19 +1,23 @@
-"""MJX's kinematics against tkujax.sim.kinematics (each body's pose in its parent's frame, then
-world poses by doubling: a program without MJX's per-body-group copies), in the tuner's gradient
-and in the sweeps' closed loop (session 16). h200_kinematics_loop.jsonl holds the first design's
-rows ("level": the same formulas in a loop over the tree's depth), run with this script before
-its rename.
+"""MJX's tree passes against tkujax.sim.tree_passes (RolloutConfig.tree_passes), in the tuner's
+gradient and in the sweeps' closed loop (session 16).
 
-  python results/bench/kinematics_compact.py grad KIN BATCH DURATION OUT.jsonl
-  python results/bench/kinematics_compact.py fwd KIN BATCHES DURATION OUT.jsonl
+  python results/bench/tree_passes_compact.py grad PASSES BATCH DURATION OUT.jsonl
+  python results/bench/tree_passes_compact.py fwd PASSES BATCHES DURATION OUT.jsonl
 
-KIN: mjx or compact (RolloutConfig.kinematics). One program per process, into an empty
-persistent cache.
+PASSES: mjx or compact. One program per process, into an empty persistent cache.
   grad: the tuning gradient's cold compile (trace + lower, and XLA), its StableHLO size, and
         the compiled gradient's median step time (3 calls).
   fwd:  the sweeps' closed-loop chunk (the paper's controller) at each batch of BATCHES
         (comma list): cold compile and the median of 2 timed runs, and raw MJX steps holding
-        the stand targets (mjx.step, MJX's own kinematics) beside it.
+        the stand targets (mjx.step, MJX's own passes) beside it.
+
+The committed rows were run as the module grew (the `kinematics` key of each row names the
+RolloutConfig field then, `tree_passes` now):
+  h200_kinematics_loop.jsonl: the first design, kinematics alone in a loop over the tree's
+      depth ("level");
+  h200_tree_passes_compact.jsonl: kinematics alone by doubling ("compact": the gradient row
+      and the next two), MJX's passes on the same machine (the two "mjx" rows), then
+      kinematics, com_vel and rne (the last row: fwd at 1,024, another machine start).
 """
 import dataclasses
 import json
@@ -31,19 +35,19 @@ from tkujax.studies.compile_cache import fresh_compilation_cache
 def grad(kin: str, batch: int, duration_s: float) -> list[dict]:
     from tkujax.studies.tune.benchmark import gradient_compile_times
 
-    row = gradient_compile_times(batch, duration_s, rollout_options=dict(kinematics=kin),
+    row = gradient_compile_times(batch, duration_s, rollout_options=dict(tree_passes=kin),
                                  cached=False, step_repeats=3)
     return [row]
 
 
 def fwd(kin: str, batches: list[int], duration_s: float) -> list[dict]:
-    # The sweeps build RolloutConfig(...) with the fields they set; the kinematics rides in as
-    # this module's default for the run.
+    # The sweeps build RolloutConfig(...) with the fields they set; the passes ride in as this
+    # class's default for the run.
     base = rollout_mjx.RolloutConfig
 
     @dataclasses.dataclass(frozen=True)
     class Config(base):
-        kinematics: str = kin
+        tree_passes: str = kin
 
     sweep.RolloutConfig = Config
     rows = []
@@ -74,7 +78,7 @@ def main() -> None:
         raise SystemExit(f"grad or fwd, got {what!r}")
     with open(out, "a") as f:
         for r in rows:
-            r = dict(r, what=what, kinematics=kin, device=str(jax.devices()[0].device_kind),
+            r = dict(r, what=what, tree_passes=kin, device=str(jax.devices()[0].device_kind),
                      wall_s=round(time.perf_counter() - t0, 1))
             print(json.dumps(r), flush=True)
             f.write(json.dumps(r) + "\n")
