@@ -144,6 +144,25 @@ def test_compact_kinematics_matches_mjx_and_its_gradient(tkux32):
         jnp.abs(g_mjx))))
 
 
+def test_compact_forward_is_mjx_forward(tkux32):
+    """Every float field `mjx.forward` writes, against `tree_passes.forward` on a moving
+    TKU-X: a stage MJX adds to its forward in a later version shows up here."""
+    host, model, state = tkux32
+    lean = physics.without_sensors(model)
+    rng = np.random.default_rng(2)
+    state = state.replace(qvel=jnp.asarray(rng.normal(0.0, 1.0, host.nv), jnp.float32))
+    ours = jax.jit(lambda d: tree_passes.forward(lean, d))(state)
+    ref = jax.jit(lambda d: mjx.forward(lean, d))(state)
+    leaves = jax.tree_util.tree_leaves_with_path(ref)
+    ours_leaves = jax.tree_util.tree_leaves(ours)
+    assert len(leaves) == len(ours_leaves)
+    for (path, r), o in zip(leaves, ours_leaves):
+        if jnp.issubdtype(r.dtype, jnp.floating) and r.size:
+            scale = 1.0 + float(jnp.max(jnp.abs(r)))
+            np.testing.assert_allclose(np.asarray(o), np.asarray(r), rtol=0,
+                                       atol=2e-4 * scale, err_msg=jax.tree_util.keystr(path))
+
+
 def test_compact_program_is_smaller_than_mjxs(tkux32):
     """What the module is for: one lowered kinematics at most half MJX's size."""
     _, model, state = tkux32
