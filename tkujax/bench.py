@@ -182,7 +182,7 @@ COMPILE_SPEED_OPTIONS = {
 
 def parse_grad_variants(text: str) -> list[dict]:
     """"remat=tick;remat=nested,unroll_substeps=3;autotune=0;llvm=0,ptxas=0" -> one dict per
-    variant (keys: remat, unroll_ticks, unroll_substeps, autotune, llvm, ptxas; see
+    variant (keys: remat, unroll_ticks, unroll_substeps, tree_passes, autotune, llvm, ptxas; see
     gradient_compile). llvm and ptxas take 0 (their optimisations off) only."""
     out = []
     keys = ("remat", "unroll_ticks", "unroll_substeps", "tree_passes", "autotune",
