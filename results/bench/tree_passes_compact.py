@@ -17,7 +17,9 @@ RolloutConfig field then, `tree_passes` now):
       depth ("level");
   h200_tree_passes_compact.jsonl: kinematics alone by doubling ("compact": the gradient row
       and the next two), MJX's passes on the same machine (the two "mjx" rows), then
-      kinematics, com_vel and rne (the last row: fwd at 1,024, another machine start).
+      kinematics, com_vel and rne with the tree's sums as 0/1 matrix products (the next two
+      rows: fwd at 1,024, and at 65,536 on another start), then as gathers and sums (the last
+      two rows, the code now, a third start).
 """
 import dataclasses
 import json

@@ -12,7 +12,7 @@ physics step's program and of its gradient, and XLA's compile time grows with th
   jumps to that ancestor's own, ceil(log2(depth)) passes unrolled (3 for TKU-X), with no loop
   in the program (a loop over the depth, tried first, ran the GPU gradient step 44 % slower);
 - com_vel and rne: the tree's sums (velocities and accelerations down from the world, forces
-  up from the leaves) as products with static 0/1 matrices (`_tree_sums`).
+  up from the leaves) as gathers and sums over static index lists (`_tree_sums`).
 Sums and products are associated differently from MJX's parent-by-parent chain, so the fields
 agree to float rounding, not bit for bit (tests/test_tree_passes.py: MuJoCo C to 1e-12 and
 1e-10 in float64). On one H200 the tuning gradient's cold compile takes 41.0 s against 76.9 s
@@ -182,14 +182,26 @@ def _tree_sums(model: mjx.Model) -> dict:
     return dict(to_body=to_body, before=before, subtree=anc.T, free_trans=free_trans)
 
 
+def _masked_sum(mask: np.ndarray, x: jax.Array) -> jax.Array:
+    """mask @ x for a static 0/1 matrix `mask` (rows, n), as a gather of each row's entries
+    and a sum: exact float additions (a matrix product may run in TF32 on a GPU) and no GEMM
+    call for these tiny sizes."""
+    width = max(1, int(mask.sum(axis=1).max(initial=0)))
+    idx = np.full((mask.shape[0], width), mask.shape[1])       # padding: the zero row below
+    for r, row in enumerate(mask):
+        cols = np.nonzero(row)[0]
+        idx[r, :len(cols)] = cols
+    padded = jnp.concatenate((x, jnp.zeros((1,) + x.shape[1:], x.dtype)))
+    return padded[idx].sum(axis=1)
+
+
 def com_vel(model: mjx.Model, d: mjx.Data) -> mjx.Data:
     """`mujoco.mjx._src.smooth.com_vel` (cvel, cdof_dot) as sums over the tree's static
-    matrices (`_tree_sums`) instead of a scan over body groups."""
+    index lists (`_tree_sums`) instead of a scan over body groups."""
     t = _tree_sums(model)
-    dtype = d.qvel.dtype
     moved = d.cdof * d.qvel[:, None]                       # each dof's velocity, (nv, 6)
-    cvel = jnp.asarray(t["to_body"], dtype) @ moved
-    vel_before = jnp.asarray(t["before"], dtype) @ moved
+    cvel = _masked_sum(t["to_body"], moved)
+    vel_before = _masked_sum(t["before"], moved)
     cdof_dot = jax.vmap(math.motion_cross)(vel_before, d.cdof)
     cdof_dot = jnp.where(t["free_trans"][:, None], 0.0, cdof_dot)
     return d.replace(cvel=cvel, cdof_dot=cdof_dot)
@@ -197,21 +209,21 @@ def com_vel(model: mjx.Model, d: mjx.Data) -> mjx.Data:
 
 def rne(model: mjx.Model, d: mjx.Data) -> mjx.Data:
     """`mujoco.mjx._src.smooth.rne` (flg_acc=False: the bias forces qfrc_bias) with its two
-    tree scans as sums over static matrices."""
+    tree scans as sums over static index lists."""
     t = _tree_sums(model)
     dtype = d.qvel.dtype
     if model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_GRAVITY:
         cacc0 = jnp.zeros(6, dtype)
     else:
         cacc0 = jnp.concatenate((jnp.zeros(3, dtype), -model.opt.gravity.astype(dtype)))
-    cacc = cacc0 + jnp.asarray(t["to_body"], dtype) @ (d.cdof_dot * d.qvel[:, None])
+    cacc = cacc0 + _masked_sum(t["to_body"], d.cdof_dot * d.qvel[:, None])
 
     def frc(cinert, cacc, cvel):
         f = math.inert_mul(cinert, cacc)
         return f + math.motion_cross_force(cvel, math.inert_mul(cinert, cvel))
 
     loc_cfrc = jax.vmap(frc)(d._impl.cinert, cacc, d.cvel)
-    cfrc = jnp.asarray(t["subtree"], dtype) @ loc_cfrc
+    cfrc = _masked_sum(t["subtree"], loc_cfrc)
     qfrc_bias = jax.vmap(jnp.dot)(d.cdof, cfrc[np.asarray(model.dof_bodyid)])
     return d.replace(qfrc_bias=qfrc_bias)
 
