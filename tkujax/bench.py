@@ -184,9 +184,13 @@ def parse_grad_variants(text: str) -> list[dict]:
     """"remat=tick;remat=nested,unroll_substeps=3;autotune=0;llvm=0,ptxas=0" -> one dict per
     variant (keys: remat, unroll_ticks, unroll_substeps, tree_passes, autotune, llvm, ptxas; see
     gradient_compile). llvm and ptxas take 0 (their optimisations off) only."""
+    from tkujax.sim.rollout_mjx import REMAT_MODES, TREE_PASSES
+
     out = []
     keys = ("remat", "unroll_ticks", "unroll_substeps", "tree_passes", "autotune",
             *COMPILE_SPEED_OPTIONS)
+    # Keys that name one of a RolloutConfig field's string modes (remat's booleans left out).
+    choices = {"remat": REMAT_MODES[2:], "tree_passes": TREE_PASSES}
     for part in filter(None, (p.strip() for p in text.split(";"))):
         v = {}
         for item in filter(None, (i.strip() for i in part.split(","))):
@@ -196,17 +200,9 @@ def parse_grad_variants(text: str) -> list[dict]:
                                  f"unroll_ticks=K, unroll_substeps=K, tree_passes=mjx|compact, "
                                  f"autotune=LEVEL, llvm=0 "
                                  f"or ptxas=0")
-            if key == "remat":
-                from tkujax.sim.rollout_mjx import REMAT_MODES
-
-                if val not in REMAT_MODES:
-                    raise ValueError(f"remat={val!r}: one of {REMAT_MODES[2:]}")
-                v[key] = val
-            elif key == "tree_passes":
-                from tkujax.sim.rollout_mjx import TREE_PASSES
-
-                if val not in TREE_PASSES:
-                    raise ValueError(f"tree_passes={val!r}: one of {TREE_PASSES}")
+            if key in choices:
+                if val not in choices[key]:
+                    raise ValueError(f"{key}={val!r}: one of {choices[key]}")
                 v[key] = val
             elif key in COMPILE_SPEED_OPTIONS:
                 if val != "0":
