@@ -47,20 +47,13 @@ def supports(model: mjx.Model) -> bool:
             and bool(np.all(np.asarray(model.body_jntnum)[free_bodies] == 1)))
 
 
-def _layout(model: mjx.Model) -> dict:
-    """Static (numpy) structure: per body and joint slot the joint id (-1: padding), each
-    body's parent, and whether the body's one joint is free."""
-    nbody = model.nbody
+def _joint_slots(model: mjx.Model) -> np.ndarray:
+    """Static (nbody, widest body's joint count) joint ids per body and slot, -1: padding."""
     jntnum, jntadr = np.asarray(model.body_jntnum), np.asarray(model.body_jntadr)
-    types = np.asarray(model.jnt_type)
-    slots = max(1, int(jntnum.max(initial=0)))
-    joint = np.full((nbody, slots), -1, np.int64)
-    for b in range(nbody):
+    joint = np.full((model.nbody, max(1, int(jntnum.max(initial=0)))), -1, np.int64)
+    for b in range(model.nbody):
         joint[b, :jntnum[b]] = jntadr[b] + np.arange(jntnum[b])
-    free_body = np.array([jntnum[b] == 1 and types[jntadr[b]] == _FREE for b in range(nbody)],
-                         dtype=bool)
-    parent = np.asarray(model.body_parentid)
-    return dict(joint=joint, parent=parent, free_body=free_body, types=types)
+    return joint
 
 
 def _compose(pos_a, quat_a, pos_b, quat_b):
@@ -70,12 +63,13 @@ def _compose(pos_a, quat_a, pos_b, quat_b):
 
 def kinematics(model: mjx.Model, d: mjx.Data) -> mjx.Data:
     """`mujoco.mjx._src.smooth.kinematics` for a model that `supports` accepts."""
-    lay = _layout(model)
-    joint, parent, types, free = lay["joint"], lay["parent"], lay["types"], lay["free_body"]
+    joint = _joint_slots(model)
+    parent, types = np.asarray(model.body_parentid), np.asarray(model.jnt_type)
     nbody, slots = joint.shape
     qadr = np.asarray(model.jnt_qposadr)
     pad = joint < 0
     jid = np.where(pad, 0, joint)
+    free = ~pad[:, 0] & (types[jid[:, 0]] == _FREE)     # a free joint is its body's only one
     dtype = d.qpos.dtype
     z_axis = jnp.array([0.0, 0.0, 1.0], dtype)
     # Per body and slot: joint position, axis and displacement q - q0 (padding: origin, z, 0).
@@ -170,15 +164,14 @@ def _tree_sums(model: mjx.Model) -> dict:
             c = parent[c]
     to_body = anc[:, dof_body]
     strict = anc & ~np.eye(nbody, dtype=bool)
-    jadr = np.asarray(model.jnt_dofadr)
-    free_rot = np.array([types[dof_jnt[i]] == _FREE and i - jadr[dof_jnt[i]] >= 3
-                         for i in range(nv)], bool)
+    # A free joint's dofs: 3 translations, then 3 rotations.
+    of_free = types[dof_jnt] == _FREE
+    offset = np.arange(nv) - np.asarray(model.jnt_dofadr)[dof_jnt]
+    free_trans, free_rot = of_free & (offset < 3), of_free & (offset >= 3)
+    same_joint = dof_jnt[:, None] == dof_jnt[None, :]
     before = (strict[dof_body][:, dof_body]
               | ((dof_body[:, None] == dof_body[None, :]) & (dof_jnt[None, :] < dof_jnt[:, None]))
-              | (free_rot[:, None] & (dof_jnt[:, None] == dof_jnt[None, :])
-                 & (np.arange(nv)[None, :] < jadr[dof_jnt][:, None] + 3)))
-    free_trans = np.array([types[dof_jnt[i]] == _FREE and i - jadr[dof_jnt[i]] < 3
-                           for i in range(nv)], bool)
+              | (free_rot[:, None] & same_joint & free_trans[None, :]))
     return dict(to_body=to_body, before=before, subtree=anc.T, free_trans=free_trans)
 
 
