@@ -479,3 +479,24 @@ def test_recovery_tuning_spec_round_trips_the_recommended_set():
         back = reparam.params_np(rec, z)
     for f in reparam.fields:
         assert getattr(back, f) == pytest.approx(getattr(rec, f), rel=1e-9), f
+
+
+def test_searcher_registry_and_injected_cma_candidates():
+    """Every method is one registered searcher; CMA-ES takes injected candidates in place of
+    the generation's last samples, and its tell accepts them."""
+    from tkujax.studies.tune.searchers import METHODS, SEARCHERS, SearchConfig, searcher_class
+
+    assert METHODS == ("cma", "sepcma", "gradient", "hybrid", "linesearch", "es")
+    assert all(searcher_class(m) is SEARCHERS[m] for m in METHODS)
+    with pytest.raises(ValueError, match="method must be one of"):
+        searcher_class("adam")
+    cfg = SearchConfig(popsize=5)
+    for method in ("cma", "sepcma"):
+        s = searcher_class(method)(np.zeros(3), 1.0, cfg, 0)
+        s.inject([np.full(3, 0.25)])
+        points = s.ask(None)
+        assert points.shape == (5, 3) and np.all(points[-1] == 0.25)
+        s.tell(points, np.sum(points ** 2, axis=1))
+        assert len(s.ask(None)) == 5                    # the injection lasts one generation
+        with pytest.raises(ValueError, match="at most 5"):
+            s.inject(np.zeros((6, 3)))
