@@ -3,7 +3,7 @@ seed by seed, what run_search gives for that seed alone (same iterates, best los
 within float32 rounding of the batched program), for every method.
 
 Most of it runs on a cheap stand-in problem: TuneProblem's own methods (forward, population,
-grouped_value_and_grad, forward_padded, _args) over a small jnp loss of the latents, the push
+grouped_value_and_grad, forward_padded, cast_args) over a small jnp loss of the latents, the push
 records and the per-push keys, with a hard gate (temperature 0) and its soft version, so the
 same code paths run in milliseconds. One `slow` test checks one method (the (1+1)-ES) through
 MJX: 2 pushes x 0.3 s, float32; two forward compiles (~30 s each on a 2-core CPU with an empty
@@ -35,7 +35,7 @@ class _Stand:
     dtype = jnp.float32
     input_keys = RECORD_KEYS            # no robot ensemble, no control-off column (w_harm = 0)
     _robot_values = None
-    _args = TuneProblem._args
+    cast_args = TuneProblem.cast_args
     forward = TuneProblem.forward
     population = TuneProblem.population
     grouped_value_and_grad = TuneProblem.grouped_value_and_grad
@@ -154,9 +154,9 @@ def test_lockstep_shares_one_clock(stand):
 
 
 def test_lockstep_evaluation_matches_per_seed(stand):
-    """fell_rates_lockstep (all seeds in one call per chunk, padded) = compare._fell_rates per
+    """fell_rates_lockstep (all seeds in one call per chunk, padded) = compare.fell_rates per
     seed."""
-    from tkujax.studies.tune.compare import _fell_rates
+    from tkujax.studies.tune.compare import fell_rates
 
     n, batch = 6, N                          # 2 chunks, the last one padded
     recs = [_records(n, 50 + s) for s in SEEDS]
@@ -164,7 +164,7 @@ def test_lockstep_evaluation_matches_per_seed(stand):
     zs = np.array([Z0, Z0 + 0.3])
     got = fell_rates_lockstep(stand, {"best": zs}, recs, keys, batch)["best"]
     for s in range(len(SEEDS)):
-        want = _fell_rates(stand, {"best": zs[s]}, recs[s], keys[s], batch)["best"]
+        want = fell_rates(stand, {"best": zs[s]}, recs[s], keys[s], batch)["best"]
         np.testing.assert_array_equal(got[s], want)
     every = np.concatenate(got)            # the check sees falls, stands and divergences
     assert np.isnan(every).any() and {0.0, 1.0} <= set(every[np.isfinite(every)])

@@ -72,23 +72,24 @@ import dataclasses
 import hashlib
 import itertools
 import math
-import re
-import tomllib
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from tkujax.control.fixed.config import FixedPointConfig
 from tkujax.control.io import checked_value
-from tkujax.control.fixed.config import GROUP_INT_BITS, MAX_GROUP_WORD_BITS, FixedPointConfig
-from tkujax.control.fixed.qformat import ROUNDING_MODES, QFormat
 from tkujax.model.ensemble import load_ensemble
 from tkujax.model.params import ModelParams
 from tkujax.sim.push import onset_from_phase, onset_phase
+from tkujax.studies.spec_fpga import (ARITHMETIC, FPGA_COLUMN, FPGA_FIELDS, check_fixed_controller,
+                                      fixed_point_config, parse_fpga)
+from tkujax.studies.validation import SpecError, number, read_toml, table, uniform, values
 
-
-class SpecError(ValueError):
-    """A spec problem; the message names the key and what is allowed."""
+# Re-exported: the names other modules import from here.
+__all__ = ["ARITHMETIC", "FPGA_COLUMN", "FPGA_FIELDS", "SpecError", "read_toml",
+           "fixed_point_config", "parse_spec", "load_spec", "expand", "parse_randomize",
+           "parse_ensemble", "controller_value", "controller_values", "EnsembleRef", "SweepSpec"]
 
 
 # name: (lo, hi, default, unit). Push fields in user units.
@@ -139,21 +140,6 @@ STEP_FIELDS = {
     "delay2_s": (0.0, 2.0, 0.0, "s (first touchdown -> second step start)"),
 }
 SECOND_STEP_FIELDS = ("x2_m", "y2_m", "delay2_s")
-ARITHMETIC = ("float", "fixed")
-# [fpga] keys -> FixedPointConfig fields: name: (lo, hi, unit). All integers except latency_frac
-# (and rounding, a name: FPGA_ROUNDING). The frac-bit bound here is the loosest one; the word
-# limit (1 + int + frac <= 26) is checked on the assembled FixedPointConfig.
-FPGA_GROUPS = tuple(GROUP_INT_BITS)
-FPGA_FIELDS = (
-    {f"{g}_int_bits": (lo, hi, "bits") for g, (lo, hi) in GROUP_INT_BITS.items()}
-    | {f"{g}_frac_bits": (1, MAX_GROUP_WORD_BITS - 1, "bits") for g in FPGA_GROUPS}
-    | {"angle_state_frac_bits": (1, MAX_GROUP_WORD_BITS - 3, "bits (angle and state together)"),
-       "coef_bits": (12, 31, "bits"), "cordic_iterations": (1, 30, "iterations"),
-       "cordic_guard_bits": (0, 3, "bits"), "latency_ticks": (0, 100, "control periods"),
-       "ik_guard_bits": (0, 8, "bits (extra fraction bits of the IK's lengths)"),
-       "latency_frac": (0.0, 1.0, "(fraction of a control period; 1 excluded)"),
-       "rounding": (0, len(ROUNDING_MODES) - 1, f"(one of {ROUNDING_MODES})")})
-FPGA_COLUMN = "fpga_"   # record column prefix of a gridded [fpga] key
 # [randomize] ensemble = "PATH": one member of an ensemble of robots per push (`EnsembleRef`);
 # recorded per record in ROBOT_ID_COLUMN. Not a RANDOMIZE_FIELDS entry: tune specs take it apart
 # (tkujax.studies.tune.spec), with another meaning of the column (a row of the tune's robot table).
@@ -238,36 +224,6 @@ class SweepSpec:
         return expand(self)
 
 
-def _number(key: str, value, lo: float, hi: float, unit: str = "") -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise SpecError(f"{key}: expected a number in [{lo}, {hi}] {unit}, got {value!r}")
-    if not lo <= value <= hi:
-        raise SpecError(f"{key}: {value!r} is out of range [{lo}, {hi}] {unit}".rstrip())
-    return float(value)
-
-
-def _values(key: str, value, lo: float, hi: float, unit: str = "") -> np.ndarray:
-    """A list, a scalar, or a {start, stop, num, endpoint} range -> validated array."""
-    if isinstance(value, dict):
-        unknown = set(value) - {"start", "stop", "num", "endpoint"}
-        if unknown or not {"start", "stop", "num"} <= set(value):
-            raise SpecError(f"{key}: a range needs start, stop, num (and optional endpoint); "
-                            f"got keys {sorted(value)}")
-        num = value["num"]
-        if isinstance(num, bool) or not isinstance(num, int) or not 1 <= num <= 1_000_000:
-            raise SpecError(f"{key}.num: expected an integer in [1, 1000000], got {num!r}")
-        endpoint = value.get("endpoint", True)
-        if not isinstance(endpoint, bool):
-            raise SpecError(f"{key}.endpoint: expected true or false, got {endpoint!r}")
-        start = _number(f"{key}.start", value["start"], lo, hi, unit)
-        stop = _number(f"{key}.stop", value["stop"], lo, hi, unit)
-        return np.linspace(start, stop, num, endpoint=endpoint)
-    items = value if isinstance(value, list) else [value]
-    if not items:
-        raise SpecError(f"{key}: empty list")
-    return np.array([_number(f"{key}[{i}]", v, lo, hi, unit) for i, v in enumerate(items)])
-
-
 def controller_value(where: str, key: str, value) -> float:
     """A spec-style ControllerParams value (key a field, or FIELD_deg in degrees), in the range
     ControllerParams.validate allows; SpecError names `where` and the range."""
@@ -279,7 +235,7 @@ def controller_value(where: str, key: str, value) -> float:
 
 def controller_values(where: str, key: str, value) -> np.ndarray:
     """A list, a scalar or a {start, stop, num, endpoint} range of a controller key (as
-    `_values`), every value checked by `controller_value`."""
+    `validation.values`), every value checked by `controller_value`."""
     if isinstance(value, dict):
         for end in ("start", "stop"):
             if end in value:
@@ -289,25 +245,13 @@ def controller_values(where: str, key: str, value) -> np.ndarray:
             controller_value(f"{where}[{i}]", key, v)
     else:
         controller_value(where, key, value)
-    return _values(where, value, -math.inf, math.inf)
-
-
-def _uniform(key: str, value, lo: float, hi: float, unit: str = "") -> tuple[float, float]:
-    if not (isinstance(value, dict) and set(value) == {"uniform"}
-            and isinstance(value["uniform"], list) and len(value["uniform"]) == 2):
-        raise SpecError(f"{key}: expected {{uniform = [lo, hi]}} within [{lo}, {hi}] {unit}, "
-                        f"got {value!r}")
-    a = _number(f"{key}.uniform[0]", value["uniform"][0], lo, hi, unit)
-    b = _number(f"{key}.uniform[1]", value["uniform"][1], lo, hi, unit)
-    if a > b:
-        raise SpecError(f"{key}.uniform: lower bound {a} exceeds upper bound {b}")
-    return a, b
+    return values(where, value, -math.inf, math.inf)
 
 
 def _phase_values(key: str, value) -> np.ndarray:
     """Grid phases: in [0, 1) (a range may use stop = 1 with endpoint = false)."""
     try:
-        vals = _values(key, value, 0.0, 1.0, PHASE_UNIT)
+        vals = values(key, value, 0.0, 1.0, PHASE_UNIT)
     except SpecError as err:   # the range is half-open: say so
         raise SpecError(str(err).replace("[0.0, 1.0]", "[0, 1)")) from None
     if (vals >= 1.0).any():
@@ -315,30 +259,21 @@ def _phase_values(key: str, value) -> np.ndarray:
     return vals
 
 
-def _table(key: str, value, allowed) -> dict:
-    if not isinstance(value, dict):
-        raise SpecError(f"[{key}]: expected a table, got {type(value).__name__}")
-    unknown = sorted(set(value) - set(allowed))
-    if unknown:
-        raise SpecError(f"[{key}]: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
-    return value
-
-
 def parse_randomize(data: dict) -> dict[str, Any]:
     """The validated [randomize] table: {key: (lo, hi) for uniform draws, or a fixed value}."""
-    rand = _table("randomize", data.get("randomize", {}), RANDOMIZE_FIELDS)
+    rand = table("randomize", data.get("randomize", {}), RANDOMIZE_FIELDS)
     randomize = {}
     for k, v in rand.items():
         lo, hi, unit = RANDOMIZE_FIELDS[k]
-        randomize[k] = (_uniform(f"randomize.{k}", v, lo, hi, unit) if isinstance(v, dict)
-                        else _number(f"randomize.{k}", v, lo, hi, unit))
+        randomize[k] = (uniform(f"randomize.{k}", v, lo, hi, unit) if isinstance(v, dict)
+                        else number(f"randomize.{k}", v, lo, hi, unit))
     return randomize
 
 
 def parse_spec(data: dict) -> SweepSpec:
     """Validate a parsed TOML document."""
-    _table("top level", data, {"sweep", "push", "controller", "randomize", "step", "fpga"})
-    sweep = _table("sweep", data.get("sweep", {}), SWEEP_FIELDS)
+    table("top level", data, {"sweep", "push", "controller", "randomize", "step", "fpga"})
+    sweep = table("sweep", data.get("sweep", {}), SWEEP_FIELDS)
     for k, types in SWEEP_FIELDS.items():
         if k in sweep and (isinstance(sweep[k], bool) or not isinstance(sweep[k], types)):
             raise SpecError(f"sweep.{k}: expected {getattr(types, '__name__', 'a number')}, "
@@ -346,28 +281,28 @@ def parse_spec(data: dict) -> SweepSpec:
     chunk = sweep.get("chunk_size", 1024)
     if not 1 <= chunk <= 1_048_576:
         raise SpecError(f"sweep.chunk_size: {chunk} is out of range [1, 1048576]")
-    duration = _number("sweep.duration_s", sweep.get("duration_s", 2.4), 0.1, 30.0, "s")
+    duration = number("sweep.duration_s", sweep.get("duration_s", 2.4), 0.1, 30.0, "s")
     control = tuple(sweep.get("control", ["off", "on"]))
     if (not control or any(c not in ("on", "off") for c in control)
             or len(set(control)) != len(control)):
         raise SpecError(f"sweep.control: expected a list of distinct 'on'/'off', "
                         f"got {list(control)!r}")
 
-    push = _table("push", data.get("push", {}), {"grid", "random"})
-    grid = _table("push.grid", push.get("grid", {}), set(PUSH_FIELDS) | {PHASE_KEY})
+    push = table("push", data.get("push", {}), {"grid", "random"})
+    grid = table("push.grid", push.get("grid", {}), set(PUSH_FIELDS) | {PHASE_KEY})
     push_grid = {k: (_phase_values(f"push.grid.{k}", v) if k == PHASE_KEY else
-                     _values(f"push.grid.{k}", v, *PUSH_FIELDS[k][:2], PUSH_FIELDS[k][3]))
+                     values(f"push.grid.{k}", v, *PUSH_FIELDS[k][:2], PUSH_FIELDS[k][3]))
                  for k, v in grid.items()}
-    rnd = _table("push.random", push.get("random", {}), set(PUSH_FIELDS) | {PHASE_KEY, "n"})
+    rnd = table("push.random", push.get("random", {}), set(PUSH_FIELDS) | {PHASE_KEY, "n"})
     n_random = rnd.get("n", 0)
     if (isinstance(n_random, bool) or not isinstance(n_random, int)
             or not 0 <= n_random <= 10_000_000):
         raise SpecError(f"push.random.n: expected an integer in [0, 10000000], got {n_random!r}")
-    push_random = {k: _uniform(f"push.random.{k}", v, *PUSH_FIELDS[k][:2], PUSH_FIELDS[k][3])
+    push_random = {k: uniform(f"push.random.{k}", v, *PUSH_FIELDS[k][:2], PUSH_FIELDS[k][3])
                    for k, v in rnd.items() if k not in ("n", PHASE_KEY)}
     if PHASE_KEY in rnd:
         try:
-            lo, hi = _uniform(f"push.random.{PHASE_KEY}", rnd[PHASE_KEY], 0.0, 1.0, PHASE_UNIT)
+            lo, hi = uniform(f"push.random.{PHASE_KEY}", rnd[PHASE_KEY], 0.0, 1.0, PHASE_UNIT)
         except SpecError as err:
             raise SpecError(str(err).replace("[0.0, 1.0]", "[0, 1)")) from None
         if lo >= 1.0:   # draws are in [lo, hi): hi = 1 is fine, lo = 1 would give phase 1
@@ -381,20 +316,20 @@ def parse_spec(data: dict) -> SweepSpec:
     if not push_grid and n_random == 0:
         raise SpecError("[push]: give a [push.grid] or [push.random] with n > 0: nothing to run")
 
-    ctrl = _table("controller", data.get("controller", {}),
+    ctrl = table("controller", data.get("controller", {}),
                   set(CONTROLLER_FIELDS) | {"grid", "arithmetic"})
     controller = {k: controller_value(f"controller.{k}", k, v)
                   for k, v in ctrl.items() if k not in ("grid", "arithmetic")}
-    cgrid = dict(_table("controller.grid", ctrl.get("grid", {}),
+    cgrid = dict(table("controller.grid", ctrl.get("grid", {}),
                         set(CONTROLLER_FIELDS) | {"fpga"}))
-    arithmetic, fpga, fpga_grid = _parse_fpga(data, ctrl, cgrid.pop("fpga", {}))
+    arithmetic, fpga, fpga_grid = parse_fpga(data, ctrl, cgrid.pop("fpga", {}))
     controller_grid = {k: controller_values(f"controller.grid.{k}", k, v)
                        for k, v in cgrid.items()}
     both = sorted(set(controller) & set(controller_grid))
     if both:
         raise SpecError(f"controller: {both} set both as fixed values and in [controller.grid]")
 
-    rand = _table("randomize", data.get("randomize", {}), set(RANDOMIZE_FIELDS) | {ENSEMBLE_KEY})
+    rand = table("randomize", data.get("randomize", {}), set(RANDOMIZE_FIELDS) | {ENSEMBLE_KEY})
     ensemble = parse_ensemble(rand[ENSEMBLE_KEY]) if ENSEMBLE_KEY in rand else None
     randomize = parse_randomize({"randomize": {k: v for k, v in rand.items()
                                                if k != ENSEMBLE_KEY}})
@@ -403,7 +338,7 @@ def parse_spec(data: dict) -> SweepSpec:
         raise SpecError("[step]: commanded steps have no fixed-point controller twin; "
                         "use controller.arithmetic = \"float\"")
     if arithmetic == "fixed":
-        _check_fixed_controller(controller, controller_grid)
+        check_fixed_controller(controller, controller_grid)
     return SweepSpec(name=sweep.get("name", "sweep"), seed=sweep.get("seed", 0),
                      chunk_size=chunk, duration_s=duration, control=control,
                      push_grid=push_grid, push_random=push_random, n_random=n_random,
@@ -414,106 +349,13 @@ def parse_spec(data: dict) -> SweepSpec:
                      fpga_grid=fpga_grid, ensemble=ensemble)
 
 
-def _check_fixed_controller(controller: dict, grid: dict) -> None:
-    """arithmetic = "fixed": every [controller] value and [controller.grid] value of a field the
-    fixed-point twin does not implement must be that field's default (`check_supported`)."""
-    from tkujax.control.fixed.support import IMPLEMENTED_FIELDS, same_value
-    from tkujax.control.params import ControllerParams
-    defaults = ControllerParams()
-    items = [(f"controller.{k}", k, v) for k, v in controller.items()]
-    items += [(f"controller.grid.{k}[{i}]", k, float(v)) for k, vals in grid.items()
-              for i, v in enumerate(vals)]
-    for key, k, v in items:
-        field = k[:-4] if k.endswith("_deg") else k
-        if field in IMPLEMENTED_FIELDS:
-            continue
-        si = v * (math.pi / 180.0) if k.endswith("_deg") else v
-        default = getattr(defaults, field)
-        if not same_value(si, default):
-            shown = default * 180.0 / math.pi if k.endswith("_deg") else default
-            raise SpecError(f"{key} = {v!r}: controller.arithmetic = \"fixed\" does not implement "
-                            f"{field} (only its default {shown!r}); use arithmetic = \"float\"")
-
-
-def _fpga_value(key: str, name: str, value):
-    """One [fpga] value: an int in range, latency_frac in [0, 1), rounding as its index."""
-    lo, hi, unit = FPGA_FIELDS[name]
-    if name == "rounding":
-        if value not in ROUNDING_MODES:
-            raise SpecError(f"{key}: expected one of {list(ROUNDING_MODES)}, got {value!r}")
-        return ROUNDING_MODES.index(value)
-    v = _number(key, value, lo, hi, unit)
-    if name == "latency_frac":
-        if v >= 1.0:
-            raise SpecError(f"{key}: {value!r} is out of range [0, 1) {unit}")
-        return v
-    if isinstance(value, float) and not value.is_integer():
-        raise SpecError(f"{key}: expected an integer in [{lo}, {hi}] {unit}, got {value!r}")
-    return int(v)
-
-
-def fixed_point_config(values: dict) -> FixedPointConfig:
-    """FixedPointConfig from [fpga] values (rounding by name or index); defaults elsewhere.
-
-    straight_through is off: sweeps take no gradient, so the float shadow would only cost time.
-    Raises SpecError naming the [fpga] key (e.g. a word over 26 bits)."""
-    base = FixedPointConfig()
-    fmt = {g: [getattr(base, g).int_bits, getattr(base, g).frac_bits] for g in FPGA_GROUPS}
-    kw: dict[str, Any] = {"straight_through": False}
-    for k, v in values.items():
-        if k == "angle_state_frac_bits":
-            fmt["angle"][1] = fmt["state"][1] = int(v)
-        elif k.rsplit("_", 2)[0] in fmt and k.endswith(("_int_bits", "_frac_bits")):
-            fmt[k.rsplit("_", 2)[0]][k.endswith("_frac_bits")] = int(v)
-        elif k == "rounding":
-            kw[k] = v if isinstance(v, str) else ROUNDING_MODES[int(v)]
-        else:
-            kw[k] = float(v) if k == "latency_frac" else int(v)
-    try:
-        return FixedPointConfig(**{g: QFormat(*f) for g, f in fmt.items()}, **kw)
-    except ValueError as err:   # name the spec's key, not the dataclass field
-        msg = re.sub(r"FixedPointConfig\.(\w+)\.(int_bits|frac_bits)", r"fpga.\1_\2", str(err))
-        raise SpecError(msg.replace("FixedPointConfig.", "fpga.")) from None
-
-
-def _parse_fpga(data: dict, ctrl: dict, grid: dict):
-    """(arithmetic, [fpga] values, [controller.grid] fpga.* arrays), every combination checked."""
-    arithmetic = ctrl.get("arithmetic", "float")
-    if arithmetic not in ARITHMETIC:
-        raise SpecError(f"controller.arithmetic: expected one of {list(ARITHMETIC)}, "
-                        f"got {arithmetic!r}")
-    table = _table("fpga", data.get("fpga", {}), FPGA_FIELDS)
-    fpga = {k: _fpga_value(f"fpga.{k}", k, v) for k, v in table.items()}
-    grid = _table("controller.grid.fpga", grid, FPGA_FIELDS)
-    fpga_grid = {}
-    for k, v in grid.items():
-        items = v if isinstance(v, list) else [v]
-        if not items:
-            raise SpecError(f"controller.grid.fpga.{k}: empty list")
-        fpga_grid[k] = np.array([_fpga_value(f"controller.grid.fpga.{k}[{i}]", k, x)
-                                 for i, x in enumerate(items)], float)
-    both = sorted(set(fpga) & set(fpga_grid))
-    if both:
-        raise SpecError(f"fpga: {both} set both in [fpga] and in [controller.grid]")
-    given = set(fpga) | set(fpga_grid)
-    if "angle_state_frac_bits" in given and given & {"angle_frac_bits", "state_frac_bits"}:
-        raise SpecError("fpga.angle_state_frac_bits sets angle_frac_bits and state_frac_bits: "
-                        "give either it or them")
-    if given and arithmetic != "fixed":
-        raise SpecError("[fpga] settings need controller.arithmetic = \"fixed\"")
-    if arithmetic == "fixed":   # every configuration the sweep will build, checked up front
-        for combo in itertools.product(*fpga_grid.values()):
-            fixed_point_config(fpga | dict(zip(fpga_grid, combo)))
-    return arithmetic, fpga, fpga_grid
-
-
 def _parse_step(data: dict) -> tuple[dict[str, np.ndarray], bool]:
-    step = _table("step", data.get("step", {}), {"grid", "reference"})
-    grid = _table("step.grid", step.get("grid", {}), STEP_FIELDS)
+    step = table("step", data.get("step", {}), {"grid", "reference"})
+    grid = table("step.grid", step.get("grid", {}), STEP_FIELDS)
     reference = step.get("reference", True)
     if not isinstance(reference, bool):
         raise SpecError(f"step.reference: expected true or false, got {reference!r}")
-    out = {k: _values(f"step.grid.{k}", v, *STEP_FIELDS[k][:2], STEP_FIELDS[k][3])
+    out = {k: values(f"step.grid.{k}", v, *STEP_FIELDS[k][:2], STEP_FIELDS[k][3])
            for k, v in grid.items()}
     if "from_detection" in out and not np.isin(out["from_detection"], (0.0, 1.0)).all():
         raise SpecError(f"step.grid.from_detection: expected 0 or 1, got {out['from_detection']}")
@@ -525,17 +367,6 @@ def _parse_step(data: dict) -> tuple[dict[str, np.ndarray], bool]:
     if step and not out:
         raise SpecError("[step]: give a [step.grid] (e.g. x_m, y_m) or leave [step] out")
     return out, reference
-
-
-def read_toml(path: str | Path) -> dict:
-    """A TOML file as a dict; SpecError when it is missing or not valid TOML."""
-    path = Path(path)
-    if not path.is_file():
-        raise SpecError(f"spec file not found: {path}")
-    try:
-        return tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as err:
-        raise SpecError(f"{path}: not valid TOML: {err}") from err
 
 
 def load_spec(path: str | Path) -> SweepSpec:

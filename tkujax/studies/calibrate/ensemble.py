@@ -76,9 +76,9 @@ def slice_points(x: dict, names, bounds, points: int) -> list[tuple[str, float, 
 def _run_around(values: np.ndarray, holds: np.ndarray, v0: float) -> tuple[float, float] | None:
     """The contiguous run of holding grid values around v0 (the grid value nearest it: v0
     itself in slice_points' slices)."""
-    from tkujax.studies.calibrate.islands import _island
+    from tkujax.studies.calibrate.islands import island
 
-    run = _island(list(values), list(holds), int(np.argmin(np.abs(values - v0))))
+    run = island(list(values), list(holds), int(np.argmin(np.abs(values - v0))))
     if run is None:
         return None
     lo, hi = run

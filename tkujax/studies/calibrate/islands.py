@@ -94,7 +94,7 @@ def score(x, reading: str, hit_phases: tuple[float, ...]) -> dict:
                 stand_deg=float(res[hit_phases[0]][reading][ROWS[0]]["stand_deg"]))
 
 
-def _island(values: list[float], holds: list[bool], i0: int) -> tuple[int, int] | None:
+def island(values: list[float], holds: list[bool], i0: int) -> tuple[int, int] | None:
     """Indices (first, last) of the run of True around index i0 (None if holds[i0] is False)."""
     if not holds[i0]:
         return None
@@ -143,7 +143,7 @@ def island_slices(names=P.DEFAULT_FIT, points: int = 41, refine: int = 4,
                              if r["step_ok"] is not None})
                for v in grid]
         i0 = grid.index(x0[name])
-        isl = _island(grid, [q["all_hold"] for q in pts], i0)
+        isl = island(grid, [q["all_hold"] for q in pts], i0)
         entry = dict(lo=p.lo, hi=p.hi, default=x0[name], log10=p.log, points=pts,
                      grid_step=(a_hi - a_lo) / (points - 1), reading=reading, window=window,
                      hit_phases_ms=list(hit_phases))

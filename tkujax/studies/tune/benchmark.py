@@ -91,7 +91,7 @@ def gradient_compile_times(batch: int, duration_s: float, remat: bool | str = Tr
             problem = TuneProblem(reparam, base, spec.loss, duration_s, remat, False,
                                   compiler_options=compiler_options, rollout_options=opts)
             t0 = time.perf_counter()
-            lowered = problem._vg.lower(*problem._args(z, DEG, recs, keys),
+            lowered = problem._vg.lower(*problem.cast_args(z, DEG, recs, keys),
                                         problem._robot_values)
             lower_s = time.perf_counter() - t0
             if label == "cold_s":
@@ -101,7 +101,7 @@ def gradient_compile_times(batch: int, duration_s: float, remat: bool | str = Tr
             exe = lowered.compile()
             out[label] = round(lower_s + time.perf_counter() - t0, 2)
     if step_repeats > 0:
-        args = (*problem._args(z, DEG, recs, keys), problem._robot_values)
+        args = (*problem.cast_args(z, DEG, recs, keys), problem._robot_values)
         jax.block_until_ready(exe(*args))                                  # warm-up
         out["step_s"] = round(_median_call_s(
             lambda: jax.block_until_ready(exe(*args)), step_repeats), 3)

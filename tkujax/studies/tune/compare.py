@@ -27,7 +27,7 @@ from tkujax.studies.tune.search import SearchConfig, run_search
 from tkujax.studies.tune.spec import TuneSpec, ensembles_record, sample_pushes, shifted
 
 
-def _fell_rates(problem: TuneProblem, latents: dict, records: dict, keys, batch: int) -> dict:
+def fell_rates(problem: TuneProblem, latents: dict, records: dict, keys, batch: int) -> dict:
     """{name: (n,) fell as float, NaN where the rollout diverged (never counted either way)}."""
     records = problem.with_off_survived(records, keys, batch)   # once for every candidate
     out = {}
@@ -78,7 +78,7 @@ def run_compare(spec: TuneSpec, out: Path, problem: TuneProblem,
                 continue
             recs = sample_pushes(sp, c["eval_n"], eseed)
             ekeys = jax.random.split(jax.random.PRNGKey(eseed), c["eval_n"])
-            fell = _fell_rates(problem, latents, recs, ekeys, spec.batch)
+            fell = fell_rates(problem, latents, recs, ekeys, spec.batch)
             ev[label] = {name: dict(fall_rate=float(np.nanmean(f)),
                                     diverged=int(np.sum(~np.isfinite(f))),
                                     vs_paper=dict(zip(("mean", "se", "n"),
@@ -95,7 +95,7 @@ def run_compare(spec: TuneSpec, out: Path, problem: TuneProblem,
                   shift=None if spec.shift is None else _jsonable(spec.shift),
                   ensembles=ensembles_record(spec), model=dict(spec.model),
                   devices=[str(d) for d in jax.devices()])
-    (out / "compare.json").write_text(json.dumps(record, indent=1, default=_default))
+    (out / "compare.json").write_text(json.dumps(record, indent=1, default=json_default))
     _plot_curves(out / "convergence.png", record)
     (out / "compare.md").write_text(compare_markdown(record))
     return record
@@ -189,10 +189,10 @@ def _plot_curves(path: Path, rec: dict) -> None:
 
 
 def _jsonable(x):
-    return json.loads(json.dumps(x, default=_default))
+    return json.loads(json.dumps(x, default=json_default))
 
 
-def _default(x):
+def json_default(x):
     if isinstance(x, np.ndarray):
         return x.tolist()
     if isinstance(x, (np.floating, np.integer)):

@@ -12,7 +12,7 @@ import numpy as np
 
 from tkujax.control.params import ControllerParams
 from tkujax.studies.tune.loss import OFF_SURVIVED
-from tkujax.studies.tune.methods import _f
+from tkujax.studies.tune.methods import or_none
 from tkujax.studies.tune.problem import TuneProblem, off_survived
 
 
@@ -52,7 +52,7 @@ def evaluate(problem: TuneProblem, latents: dict[str, np.ndarray], heldout: dict
             loss = aux["terms"].get("weighted", aux["terms"]["total"])
             r.update(heldout_n=int(fell.size), heldout_diverged=int(div.sum()),
                      heldout_fall_rate=float(fell.mean()) if fell.size else None,
-                     heldout_mean_recovery_s=_f(np.nanmean(rec_t)) if np.isfinite(rec_t).any()
+                     heldout_mean_recovery_s=or_none(np.nanmean(rec_t)) if np.isfinite(rec_t).any()
                      else None,
                      heldout_recovered=int(np.isfinite(rec_t).sum()),
                      heldout_loss=float(np.mean(loss[~div])) if fell.size else None,
@@ -74,7 +74,7 @@ def evaluate(problem: TuneProblem, latents: dict[str, np.ndarray], heldout: dict
                      grid_diverged=int(div.sum()),
                      max_impulse={f"{a:g}": float(j) for a, j in zip(azs, jmax)},
                      grid_fell=fell.tolist(),
-                     grid_recovery_s=[_f(x) for x in aux["outcomes"]["recovery_time_s"]])
+                     grid_recovery_s=[or_none(x) for x in aux["outcomes"]["recovery_time_s"]])
         result[name] = r
     return result
 

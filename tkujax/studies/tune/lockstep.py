@@ -17,7 +17,7 @@ the same per-seed push counts. So a seed's iterates are those of
 each seed gets a share of the device's throughput, not all of it.
 
 The batched functions are built here from `problem.loss` (jax.vmap over a leading seed axis),
-with the problem's own casting (`problem._args`), precision (`problem.float64`) and the same
+with the problem's own casting (`problem.cast_args`), precision (`problem.float64`) and the same
 default compiler options as TuneProblem; they are compiled once per problem, shape and
 precision and kept on the problem object.
 """
@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from tkujax.studies.tune.problem import _np, _x64
+from tkujax.studies.tune.problem import to_numpy, x64
 from tkujax.studies.tune.reparam import CPU_COMPILER_OPTIONS, DEG
 from tkujax.studies.tune.search import SearchConfig, clipped_group_means, drive
 from tkujax.studies.tune.searchers import searcher_class
@@ -63,15 +63,15 @@ class LockstepFunctions:
         """zs (S, k), batches {column: (S, n)}, keys (S, n, ...) -> (losses (S,) numpy,
         aux with leading (S, n) axes, left on the device)."""
         p = self.problem
-        with _x64(p.float64):
-            loss, aux = self._fwd(*p._args(zs, temperature, batches, keys))
+        with x64(p.float64):
+            loss, aux = self._fwd(*p.cast_args(zs, temperature, batches, keys))
             return np.asarray(loss, np.float64), aux
 
     def population(self, zs, temperature, batches: dict, keys) -> np.ndarray:
         """zs (S, P, k): (S, P) mean losses, seed s's candidates on seed s's batch."""
         p = self.problem
-        with _x64(p.float64):
-            return np.asarray(self._pop(*p._args(zs, temperature, batches, keys)), np.float64)
+        with x64(p.float64):
+            return np.asarray(self._pop(*p.cast_args(zs, temperature, batches, keys)), np.float64)
 
     def grouped_value_and_grad(self, zs, temperature, batches: dict, keys, groups: int):
         """zs (S, k): (losses (S, G), grads (S, G, k)) over `groups` equal groups of each seed's
@@ -80,8 +80,8 @@ class LockstepFunctions:
         S, n = keys.shape[:2]
         if n % groups:
             raise ValueError(f"batch {n} must be a multiple of the gradient groups {groups}")
-        with _x64(p.float64):
-            z, t, b, k = p._args(zs, temperature, batches, keys)
+        with x64(p.float64):
+            z, t, b, k = p.cast_args(zs, temperature, batches, keys)
             split = lambda x: x.reshape((S, groups, n // groups) + x.shape[2:])  # noqa: E731
             loss, g = self._vg_groups(z, t, {c: split(v) for c, v in b.items()}, split(k))
             return np.asarray(loss, np.float64), np.asarray(g, np.float64)
@@ -103,7 +103,7 @@ class LockstepFunctions:
             kk = jnp.stack([jnp.asarray(k)[sel] for k in keys])
             _, aux = self.forward(zs, temperature, chunk, kk)
             m = min(batch, n - lo)
-            parts.append(_np(jax.tree_util.tree_map(lambda x, m=m: x[:, :m], aux)))
+            parts.append(to_numpy(jax.tree_util.tree_map(lambda x, m=m: x[:, :m], aux)))
         whole = jax.tree_util.tree_map(lambda *xs: np.concatenate(xs, axis=1), *parts)
         return [jax.tree_util.tree_map(lambda x, s=s: x[s], whole) for s in range(S)]
 
@@ -121,7 +121,7 @@ def lockstep_functions(problem, compiler_options: dict | None = None) -> Lockste
 def fell_rates_lockstep(problem, latents: dict, records: Sequence[dict], keys: Sequence,
                         batch: int, compiler_options: dict | None = None) -> dict:
     """{name: [per seed (n,) fell as float, NaN where the rollout diverged]}: as
-    compare._fell_rates, seed s's latent latents[name][s] on its own records[s], all seeds in
+    compare.fell_rates, seed s's latent latents[name][s] on its own records[s], all seeds in
     one call per chunk."""
     fns = lockstep_functions(problem, compiler_options)
     out = {}

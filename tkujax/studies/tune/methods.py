@@ -62,9 +62,9 @@ def optimise(step_fn: StepFn, z0, temperatures, optimizer: optax.GradientTransfo
         else:
             n_skipped += 1
         terms = aux.get("terms", {}) if isinstance(aux, dict) else {}
-        row = dict(iteration=it, temperature_deg=float(tau) / DEG, loss=_f(loss),
-                   terms={k: _f(np.mean(v)) for k, v in terms.items()},
-                   grad_norm=gnorm, grad=[_f(x) for x in g], finite=finite, skipped=not finite,
+        row = dict(iteration=it, temperature_deg=float(tau) / DEG, loss=or_none(loss),
+                   terms={k: or_none(np.mean(v)) for k, v in terms.items()},
+                   grad_norm=gnorm, grad=[or_none(x) for x in g], finite=finite, skipped=not finite,
                    n_nonfinite_grad=int(np.sum(~np.isfinite(g))), latent=z_before.tolist(),
                    wall_s=round(time.perf_counter() - t0, 3),
                    pushes_simulated=(it + 1) * pushes_per_step)
@@ -76,7 +76,8 @@ def optimise(step_fn: StepFn, z0, temperatures, optimizer: optax.GradientTransfo
     return np.asarray(z, float), history
 
 
-def _f(x) -> float | None:
+def or_none(x) -> float | None:
+    """x as a float, None where it is not finite (JSON has no NaN)."""
     x = float(x)
     return x if math.isfinite(x) else None
 
@@ -119,8 +120,8 @@ def evolution_baseline(loss_fn: Callable[[np.ndarray], float], z0, n_evals: int,
     best = float(loss_fn(z))
     best = best if math.isfinite(best) else math.inf
     sigma = sigma0
-    rows = [dict(evaluation=0, loss=_f(best), best_loss=_f(best), sigma=sigma, accepted=True,
-                 latent=z.tolist(), pushes_simulated=pushes_per_eval)]
+    rows = [dict(evaluation=0, loss=or_none(best), best_loss=or_none(best), sigma=sigma,
+                 accepted=True, latent=z.tolist(), pushes_simulated=pushes_per_eval)]
     up, down = 1.5, 1.5 ** -0.25              # 1/5 rule: stationary at a 20% success rate
     for i in range(1, n_evals):
         key, sub = jax.random.split(key)
@@ -131,7 +132,7 @@ def evolution_baseline(loss_fn: Callable[[np.ndarray], float], z0, n_evals: int,
             z, best, sigma = cand, loss, sigma * up
         else:
             sigma = sigma * down
-        rows.append(dict(evaluation=i, loss=_f(loss), best_loss=_f(best), sigma=sigma,
+        rows.append(dict(evaluation=i, loss=or_none(loss), best_loss=or_none(best), sigma=sigma,
                          accepted=ok, latent=cand.tolist(),
                          pushes_simulated=(i + 1) * pushes_per_eval))
         if log:

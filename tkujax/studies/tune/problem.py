@@ -41,7 +41,7 @@ RECORD_KEYS = ("impulse_ns", "azimuth_deg", "height_m", "duration_s", "onset_s",
                *RANDOMIZE_FIELDS)
 
 
-def _x64(enabled: bool):
+def x64(enabled: bool):
     return jax.enable_x64(True) if enabled else contextlib.nullcontext()
 
 
@@ -212,7 +212,7 @@ class TuneProblem:
         batch = batch or n
         cols = [k for k in self.input_keys if k != OFF_SURVIVED]
         parts = []
-        with _x64(self.float64):
+        with x64(self.float64):
             for lo in range(0, n, batch):
                 sel = np.resize(np.arange(lo, min(lo + batch, n)), batch)
                 chunk = {k: jnp.asarray(np.asarray(records[k])[sel], self.dtype) for k in cols}
@@ -229,7 +229,7 @@ class TuneProblem:
         return dict(records, **{OFF_SURVIVED: off_survived(self.control_off(records, keys,
                                                                              batch))})
 
-    def _args(self, z, temperature, batch, keys):
+    def cast_args(self, z, temperature, batch, keys):
         """(z, temperature, batch, keys) cast to this problem's precision; the batch reduced to
         `input_keys` (a missing column is named). The jitted methods also take the robots'
         values, `self._robot_values`, as a last argument."""
@@ -246,16 +246,16 @@ class TuneProblem:
     def value_and_grad(self, z, temperature, batch, keys):
         """(loss, aux, grad) as numpy (float64), computed in this problem's precision."""
         batch = self.with_off_survived(batch, keys)
-        with _x64(self.float64):
-            (loss, aux), g = self._vg(*self._args(z, temperature, batch, keys),
+        with x64(self.float64):
+            (loss, aux), g = self._vg(*self.cast_args(z, temperature, batch, keys),
                                       self._robot_values)
-            return _np(loss), _np(aux), _np(g)
+            return to_numpy(loss), to_numpy(aux), to_numpy(g)
 
     def population(self, zs, temperature, batch, keys) -> np.ndarray:
         """(P,) mean losses of the P latents zs (P, k) on the same batch, one call."""
         batch = self.with_off_survived(batch, keys)
-        with _x64(self.float64):
-            out = self._pop(*self._args(zs, temperature, batch, keys), self._robot_values)
+        with x64(self.float64):
+            out = self._pop(*self.cast_args(zs, temperature, batch, keys), self._robot_values)
             return np.asarray(out, np.float64)
 
     def grouped_value_and_grad(self, z, temperature, batch, keys, groups: int):
@@ -264,8 +264,8 @@ class TuneProblem:
         if n % groups:
             raise ValueError(f"batch {n} must be a multiple of the gradient groups {groups}")
         batch = self.with_off_survived(batch, keys)
-        with _x64(self.float64):
-            z, t, b, k = self._args(z, temperature, batch, keys)
+        with x64(self.float64):
+            z, t, b, k = self.cast_args(z, temperature, batch, keys)
             split = lambda x: x.reshape((groups, n // groups) + x.shape[1:])  # noqa: E731
             loss, g = self._vg_groups(z, t, {c: split(v) for c, v in b.items()}, split(k),
                                       self._robot_values)
@@ -273,9 +273,9 @@ class TuneProblem:
 
     def forward(self, z, temperature, batch, keys):
         batch = self.with_off_survived(batch, keys)
-        with _x64(self.float64):
-            loss, aux = self._fwd(*self._args(z, temperature, batch, keys), self._robot_values)
-            return _np(loss), _np(aux)
+        with x64(self.float64):
+            loss, aux = self._fwd(*self.cast_args(z, temperature, batch, keys), self._robot_values)
+            return to_numpy(loss), to_numpy(aux)
 
     def forward_padded(self, z, temperature, records: dict, keys, batch: int) -> dict:
         """Forward over any number of records in chunks of `batch` (one compiled shape).
@@ -300,7 +300,7 @@ def off_survived(off: dict) -> np.ndarray:
     return (~off["fell"] & ~off["diverged"]).astype(float)
 
 
-def _np(tree):
+def to_numpy(tree):
     return jax.tree_util.tree_map(lambda x: np.asarray(x, np.float64)
                                   if np.issubdtype(np.asarray(x).dtype, np.floating)
                                   else np.asarray(x), tree)

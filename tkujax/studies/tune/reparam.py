@@ -55,7 +55,7 @@ EVAL_KEYS = ("fell", "diverged", "recovery_time_s", "peak_incl_deg", "capture_po
              "step_length_m")
 
 
-def _user_factor(field: str) -> float:
+def user_factor(field: str) -> float:
     """SI value = user value * factor (degrees for the thresholds, else 1)."""
     return DEG if TUNABLE[field][0].endswith("_deg") else 1.0
 
@@ -84,7 +84,7 @@ class Reparam:
             if f not in TUNABLE:
                 raise ValueError(f"cannot tune {f!r}; tunable: {sorted(TUNABLE)}")
             a, b = ranges[f]
-            k = _user_factor(f)
+            k = user_factor(f)
             lo.append(a * k)
             hi.append(b * k)
             log.append(TUNABLE[f][2])
@@ -149,8 +149,8 @@ class Reparam:
     def user(self, z) -> dict[str, float]:
         """Values in user units (s, -, m, deg, rad^2), keyed by field."""
         v = self.values_np(z)
-        return {f: float(x) / _user_factor(f) for f, x in zip(self.fields, v)}
+        return {f: float(x) / user_factor(f) for f, x in zip(self.fields, v)}
 
     def user_ranges(self) -> dict[str, tuple[float, float]]:
-        return {f: (a / _user_factor(f), b / _user_factor(f))
+        return {f: (a / user_factor(f), b / user_factor(f))
                 for f, a, b in zip(self.fields, self.lo, self.hi)}

@@ -23,11 +23,12 @@ import numpy as np
 
 from tkujax.studies.tune.advice import EVIDENCE_NOTE, recommended_method
 from tkujax.studies.tune.evaluate import evaluate, harmed_directions, params_json, recommend
-from tkujax.studies.tune.problem import _x64
+from tkujax.studies.tune.problem import x64
 from tkujax.studies.tune.policy import save_policy
 from tkujax.studies.tune.report import plot_outputs, summary_markdown
 from tkujax.studies.tune.search import SearchConfig, run_search
-from tkujax.studies.tune.spec import (TuneSpec, _int, ensembles_record, grid_pushes,
+from tkujax.studies.validation import integer
+from tkujax.studies.tune.spec import (TuneSpec, ensembles_record, grid_pushes,
                                       load_tune_spec, make_problem, parse_tune_spec,
                                       sample_pushes, shifted)
 
@@ -51,14 +52,14 @@ def run_tune(spec: TuneSpec | dict | str | Path, out_dir: str | Path, quiet: boo
     elif not isinstance(spec, TuneSpec):
         spec = load_tune_spec(spec)
     if iterations is not None:      # checked like the spec's own tune.iterations
-        spec = dataclasses.replace(spec, iterations=_int("iterations (tune.iterations)",
+        spec = dataclasses.replace(spec, iterations=integer("iterations (tune.iterations)",
                                                          iterations, 1, 100_000))
     if spec.study is not None:
         from tkujax.studies.tune.study import run_study
 
         return run_study(spec, out_dir, only=only, deadline_s=deadline_s, quiet=quiet,
                          compiler_options=compiler_options)
-    with _x64(spec.float64):       # the optimiser's latents in the problem's precision too
+    with x64(spec.float64):       # the optimiser's latents in the problem's precision too
         return _run_tune(spec, Path(out_dir), quiet, compiler_options, evaluation, compare)
 
 

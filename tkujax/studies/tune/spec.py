@@ -33,13 +33,15 @@ from tkujax.control.io import allowed_range, controller_params_from
 from tkujax.model.params import ModelParams
 from tkujax.studies.spec import (CONTROLLER_FIELDS, ENSEMBLE_KEY, PUSH_FIELDS,
                                  RANDOMIZE_DEFAULTS, RANDOMIZE_FIELDS, ROBOT_ID_COLUMN,
-                                 EnsembleRef, SpecError, _number, _table, _uniform, _values,
-                                 controller_value, parse_ensemble, parse_randomize, read_toml)
+                                 EnsembleRef, controller_value, parse_ensemble, parse_randomize)
 from tkujax.studies.tune.loss import LOSS_FIELDS, LossConfig
-from tkujax.studies.tune.policy import DEFAULT_SCHEDULE, PolicyReparam, parse_policy
+from tkujax.studies.tune.policy import DEFAULT_SCHEDULE, PolicyReparam
 from tkujax.studies.tune.problem import RECORD_KEYS, TuneProblem
-from tkujax.studies.tune.reparam import DEFAULT_TUNED, TUNABLE, Reparam, _user_factor
-from tkujax.studies.tune.search import METHODS
+from tkujax.studies.tune.reparam import DEFAULT_TUNED, TUNABLE, Reparam, user_factor
+from tkujax.studies.tune.searchers import METHODS
+from tkujax.studies.tune.spec_tables import parse_compare, parse_study, policy_name
+from tkujax.studies.validation import (SpecError, boolean, integer, number, read_toml, table,
+                                       uniform, values)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -113,35 +115,23 @@ TUNE_FIELDS = {"name": str, "description": str, "seed": int, "iterations": int, 
 TUNE_PUSH_FIELDS = set(PUSH_FIELDS) | {"azimuth_jitter_deg"}
 
 
-def _int(key: str, value, lo: int, hi: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
-        raise SpecError(f"{key}: expected an integer in [{lo}, {hi}], got {value!r}")
-    return value
-
-
-def _bool(key: str, value) -> bool:
-    if not isinstance(value, bool):
-        raise SpecError(f"{key}: expected true or false, got {value!r}")
-    return value
-
-
 def _parse_tune(data: dict) -> dict:
     """The [tune] table (without ranges, anneal and loss): TuneSpec fields by name."""
-    tune = _table("tune", data.get("tune", {}), TUNE_FIELDS)
+    tune = table("tune", data.get("tune", {}), TUNE_FIELDS)
     for k in ("name", "description"):
         if k in tune and not isinstance(tune[k], str):
             raise SpecError(f"tune.{k}: expected a string, got {tune[k]!r}")
     out = dict(
         name=tune.get("name", "tune"),
-        seed=_int("tune.seed", tune.get("seed", 0), 0, 2**31 - 1),
-        iterations=_int("tune.iterations", tune.get("iterations", 50), 1, 100_000),
-        batch=_int("tune.batch", tune.get("batch", 64), 1, 1_048_576),
-        duration_s=_number("tune.duration_s", tune.get("duration_s", 1.5), 0.1, 30.0, "s"),
-        learning_rate=_number("tune.learning_rate", tune.get("learning_rate", 0.05), 1e-6, 10.0),
-        clip_norm=_number("tune.clip_norm", tune.get("clip_norm", 1.0), 1e-6, 1e6),
-        float64=_bool("tune.float64", tune.get("float64", False)),
-        remat=_bool("tune.remat", tune.get("remat", True)),
-        quantise_targets=_bool("tune.quantise_targets", tune.get("quantise_targets", True)))
+        seed=integer("tune.seed", tune.get("seed", 0), 0, 2**31 - 1),
+        iterations=integer("tune.iterations", tune.get("iterations", 50), 1, 100_000),
+        batch=integer("tune.batch", tune.get("batch", 64), 1, 1_048_576),
+        duration_s=number("tune.duration_s", tune.get("duration_s", 1.5), 0.1, 30.0, "s"),
+        learning_rate=number("tune.learning_rate", tune.get("learning_rate", 0.05), 1e-6, 10.0),
+        clip_norm=number("tune.clip_norm", tune.get("clip_norm", 1.0), 1e-6, 1e6),
+        float64=boolean("tune.float64", tune.get("float64", False)),
+        remat=boolean("tune.remat", tune.get("remat", True)),
+        quantise_targets=boolean("tune.quantise_targets", tune.get("quantise_targets", True)))
     params = tune.get("params", list(DEFAULT_TUNED))
     if (not isinstance(params, list) or not params or len(set(params)) != len(params)
             or any(p not in TUNABLE for p in params)):
@@ -149,24 +139,24 @@ def _parse_tune(data: dict) -> dict:
                         f"{sorted(TUNABLE)}, got {params!r}")
     out["params"] = tuple(params)
     out["ranges"] = _parse_ranges(tune)
-    anneal = _table("tune.anneal", tune.get("anneal", {}), {"start_deg", "end_deg", "schedule"})
-    start = _number("tune.anneal.start_deg", anneal.get("start_deg", 3.0), 1e-3, 30.0, "deg")
-    end = _number("tune.anneal.end_deg", anneal.get("end_deg", 0.5), 1e-3, start, "deg")
+    anneal = table("tune.anneal", tune.get("anneal", {}), {"start_deg", "end_deg", "schedule"})
+    start = number("tune.anneal.start_deg", anneal.get("start_deg", 3.0), 1e-3, 30.0, "deg")
+    end = number("tune.anneal.end_deg", anneal.get("end_deg", 0.5), 1e-3, start, "deg")
     schedule = anneal.get("schedule", "geometric")
     if schedule not in ("geometric", "linear"):
         raise SpecError(f"tune.anneal.schedule: expected 'geometric' or 'linear', got {schedule!r}")
     out["anneal"] = (start, end, schedule)
-    loss_raw = _table("tune.loss", tune.get("loss", {}), LOSS_FIELDS)
-    out["loss"] = LossConfig(**{k: _number(f"tune.loss.{k}", v, *LOSS_FIELDS[k])
+    loss_raw = table("tune.loss", tune.get("loss", {}), LOSS_FIELDS)
+    out["loss"] = LossConfig(**{k: number(f"tune.loss.{k}", v, *LOSS_FIELDS[k])
                                 for k, v in loss_raw.items()})
     out["method"] = tune.get("method", "cma")
     if out["method"] not in METHODS + ("auto",):      # auto: tkujax.studies.tune.advice
         raise SpecError(f"tune.method: expected one of {list(METHODS) + ['auto']}, "
                         f"got {out['method']!r}")
-    out["popsize"] = _int("tune.popsize", tune.get("popsize", 9), 3, 4096)
+    out["popsize"] = integer("tune.popsize", tune.get("popsize", 9), 3, 4096)
     if out["popsize"] % 2 == 0:
         raise SpecError(f"tune.popsize: expected an odd number, got {out['popsize']}")
-    out["policy"] = _policy("tune.policy", tune.get("policy", "scalars"))
+    out["policy"] = policy_name("tune.policy", tune.get("policy", "scalars"))
     # Default: the fields of DEFAULT_SCHEDULE that are tuned (checked non-empty only when a
     # policy schedules, in parse_tune_spec).
     schedule = tune.get("schedule", [f for f in DEFAULT_SCHEDULE if f in params])
@@ -180,22 +170,14 @@ def _parse_tune(data: dict) -> dict:
         except ValueError as e:
             raise SpecError(f"tune.schedule: {e}") from None
     out["schedule"] = tuple(schedule)
-    out["sharpness"] = _number("tune.sharpness", tune.get("sharpness", 4.0), 0.1, 100.0)
+    out["sharpness"] = number("tune.sharpness", tune.get("sharpness", 4.0), 0.1, 100.0)
     return out
-
-
-def _policy(key: str, value) -> str:
-    try:
-        parse_policy(value)
-    except ValueError as e:
-        raise SpecError(f"{key}: {e}") from None
-    return value
 
 
 def _parse_ranges(tune: dict) -> dict[str, tuple[float, float]]:
     """tune.ranges: {field: (lo, hi)} in user units; each bound within the range
     ControllerParams.validate allows (positive on a log scale)."""
-    ranges_raw = _table("tune.ranges", tune.get("ranges", {}), {TUNABLE[f][0] for f in TUNABLE})
+    ranges_raw = table("tune.ranges", tune.get("ranges", {}), {TUNABLE[f][0] for f in TUNABLE})
     by_key = {TUNABLE[f][0]: f for f in TUNABLE}
     ranges = {}
     for key, value in ranges_raw.items():
@@ -217,19 +199,19 @@ def _parse_ranges(tune: dict) -> dict[str, tuple[float, float]]:
 
 def _parse_push(data: dict, duration: float) -> tuple[dict, float]:
     """[push]: {field: value | (lo, hi) | list} and the azimuth jitter (deg)."""
-    push_raw = _table("push", data.get("push", {}), TUNE_PUSH_FIELDS)
+    push_raw = table("push", data.get("push", {}), TUNE_PUSH_FIELDS)
     push = {}
     for k in PUSH_FIELDS:
         lo, hi, default, unit = PUSH_FIELDS[k]
         v = push_raw.get(k, default)
         key = f"push.{k}"
         if isinstance(v, dict):
-            push[k] = _uniform(key, v, lo, hi, unit)
+            push[k] = uniform(key, v, lo, hi, unit)
         elif isinstance(v, list):
-            push[k] = [float(x) for x in _values(key, v, lo, hi, unit)]
+            push[k] = [float(x) for x in values(key, v, lo, hi, unit)]
         else:
-            push[k] = _number(key, v, lo, hi, unit)
-    jitter = _number("push.azimuth_jitter_deg", push_raw.get("azimuth_jitter_deg", 0.0),
+            push[k] = number(key, v, lo, hi, unit)
+    jitter = number("push.azimuth_jitter_deg", push_raw.get("azimuth_jitter_deg", 0.0),
                      0.0, 180.0, "deg")
     onset_hi = push["onset_s"][1] if isinstance(push["onset_s"], tuple) else max(
         np.atleast_1d(push["onset_s"]))
@@ -241,69 +223,69 @@ def _parse_push(data: dict, duration: float) -> tuple[dict, float]:
 
 def _parse_baseline(data: dict, seed: int, end_deg: float) -> dict:
     """[baseline]: the (1+1)-ES baseline's sigma, seed and gate temperature."""
-    base = _table("baseline", data.get("baseline", {}), {"method", "sigma", "seed",
+    base = table("baseline", data.get("baseline", {}), {"method", "sigma", "seed",
                                                          "gate_temperature_deg"})
     if base.get("method", "es") != "es":
         raise SpecError(f"baseline.method: expected 'es' ((1+1) evolution strategy), "
                         f"got {base['method']!r}")
     return dict(
-        baseline_sigma=_number("baseline.sigma", base.get("sigma", 0.5), 1e-4, 10.0,
+        baseline_sigma=number("baseline.sigma", base.get("sigma", 0.5), 1e-4, 10.0,
                                "(latent units)"),
-        baseline_seed=_int("baseline.seed", base.get("seed", seed), 0, 2**31 - 1),
-        baseline_temperature_deg=_number("baseline.gate_temperature_deg",
+        baseline_seed=integer("baseline.seed", base.get("seed", seed), 0, 2**31 - 1),
+        baseline_temperature_deg=number("baseline.gate_temperature_deg",
                                          base.get("gate_temperature_deg", end_deg),
                                          0.0, 30.0, "deg"))
 
 
 def _parse_evaluate(ev: dict, seed: int, batch: int, duration: float) -> dict:
     """[evaluate]: the held-out pushes (seed differs from tune.seed)."""
-    eseed = _int("evaluate.seed", ev.get("seed", seed + 1), 0, 2**31 - 1)
+    eseed = integer("evaluate.seed", ev.get("seed", seed + 1), 0, 2**31 - 1)
     if eseed == seed:
         raise SpecError(f"evaluate.seed: must differ from tune.seed ({seed}): held-out pushes "
                         "are never used for tuning")
     return dict(
         eval_seed=eseed,
-        eval_n=_int("evaluate.n", ev.get("n", 4 * batch), 0, 10_000_000),
-        eval_impulse_ns=_values("evaluate.impulse_ns",
+        eval_n=integer("evaluate.n", ev.get("n", 4 * batch), 0, 10_000_000),
+        eval_impulse_ns=values("evaluate.impulse_ns",
                                 ev.get("impulse_ns", {"start": 0.2, "stop": 2.4, "num": 12}),
                                 *PUSH_FIELDS["impulse_ns"][:2], "N·s"),
-        eval_azimuth_deg=_values("evaluate.azimuth_deg", ev.get("azimuth_deg", [0.0, 180.0]),
+        eval_azimuth_deg=values("evaluate.azimuth_deg", ev.get("azimuth_deg", [0.0, 180.0]),
                                  *PUSH_FIELDS["azimuth_deg"][:2], "deg"),
-        eval_duration_s=_number("evaluate.duration_s", ev.get("duration_s", duration), 0.1,
+        eval_duration_s=number("evaluate.duration_s", ev.get("duration_s", duration), 0.1,
                                 30.0, "s"))
 
 
 def parse_tune_spec(data: dict) -> TuneSpec:
     """Validate a parsed tune TOML document (SpecError names the key and the allowed range)."""
-    _table("top level", data, {"tune", "push", "controller", "randomize", "baseline", "evaluate",
+    table("top level", data, {"tune", "push", "controller", "randomize", "baseline", "evaluate",
                                "compare", "study", "model"})
     tune = _parse_tune(data)
     push, jitter = _parse_push(data, tune["duration_s"])
-    ctrl_raw = _table("controller", data.get("controller", {}), CONTROLLER_FIELDS)
+    ctrl_raw = table("controller", data.get("controller", {}), CONTROLLER_FIELDS)
     controller = {k: controller_value(f"controller.{k}", k, v) for k, v in ctrl_raw.items()}
-    rand = _table("randomize", data.get("randomize", {}), set(RANDOMIZE_FIELDS) | {ENSEMBLE_KEY})
+    rand = table("randomize", data.get("randomize", {}), set(RANDOMIZE_FIELDS) | {ENSEMBLE_KEY})
     ensemble = parse_ensemble(rand[ENSEMBLE_KEY]) if ENSEMBLE_KEY in rand else None
     randomize = parse_randomize({"randomize": {k: v for k, v in rand.items()
                                                if k != ENSEMBLE_KEY}})
     baseline = _parse_baseline(data, tune["seed"], tune["anneal"][1])
-    ev = _table("evaluate", data.get("evaluate", {}), {"seed", "n", "impulse_ns", "azimuth_deg",
+    ev = table("evaluate", data.get("evaluate", {}), {"seed", "n", "impulse_ns", "azimuth_deg",
                                                       "duration_s", "shift"})
     evaluate = _parse_evaluate(ev, tune["seed"], tune["batch"], tune["duration_s"])
-    compare = _parse_compare(data["compare"], tune["batch"]) if "compare" in data else None
+    compare = parse_compare(data["compare"], tune["batch"]) if "compare" in data else None
     shift = _parse_shift(ev["shift"]) if "shift" in ev else None
-    study = _parse_study(data["study"], tune["batch"]) if "study" in data else None
-    table = tuple(e for e in (ensemble, (shift or {}).get("ensemble")) if e is not None)
-    table = tuple(e for i, e in enumerate(table) if e not in table[:i])   # by content
-    if table and tune["float64"]:
+    study = parse_study(data["study"], tune["batch"]) if "study" in data else None
+    robots = tuple(e for e in (ensemble, (shift or {}).get("ensemble")) if e is not None)
+    robots = tuple(e for i, e in enumerate(robots) if e not in robots[:i])   # by content
+    if robots and tune["float64"]:
         raise SpecError("tune.float64: an ensemble ([randomize] or [evaluate.shift] ensemble) "
                         "runs in float32; set tune.float64 = false")
     model = _parse_model(data.get("model", {}))
-    if model and table:
+    if model and robots:
         raise SpecError("[model]: an ensemble ([randomize] or [evaluate.shift] ensemble) gives "
                         "the robots; remove [model] or the ensemble")
     spec = TuneSpec(**tune, push=push, azimuth_jitter_deg=jitter, controller=controller,
                     randomize=randomize, **baseline, **evaluate, raw=data, compare=compare,
-                    shift=shift, study=study, ensemble=ensemble, robot_table=table, model=model)
+                    shift=shift, study=study, ensemble=ensemble, robot_table=robots, model=model)
     # Start values must lie strictly inside the ranges (their latents are finite).
     for key, policy in [("tune.policy", spec.policy)] + [
             (f"study.policies[{i}]", p) for i, p in enumerate((study or {}).get("policies", []))]:
@@ -312,129 +294,32 @@ def parse_tune_spec(data: dict) -> TuneSpec:
                             f"tune.params is scheduled (set tune.schedule)")
     rep, start_params = spec.reparam(), spec.base_params()
     for f, (a, b) in rep.user_ranges().items():
-        v = float(getattr(start_params, f)) / _user_factor(f)
+        v = float(getattr(start_params, f)) / user_factor(f)
         if not a < v < b:
             raise SpecError(f"{TUNABLE[f][0]}: start value {v:g} (from [controller] or the "
                             f"paper) must lie strictly inside tune.ranges ({a:g}, {b:g})")
     return spec
 
 
-def _parse_model(table) -> dict[str, float]:
+def _parse_model(given) -> dict[str, float]:
     """[model]: {ModelParams field: number}, validated (unknown keys and out-of-range values
     raise SpecError naming the key)."""
-    if not isinstance(table, dict):
-        raise SpecError(f"[model]: expected a table of model parameters, got {table!r}")
-    for k, v in table.items():
+    if not isinstance(given, dict):
+        raise SpecError(f"[model]: expected a table of model parameters, got {given!r}")
+    for k, v in given.items():
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             raise SpecError(f"model.{k}: expected a number, got {v!r}")
     try:
-        ModelParams.from_overrides(dict(table))
+        ModelParams.from_overrides(dict(given))
     except ValueError as err:
         raise SpecError(f"[model]: {err}") from None
-    return {k: float(v) for k, v in table.items()}
-
-
-COMPARE_FIELDS = {"methods", "seeds", "budget_s", "popsize", "sigma0", "zo_sigma", "groups",
-                  "learning_rate", "temperature_deg", "push_clip", "ray_radius", "eval_n"}
-
-
-def _methods(table: str, c: dict, default: list) -> list:
-    methods = c.get("methods", default)
-    if (not isinstance(methods, list) or not methods or any(m not in METHODS for m in methods)
-            or len(set(methods)) != len(methods)):
-        raise SpecError(f"{table}.methods: expected distinct names from {list(METHODS)}, "
-                        f"got {methods!r}")
-    return list(methods)
-
-
-def _search_settings(table: str, c: dict, batch: int, popsize: int, budget_s: float,
-                     budget_min_s: float) -> dict:
-    """The settings a [compare] or [study] table shares: groups, popsize and the methods'
-    steps (defaults: popsize, budget_s; budget_s at least budget_min_s)."""
-    groups = _int(f"{table}.groups", c.get("groups", 4), 1, 1024)
-    if batch % groups:
-        raise SpecError(f"{table}.groups: {groups} must divide tune.batch = {batch}")
-    popsize = _int(f"{table}.popsize", c.get("popsize", popsize), 3, 4096)
-    if popsize % 2 == 0:
-        raise SpecError(f"{table}.popsize: expected an odd number (centre + antithetic pairs), "
-                        f"got {popsize}")
-    return dict(
-        groups=groups, popsize=popsize,
-        budget_s=_number(f"{table}.budget_s", c.get("budget_s", budget_s), budget_min_s,
-                         86400.0, "s"),
-        sigma0=_number(f"{table}.sigma0", c.get("sigma0", 0.5), 1e-3, 10.0, "(latent)"),
-        zo_sigma=_number(f"{table}.zo_sigma", c.get("zo_sigma", 0.3), 1e-3, 10.0, "(latent)"),
-        learning_rate=_number(f"{table}.learning_rate", c.get("learning_rate", 0.1), 1e-5,
-                              10.0),
-        temperature_deg=_number(f"{table}.temperature_deg", c.get("temperature_deg", 0.5),
-                                1e-3, 30.0, "deg"),
-        # gradient, hybrid: clip each push's gradient at push_clip x the batch's median
-        # per-push norm before the mean (0: the plain mean; search.first_order_grads)
-        push_clip=_number(f"{table}.push_clip", c.get("push_clip", 0.0), 0.0, 1e6,
-                          "(x median norm)"),
-        # linesearch: the longest step of its first ray (search.RaySearch)
-        ray_radius=_number(f"{table}.ray_radius", c.get("ray_radius", 2.0), 1e-3, 100.0,
-                           "(latent)"),
-        eval_n=_int(f"{table}.eval_n", c.get("eval_n", 4 * batch), 1, 10_000_000))
-
-
-def _parse_compare(raw, batch: int) -> dict:
-    c = _table("compare", raw, COMPARE_FIELDS)
-    methods = _methods("compare", c, ["cma", "hybrid", "es"])
-    seeds = c.get("seeds", [0, 1, 2])
-    if not isinstance(seeds, list) or not seeds or any(
-            isinstance(x, bool) or not isinstance(x, int) or x < 0 for x in seeds):
-        raise SpecError(f"compare.seeds: expected a list of non-negative integers, got {seeds!r}")
-    return dict(methods=methods, seeds=list(seeds),
-                **_search_settings("compare", c, batch, 9, 60.0, 1.0))
-
-
-STUDY_FIELDS = {"policies", "methods", "seeds", "budget_s", "popsize", "sigma0", "zo_sigma",
-                "push_clip", "ray_radius", "groups", "learning_rate", "temperature_deg", "eval_n",
-                "above_impulse_ns", "sep_cma_from", "margin_s", "compile_s", "seeds_side_by_side"}
-
-
-def _parse_study(raw, batch: int) -> dict:
-    """[study]: every policy x method x seed at one budget (tkujax.studies.tune.study)."""
-    c = _table("study", raw, STUDY_FIELDS)
-    policies = c.get("policies", ["scalars", "sectors4", "sectors8", "mlp"])
-    if not isinstance(policies, list) or not policies or len(set(policies)) != len(policies):
-        raise SpecError(f"study.policies: expected a list of distinct policy names, "
-                        f"got {policies!r}")
-    for i, p in enumerate(policies):
-        _policy(f"study.policies[{i}]", p)
-    methods = _methods("study", c, list(METHODS))
-    seeds = c.get("seeds", [0, 1, 2])
-    if not isinstance(seeds, list) or not seeds or len(set(seeds)) != len(seeds) or any(
-            isinstance(x, bool) or not isinstance(x, int) or x < 0 for x in seeds):
-        raise SpecError(f"study.seeds: expected a list of distinct non-negative integers, "
-                        f"got {seeds!r}")
-    above = c.get("above_impulse_ns")
-    if above is not None:
-        lo, hi, _, unit = PUSH_FIELDS["impulse_ns"]
-        if not (isinstance(above, list) and len(above) == 2):
-            raise SpecError(f"study.above_impulse_ns: expected [lo, hi] in N·s, got {above!r}")
-        a = _number("study.above_impulse_ns[0]", above[0], lo, hi, unit)
-        b = _number("study.above_impulse_ns[1]", above[1], lo, hi, unit)
-        if not a < b:
-            raise SpecError(f"study.above_impulse_ns: lower bound {a} must be below {b}")
-        above = (a, b)
-    return dict(
-        policies=list(policies), methods=methods, seeds=list(seeds), above_impulse_ns=above,
-        **_search_settings("study", c, batch, 15, 120.0, 0.1),
-        sep_cma_from=_int("study.sep_cma_from", c.get("sep_cma_from", 64), 1, 1_000_000),
-        margin_s=_number("study.margin_s", c.get("margin_s", 60.0), 0.0, 86400.0, "s"),
-        compile_s=_number("study.compile_s", c.get("compile_s", 180.0), 0.0, 86400.0, "s"),
-        # The seeds of one (policy, method) in lockstep, sharing every compiled call
-        # (tkujax.studies.tune.lockstep); false: one run after another, each alone.
-        seeds_side_by_side=_bool("study.seeds_side_by_side",
-                                 c.get("seeds_side_by_side", False)))
+    return {k: float(v) for k, v in given.items()}
 
 
 def _parse_shift(raw) -> dict:
     """[evaluate.shift]: model variations, contact heights and robots never used in training
     (ensemble: an EnsembleRef, or absent: the default robot)."""
-    sh = _table("evaluate.shift", raw, set(RANDOMIZE_DEFAULTS) | {"height_m", ENSEMBLE_KEY})
+    sh = table("evaluate.shift", raw, set(RANDOMIZE_DEFAULTS) | {"height_m", ENSEMBLE_KEY})
     out = {"randomize": parse_randomize({"randomize": {k: v for k, v in sh.items()
                                                         if k not in ("height_m", ENSEMBLE_KEY)}})}
     if ENSEMBLE_KEY in sh:
@@ -442,8 +327,8 @@ def _parse_shift(raw) -> dict:
     if "height_m" in sh:
         lo, hi, _, unit = PUSH_FIELDS["height_m"]
         v = sh["height_m"]
-        out["height_m"] = (_uniform("evaluate.shift.height_m", v, lo, hi, unit)
-                           if isinstance(v, dict) else _number("evaluate.shift.height_m", v, lo,
+        out["height_m"] = (uniform("evaluate.shift.height_m", v, lo, hi, unit)
+                           if isinstance(v, dict) else number("evaluate.shift.height_m", v, lo,
                                                                hi, unit))
     return out
 
@@ -460,7 +345,7 @@ def shifted(spec: TuneSpec) -> TuneSpec | None:
                                ensemble=spec.shift.get(ENSEMBLE_KEY))
 
 
-def robot_table(spec: TuneSpec, model_params: ModelParams | None = None
+def robottable(spec: TuneSpec, model_params: ModelParams | None = None
                 ) -> tuple[ModelParams, ...] | None:
     """The robots of the spec's tuning problem, row by row (the robot_id of the records): row
     0 the default robot (`model_params`, None: the embedded default), then each ensemble of
@@ -491,7 +376,7 @@ def _robot_set(models: tuple[ModelParams, ...]):
 def tune_robots(spec: TuneSpec, model_params: ModelParams | None = None):
     """The RobotSet of `robot_table` (cached by content), or None without an ensemble; a member
     that is not of the default robot's structure is a SpecError naming the ensemble key."""
-    models = robot_table(spec, model_params)
+    models = robottable(spec, model_params)
     if models is None:
         return None
     try:

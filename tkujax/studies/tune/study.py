@@ -51,7 +51,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tkujax.studies.tune.compare import _default
+from tkujax.studies.tune.compare import json_default
 
 RUN_KEYS = ("policy", "method", "seed")
 
@@ -87,7 +87,7 @@ def select(runs: list[tuple[str, str, int]], only: list[str] | None):
 def _write_json(path: Path, obj) -> None:
     """Atomic: a run cut mid-write leaves no half file (which would count as finished)."""
     tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")   # processes may share out_dir
-    tmp.write_text(json.dumps(obj, indent=1, default=_default))
+    tmp.write_text(json.dumps(obj, indent=1, default=json_default))
     os.replace(tmp, path)
 
 
@@ -478,19 +478,19 @@ class StudyRunner:
                     devices=[str(d) for d in jax.devices()])
 
     def __call__(self, policy: str, method: str, seed: int) -> dict:
-        from tkujax.studies.tune.compare import _fell_rates
-        from tkujax.studies.tune.problem import _x64
+        from tkujax.studies.tune.compare import fell_rates
+        from tkujax.studies.tune.problem import x64
         from tkujax.studies.tune.search import run_search
 
         spec = self.spec
-        with _x64(spec.float64):
+        with x64(spec.float64):
             problem, rep, z0, variant, m, cfg = self._setup(policy, method)
             train, keys = self._train(seed)
             r = run_search(m, problem, z0, train, keys, cfg, seed=seed, log=self.log)
             self.done.setdefault((policy, 0), set()).update(_uses(method))
             fell = {}
             for label, (recs, ekeys) in self.eval_sets(seed).items():
-                f = _fell_rates(problem, {"start": z0, "best": np.asarray(r["z_best"])},
+                f = fell_rates(problem, {"start": z0, "best": np.asarray(r["z_best"])},
                                 recs, ekeys, spec.batch)
                 fell[label] = (f["start"], f["best"])
         return self._record(policy, method, seed, rep, variant, r, fell)
@@ -500,11 +500,11 @@ class StudyRunner:
         in one call per chunk (the lockstep forward at the training batch's shape, compiled
         for the search already). One record per seed, as __call__'s."""
         from tkujax.studies.tune.lockstep import fell_rates_lockstep, run_search_lockstep
-        from tkujax.studies.tune.problem import _x64
+        from tkujax.studies.tune.problem import x64
 
         spec = self.spec
         seeds = list(seeds)
-        with _x64(spec.float64):
+        with x64(spec.float64):
             problem, rep, z0, variant, m, cfg = self._setup(policy, method)
             trains = [self._train(s) for s in seeds]
             rs = run_search_lockstep(m, problem, z0, [t[0] for t in trains],
