@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tkujax.studies.spec import SpecError, read_toml
+from tkujax.studies.validation import SpecError, in_range, read_toml, table
 
 BACKENDS = ("mujoco", "mjx")
 CONTROLS = ("off", "on")
@@ -77,14 +77,9 @@ class ConvergeSpec:
         return next(s for s in self.settings if s.name == name)
 
 
-def _num(table: dict, key: str, where: str, lo: float, hi: float, default=None, integer=False):
-    v = table.get(key, default)
-    ok = (isinstance(v, int) if integer else isinstance(v, (int, float))) and \
-        not isinstance(v, bool)
-    if not ok or not lo <= v <= hi:
-        kind = "an integer" if integer else "a number"
-        raise SpecError(f"{where}.{key} must be {kind} in [{lo}, {hi}], got {v!r}")
-    return v
+def _num(given: dict, key: str, where: str, lo: float, hi: float, default=None, integer=False):
+    """given[key] (or default): a number (an integer) in [lo, hi], named where.key."""
+    return in_range(f"{where}.{key}", given.get(key, default), lo, hi, integer)
 
 
 def parse_spec(data: dict) -> ConvergeSpec:
@@ -95,9 +90,7 @@ def parse_spec(data: dict) -> ConvergeSpec:
                         f"{sorted(allowed)}")
     c = data.get("converge", {})
     known = {"name", "backend", "batch", "reference", "setting"}
-    if set(c) - known:
-        raise SpecError(f"[converge]: unknown key(s) {sorted(set(c) - known)}; allowed: "
-                        f"{sorted(known)}")
+    table("converge", c, known)
     name = c.get("name", "converge")
     if not isinstance(name, str) or not name.replace("_", "").replace("-", "").isalnum():
         raise SpecError(f"converge.name must be letters, digits, - or _, got {name!r}")
@@ -142,14 +135,11 @@ def parse_spec(data: dict) -> ConvergeSpec:
         raise SpecError(f"converge.reference must be one of the setting names {names}, "
                         f"got {reference!r}")
     p = data.get("paper", {})
-    if set(p) - {"phases"}:
-        raise SpecError(f"[paper]: unknown key(s) {sorted(set(p) - {'phases'})}; allowed: "
-                        "['phases']")
+    table("paper", p, {"phases"})
     phases = _num(p, "phases", "paper", 0, 100, 15, integer=True)
     w = data.get("wide", {})
     wk = {"pushes", "impulse_ns", "height_m", "duration_s", "seed"}
-    if set(w) - wk:
-        raise SpecError(f"[wide]: unknown key(s) {sorted(set(w) - wk)}; allowed: {sorted(wk)}")
+    table("wide", w, wk)
     pushes = _num(w, "pushes", "wide", 0, 1 << 20, 512, integer=True)
     imp = w.get("impulse_ns", [0.2, 1.8])
     if (not isinstance(imp, list) or len(imp) != 2

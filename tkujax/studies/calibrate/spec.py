@@ -37,7 +37,8 @@ import json
 from pathlib import Path
 
 from tkujax.studies.calibrate import params as P
-from tkujax.studies.spec import SpecError, _number, _table, read_toml
+from tkujax.studies.validation import (SpecError, boolean, choice, distinct_list, integer,
+                                       names, number, read_toml, string, table)
 
 ROWS_CHOICES = ("all", "table4")
 MAX_PHASE_MS = 30.0                  # the controller's sampling period
@@ -103,69 +104,56 @@ class CalibrateSpec:
         return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def _int(key: str, value, lo: int, hi: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
-        raise SpecError(f"{key}: expected an integer in [{lo}, {hi}], got {value!r}")
-    return value
-
-
-def _bool(key: str, value) -> bool:
-    if not isinstance(value, bool):
-        raise SpecError(f"{key}: expected true or false, got {value!r}")
-    return value
-
-
-def _names(key: str, value, allowed) -> tuple[str, ...]:
-    allowed = list(allowed)
-    if (not isinstance(value, list) or not value or len(set(value)) != len(value)
-            or any(v not in allowed for v in value)):
-        bad = [v for v in value if v not in allowed] if isinstance(value, list) else value
-        raise SpecError(f"{key}: expected a non-empty list of distinct names from {allowed}, "
-                        f"got {value!r} (not allowed: {bad!r})")
-    return tuple(v for v in allowed if v in value)     # canonical order
-
-
 def parse_calibrate_spec(data: dict) -> CalibrateSpec:
     """Validate a parsed calibrate TOML document (SpecError names the key and allowed range)."""
-    _table("top level", data, {"fit", "search", "report"})
-    fit = _table("fit", data.get("fit", {}), {"name", "description", "params", "readings",
-                                              "rows", "heldout", "hit_phases_ms",
-                                              "contact_times_ms", "criterion_weight",
-                                              "bounds", "start"})
+    table("top level", data, {"fit", "search", "report"})
+    fit = _parse_fit(data)
+    return CalibrateSpec(**fit, **_parse_search(data), **_parse_report(data))
+
+
+def _parse_fit(data: dict) -> dict:
+    """The [fit] table: CalibrateSpec fields by name."""
+    fit = table("fit", data.get("fit", {}), {"name", "description", "params", "readings",
+                                             "rows", "heldout", "hit_phases_ms",
+                                             "contact_times_ms", "criterion_weight",
+                                             "bounds", "start"})
     for k in ("name", "description"):
-        if k in fit and not isinstance(fit[k], str):
-            raise SpecError(f"fit.{k}: expected a string, got {fit[k]!r}")
+        if k in fit:
+            string(f"fit.{k}", fit[k])
     # Default: every parameter but the NEUTRAL ones (added later; a fit names them to move them).
-    names = _names("fit.params", fit.get("params", list(P.DEFAULT_FIT)), P.NAMES)
-    readings = _names("fit.readings", fit.get("readings", list(P.READINGS)), P.READINGS)
-    rows = fit.get("rows", "all")
-    if rows not in ROWS_CHOICES:
-        raise SpecError(f"fit.rows: expected one of {list(ROWS_CHOICES)}, got {rows!r}")
-    heldout = _bool("fit.heldout", fit.get("heldout", True))
-    phases = fit.get("hit_phases_ms", [0.0])
-    if not isinstance(phases, list) or not phases or len(set(phases)) != len(phases):
-        raise SpecError(f"fit.hit_phases_ms: expected a non-empty list of distinct numbers in "
-                        f"[0, {MAX_PHASE_MS:g}) ms, got {phases!r}")
-    phases = tuple(_number(f"fit.hit_phases_ms[{i}]", v, 0.0, MAX_PHASE_MS, "ms")
+    fitted = names("fit.params", fit.get("params", list(P.DEFAULT_FIT)), P.NAMES)
+    out = dict(
+        name=fit.get("name", "calibrate"), params=fitted,
+        readings=names("fit.readings", fit.get("readings", list(P.READINGS)), P.READINGS),
+        rows=choice("fit.rows", fit.get("rows", "all"), ROWS_CHOICES),
+        heldout=boolean("fit.heldout", fit.get("heldout", True)))
+    phases = distinct_list("fit.hit_phases_ms", fit.get("hit_phases_ms", [0.0]),
+                           f"numbers in [0, {MAX_PHASE_MS:g}) ms")
+    phases = tuple(number(f"fit.hit_phases_ms[{i}]", v, 0.0, MAX_PHASE_MS, "ms")
                    for i, v in enumerate(phases))
     if MAX_PHASE_MS in phases:              # 30 ms is the next tick: phase 0 again
         raise SpecError(f"fit.hit_phases_ms: expected numbers in [0, {MAX_PHASE_MS:g}) ms "
                         f"(30 ms is the next tick, i.e. phase 0), got {list(phases)}")
-
-    contacts = fit.get("contact_times_ms", [DEFAULT_CONTACT_MS])
-    if not isinstance(contacts, list) or not contacts or len(set(contacts)) != len(contacts):
-        raise SpecError(f"fit.contact_times_ms: expected a non-empty list of distinct numbers in "
-                        f"[{CONTACT_RANGE_MS[0]:g}, {CONTACT_RANGE_MS[1]:g}] ms, got {contacts!r}")
-    contacts = tuple(_number(f"fit.contact_times_ms[{i}]", v, *CONTACT_RANGE_MS, "ms")
+    lo, hi = CONTACT_RANGE_MS
+    contacts = distinct_list("fit.contact_times_ms",
+                             fit.get("contact_times_ms", [DEFAULT_CONTACT_MS]),
+                             f"numbers in [{lo:g}, {hi:g}] ms")
+    contacts = tuple(number(f"fit.contact_times_ms[{i}]", v, lo, hi, "ms")
                      for i, v in enumerate(contacts))
+    out.update(hit_phases_ms=phases, contact_times_ms=contacts,
+               criterion_weight=number("fit.criterion_weight", fit.get("criterion_weight", 0.0),
+                                       0.0, 1e4))
+    bounds = _parse_bounds(fit, fitted)
+    return dict(out, bounds=bounds, start=_parse_start(fit, fitted, bounds))
 
-    criterion = _number("fit.criterion_weight", fit.get("criterion_weight", 0.0), 0.0, 1e4)
 
+def _parse_bounds(fit: dict, fitted: tuple[str, ...]) -> dict[str, tuple[float, float]]:
+    """fit.bounds: {name: (lo, hi)}, each within (never wider than) params.py's bound."""
     bounds = {p.name: (p.lo, p.hi) for p in P.PARAMS}
-    for key, value in _table("fit.bounds", fit.get("bounds", {}), P.NAMES).items():
+    for key, value in table("fit.bounds", fit.get("bounds", {}), P.NAMES).items():
         p = P.PARAMS[P.NAMES.index(key)]
         unit = " (log10)" if p.log else ""
-        if key not in names:
+        if key not in fitted:
             raise SpecError(f"fit.bounds.{key}: {key} is not fitted (fit.params); its value is "
                             "held, a bound would have no effect")
         if not (isinstance(value, list) and len(value) == 2):
@@ -183,58 +171,62 @@ def parse_calibrate_spec(data: dict) -> CalibrateSpec:
             raise SpecError(f"fit.bounds.{key}: lower bound {lo:g} must be below upper "
                             f"bound {hi:g}")
         bounds[key] = (float(lo), float(hi))
+    return bounds
 
-    base = P.as_dict(P.base_vector())
-    start = dict(base)
-    for key, value in _table("fit.start", fit.get("start", {}), P.NAMES).items():
+
+def _parse_start(fit: dict, fitted: tuple[str, ...], bounds: dict) -> dict[str, float]:
+    """fit.start over the base model's values; every fitted start inside its bounds."""
+    start = dict(P.as_dict(P.base_vector()))
+    for key, value in table("fit.start", fit.get("start", {}), P.NAMES).items():
         lo, hi = bounds[key]
-        start[key] = _number(f"fit.start.{key}", value, lo, hi)
-    for key in names:
+        start[key] = number(f"fit.start.{key}", value, lo, hi)
+    for key in fitted:
         lo, hi = bounds[key]
         if not lo <= start[key] <= hi:
             raise SpecError(f"fit.start.{key}: the base model's value {start[key]:g} lies outside "
                             f"fit.bounds.{key} [{lo:g}, {hi:g}]; give a start inside them")
+    return start
 
-    search = _table("search", data.get("search", {}), {"budget_s", "max_evals", "popsize",
-                                                       "restarts", "workers", "seed", "sigma0",
-                                                       "backend", "robots_per_call"})
+
+def _parse_search(data: dict) -> dict:
+    """The [search] table: the CMA-ES budget, population, restarts and backend."""
+    search = table("search", data.get("search", {}), {"budget_s", "max_evals", "popsize",
+                                                      "restarts", "workers", "seed", "sigma0",
+                                                      "backend", "robots_per_call"})
     budget = search.get("budget_s")
-    budget = None if budget is None else _number("search.budget_s", budget, 1.0, 30 * 86400.0, "s")
+    budget = None if budget is None else number("search.budget_s", budget, 1.0, 30 * 86400.0, "s")
     max_evals = search.get("max_evals")
-    max_evals = None if max_evals is None else _int("search.max_evals", max_evals, 1, 10_000_000)
+    max_evals = None if max_evals is None else integer("search.max_evals", max_evals, 1,
+                                                       10_000_000)
     if budget is None and max_evals is None:
         raise SpecError("search: give budget_s (wall seconds) and/or max_evals (candidates)")
-    popsize = _int("search.popsize", search.get("popsize", 8), 2, 4096)
-    restarts = _int("search.restarts", search.get("restarts", 4), 0, 64)
-    workers = _int("search.workers", search.get("workers", 0), 0, 1024)
-    seed = _int("search.seed", search.get("seed", 0), 0, 2**31 - 1)
-    sigma0 = _number("search.sigma0", search.get("sigma0", 0.25), 1e-3, 1.0, "(unit cube)")
+    return dict(
+        budget_s=budget, max_evals=max_evals,
+        popsize=integer("search.popsize", search.get("popsize", 8), 2, 4096),
+        restarts=integer("search.restarts", search.get("restarts", 4), 0, 64),
+        workers=integer("search.workers", search.get("workers", 0), 0, 1024),
+        seed=integer("search.seed", search.get("seed", 0), 0, 2**31 - 1),
+        sigma0=number("search.sigma0", search.get("sigma0", 0.25), 1e-3, 1.0, "(unit cube)"),
+        backend=choice("search.backend", search.get("backend", "mujoco"), BACKENDS),
+        robots_per_call=integer("search.robots_per_call", search.get("robots_per_call", 32), 1,
+                                4096))
 
-    backend = search.get("backend", "mujoco")
-    if backend not in BACKENDS:
-        raise SpecError(f"search.backend: expected one of {list(BACKENDS)}, got {backend!r}")
-    robots_per_call = _int("search.robots_per_call", search.get("robots_per_call", 32), 1, 4096)
 
-    report = _table("report", data.get("report", {}), {"sensitivity", "ensemble_tolerance",
-                                                       "ensemble_max", "island_points"})
-    sens = _bool("report.sensitivity", report.get("sensitivity", True))
+def _parse_report(data: dict) -> dict:
+    """The [report] table: sensitivity, the ensemble's tolerance and size, island points."""
+    report = table("report", data.get("report", {}), {"sensitivity", "ensemble_tolerance",
+                                                      "ensemble_max", "island_points"})
+    sens = boolean("report.sensitivity", report.get("sensitivity", True))
     tol = report.get("ensemble_tolerance")
-    tol = None if tol is None else _number("report.ensemble_tolerance", tol, 1e-6, 1e3, "(loss)")
-    ens_max = _int("report.ensemble_max", report.get("ensemble_max", 64), 2, 4096)
-    points = _int("report.island_points", report.get("island_points", 0), 0, 400)
+    tol = None if tol is None else number("report.ensemble_tolerance", tol, 1e-6, 1e3, "(loss)")
+    ens_max = integer("report.ensemble_max", report.get("ensemble_max", 64), 2, 4096)
+    points = integer("report.island_points", report.get("island_points", 0), 0, 400)
     if points and (points < 5 or tol is None):
         raise SpecError(f"report.island_points: expected 0, or 5-400 together with "
                         f"report.ensemble_tolerance, got {points!r}"
                         f"{'' if tol is not None else ' without ensemble_tolerance'}")
-    return CalibrateSpec(name=fit.get("name", "calibrate"), params=names, bounds=bounds,
-                         start=start, readings=readings, rows=rows, heldout=heldout,
-                         hit_phases_ms=phases, contact_times_ms=contacts,
-                         criterion_weight=criterion, budget_s=budget,
-                         max_evals=max_evals,
-                         popsize=popsize, restarts=restarts, workers=workers, seed=seed,
-                         sigma0=sigma0, sensitivity=sens, backend=backend,
-                         robots_per_call=robots_per_call, ensemble_tolerance=tol,
-                         ensemble_max=ens_max, island_points=points)
+    return dict(sensitivity=sens, ensemble_tolerance=tol, ensemble_max=ens_max,
+                island_points=points)
 
 
 def load_calibrate_spec(path: str | Path) -> CalibrateSpec:

@@ -345,7 +345,7 @@ def shifted(spec: TuneSpec) -> TuneSpec | None:
                                ensemble=spec.shift.get(ENSEMBLE_KEY))
 
 
-def robottable(spec: TuneSpec, model_params: ModelParams | None = None
+def robot_table(spec: TuneSpec, model_params: ModelParams | None = None
                 ) -> tuple[ModelParams, ...] | None:
     """The robots of the spec's tuning problem, row by row (the robot_id of the records): row
     0 the default robot (`model_params`, None: the embedded default), then each ensemble of
@@ -376,7 +376,7 @@ def _robot_set(models: tuple[ModelParams, ...]):
 def tune_robots(spec: TuneSpec, model_params: ModelParams | None = None):
     """The RobotSet of `robot_table` (cached by content), or None without an ensemble; a member
     that is not of the default robot's structure is a SpecError naming the ensemble key."""
-    models = robottable(spec, model_params)
+    models = robot_table(spec, model_params)
     if models is None:
         return None
     try:
