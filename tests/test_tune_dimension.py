@@ -424,7 +424,7 @@ def test_recommended_method_follows_the_study_evidence():
     from pathlib import Path
 
     from tkujax.studies.tune.advice import EVIDENCE, recommended_method
-    from tkujax.studies.tune.study import recommend_methods
+    from tkujax.studies.tune.study_report import recommend_methods
 
     summary = Path(__file__).resolve().parents[1] / "results/tune_dimension/summary.json"
     if summary.exists():
