@@ -43,7 +43,7 @@ sweep seed, after the other [randomize] draws), shared by the push's control and
 the records carry it in a robot_id column. The path is relative to the current directory (or
 absolute); the file is read and validated here, and its sha256 enters the sweep's hash.
 
-FPGA fixed-point controller (issue 15; `tkujax.control.fixed`):
+FPGA fixed-point controller (`tkujax.control.fixed`):
 
     [controller]
     arithmetic = "fixed"       # default "float"; "fixed" runs controller_step_fx in the loop

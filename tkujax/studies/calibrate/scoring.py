@@ -11,7 +11,7 @@ from tkujax.studies.calibrate import evaluate as E
 from tkujax.studies.calibrate import targets as T
 
 OBJECTIVE_ROWS = {"ALL": T.ROWS, "T4": T.TABLE4}
-CRITERION_P = 0.8                     # issue 21: the paper's outcome in >= 80 % of the trials
+CRITERION_P = 0.8                     # the paper's outcome in >= 80 % of the trials
 FAILED_LOSS = 1e3                     # an invalid candidate (the model refused it): a penalty
 
 # evaluator(x: dict, readings, hit_phases_ms) -> {phase: {reading: {row key: sim dict}}}

@@ -51,7 +51,7 @@ Gradient notes (checked against central finite differences in float64, tests/tes
     tune.remat = true now checkpoints each physics substep instead (problem.TUNE_REMAT): on one
     H100, 1.55 GB peak and 2.98 s a step against 2.93 GB and 4.63 s per tick.
 
-Robots and harm (issue 22; tkujax.studies.tune.spec, problem): [randomize] ensemble = "PATH"
+Robots and harm (tkujax.studies.tune.spec, problem): [randomize] ensemble = "PATH"
 runs every training and held-out push on one member of a calibration ensemble, drawn
 uniformly (last, so specs without it draw the same pushes as before); [evaluate.shift]
 ensemble runs the shifted set on one. One RobotSet holds the default robot (row 0) and the

@@ -2,9 +2,9 @@
 
 `tune.method = "auto"` picks `recommended_method(n_params)`; with any other method,
 `tkujax tune` names the recommendation in its log when it differs. The table is copied from
-`results/tune_dimension` (issue 23: one NVIDIA H100, 120 s of wall clock per run, 3 seeds side
-by side), the method with the lowest mean held-out fall rate per size among those run so far,
-and is updated with that study.
+`results/tune_dimension` (the dimension study: one NVIDIA H100, 120 s of wall clock per run,
+3 seeds side by side), the method with the lowest mean held-out fall rate per size among those
+run so far, and is updated with that study.
 """
 
 from __future__ import annotations

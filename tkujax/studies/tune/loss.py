@@ -22,7 +22,7 @@ class LossConfig:
     w_step: float = 0.1
     step_ref_m: float = 0.05
     baseline_s: float = 0.3           # pre-push window defining the standing inclination
-    # "Harm nowhere" (issue 22): a push's loss counts (1 + w_harm) times when the robot survives
+    # "Harm nowhere": a push's loss counts (1 + w_harm) times when the robot survives
     # it with control OFF (`harm_weighted_mean`). 0: every push counts once (the program does
     # not change).
     w_harm: float = 0.0

@@ -47,7 +47,7 @@ def x64(enabled: bool):
 
 
 # What tune.remat = true checkpoints: each physics substep. Against a checkpoint per control
-# tick, on one H100 at 1,024 pushes x 1.5 s (results/bench/README.md, session 8): the gradient
+# tick, on one H100 at 1,024 pushes x 1.5 s (results/bench/README.md): the gradient
 # step 2.98 s vs 4.63 s, peak memory 1.55 vs 2.93 GB, the cold compile 103 s vs 124 s; the
 # gradient is the same function (checkpointing changes what is stored, not the values).
 TUNE_REMAT = "substep"
@@ -55,7 +55,7 @@ TUNE_REMAT = "substep"
 # MJX's kinematics, com_vel and rne with MJX's formulas, equal to float rounding, in a program
 # that XLA compiles in about half the time. On one H200 at batch 256 x 1.5 s the gradient's cold
 # compile took 41.0 s against 76.9 s with MJX's passes, and its step at 1,024 ran 2.32 s
-# against 2.65 s (results/bench/README.md, session 16). A tuner loss so differs from a sweep's
+# against 2.65 s (results/bench/README.md). A tuner loss so differs from a sweep's
 # by rounding, not by model.
 TUNE_TREE_PASSES = "compact"
 

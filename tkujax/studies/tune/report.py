@@ -106,7 +106,7 @@ def summary_markdown(rec: dict, comparison: dict | None = None) -> str:
                 + " |")
         if ev.get("after", {}).get("heldout_harmed_rate") is not None:
             b, a = ev.get("before", {}), ev["after"]
-            lines += ["", f"Harm (issue 22; held-out pushes, n = {a['heldout_harm_n']}): control "
+            lines += ["", f"Harm (held-out pushes, n = {a['heldout_harm_n']}): control "
                       f"off falls {_pct(a['heldout_off_fall_rate'])}; pushes that fall with "
                       f"control but not without: start {_pct(b.get('heldout_harmed_rate'))}, "
                       f"tuned {_pct(a['heldout_harmed_rate'])}."]

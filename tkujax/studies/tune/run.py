@@ -21,10 +21,12 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from tkujax.control.params import ControllerParams
 from tkujax.studies.tune.advice import EVIDENCE_NOTE, recommended_method
+from tkujax.studies.tune.compare import json_default
 from tkujax.studies.tune.evaluate import evaluate, harmed_directions, params_json, recommend
 from tkujax.studies.tune.problem import x64
-from tkujax.studies.tune.policy import save_policy
+from tkujax.studies.tune.policy import PolicyReparam, save_policy
 from tkujax.studies.tune.report import plot_outputs, summary_markdown
 from tkujax.studies.tune.search import SearchConfig, run_search
 from tkujax.studies.validation import integer
@@ -63,20 +65,24 @@ def run_tune(spec: TuneSpec | dict | str | Path, out_dir: str | Path, quiet: boo
         return _run_tune(spec, Path(out_dir), quiet, compiler_options, evaluation, compare)
 
 
-def _run_tune(spec: TuneSpec, out: Path, quiet: bool, compiler_options: dict | None,
-              evaluation: bool, compare: bool) -> dict:
-    out.mkdir(parents=True, exist_ok=True)
-    log = (lambda s: None) if quiet else (lambda s: print(s, file=sys.stderr, flush=True))
-    t_start = time.perf_counter()
+@dataclasses.dataclass(frozen=True)
+class TuneRun:
+    """A tune spec resolved once into what `tkujax tune` runs: the latent layout, the starting
+    parameters and latent, the method (tune.method, "auto" resolved) and the search settings."""
+
+    spec: TuneSpec
+    reparam: PolicyReparam
+    base: ControllerParams
+    z0: np.ndarray
+    method: str
+    advised: str                      # the dimension study's method for this size
+    search: SearchConfig
+
+
+def resolve_run(spec: TuneSpec) -> TuneRun:
+    """The run of `spec`: tune.method "auto" becomes the dimension study's advice."""
     reparam, base = spec.policy_reparam(), spec.base_params()
-    z0 = reparam.latent_of(base)
-    problem = make_problem(spec, reparam, compiler_options=compiler_options)
-    comparison = None
-    if compare and spec.compare is not None:
-        from tkujax.studies.tune.compare import run_compare
-
-        comparison = run_compare(spec, out, problem, log)
-
+    advised = recommended_method(reparam.size)
     c = spec.compare or {}
     cfg = SearchConfig(budget_s=c.get("budget_s", float("inf")), max_iterations=spec.iterations,
                        popsize=spec.popsize, learning_rate=spec.learning_rate,
@@ -84,50 +90,105 @@ def _run_tune(spec: TuneSpec, out: Path, quiet: bool, compiler_options: dict | N
                        temperature_deg=c.get("temperature_deg", 0.5),
                        groups=c.get("groups", 4 if spec.batch % 4 == 0 else 1),
                        ray_radius=c.get("ray_radius", 2.0))
+    return TuneRun(spec, reparam, base, reparam.latent_of(base),
+                   advised if spec.method == "auto" else spec.method, advised, cfg)
+
+
+def _log_method(run: TuneRun, log) -> None:
+    """The method chosen by "auto", or a note when the spec's differs from the advice."""
+    size = run.reparam.size
+    if run.spec.method == "auto":
+        log(f"tune.method = auto: {run.method} for {size} parameters ({EVIDENCE_NOTE})")
+    elif run.method != run.advised:
+        log(f"note: for {size} parameters the dimension study recommends {run.advised} "
+            f"(tune.method = \"auto\"; {EVIDENCE_NOTE})")
+
+
+def _run_tune(spec: TuneSpec, out: Path, quiet: bool, compiler_options: dict | None,
+              evaluation: bool, compare: bool) -> dict:
+    out.mkdir(parents=True, exist_ok=True)
+    log = (lambda s: None) if quiet else (lambda s: print(s, file=sys.stderr, flush=True))
+    t_start = time.perf_counter()
+    run = resolve_run(spec)
+    problem = make_problem(spec, run.reparam, compiler_options=compiler_options)
+    comparison = None
+    if compare and spec.compare is not None:
+        from tkujax.studies.tune.compare import run_compare
+
+        comparison = run_compare(spec, out, problem, log)
     train = sample_pushes(spec, spec.batch, spec.seed)
     keys = jax.random.split(jax.random.PRNGKey(spec.seed), spec.batch)
-    advised = recommended_method(reparam.size)
-    method = advised if spec.method == "auto" else spec.method
-    if spec.method == "auto":
-        log(f"tune.method = auto: {method} for {reparam.size} parameters ({EVIDENCE_NOTE})")
-    elif method != advised:
-        log(f"note: for {reparam.size} parameters the dimension study recommends {advised} "
-            f"(tune.method = \"auto\"; {EVIDENCE_NOTE})")
-    log(f"tune {spec.name}: method {method}, {spec.batch} pushes x {spec.duration_s} s, "
-        f"up to {spec.iterations} iterations, tuning {', '.join(reparam.fields)}. Compiling "
+    _log_method(run, log)
+    log(f"tune {spec.name}: method {run.method}, {spec.batch} pushes x {spec.duration_s} s, "
+        f"up to {spec.iterations} iterations, tuning {', '.join(run.reparam.fields)}. Compiling "
         "(minutes on a CPU) ...")
-    run = run_search(method, problem, z0, train, keys, cfg, seed=spec.seed, log=log)
-    cands = {"before": z0, "after": np.asarray(run["z_best"])}
+    found = run_search(run.method, problem, run.z0, train, keys, run.search, seed=spec.seed,
+                       log=log)
+    cands = {"before": run.z0, "after": np.asarray(found["z_best"])}
+    evals, evals_shifted, heldout = ({}, None, None) if not evaluation else _evaluate(
+        run, problem, cands, compiler_options, log)
+    decision = _recommend(spec, evals, heldout, evaluation)
+    log(decision["reason"])
+    _write_params(run, cands, decision, out)
+    reparam = run.reparam
+    record = dict(
+        name=spec.name, spec=spec.raw, method=run.method, tuned=list(reparam.fields),
+        ranges_user_units=reparam.user_ranges(), batch=spec.batch, duration_s=spec.duration_s,
+        iterations=found["iterations"], float64=spec.float64, remat=spec.remat, run=found,
+        params_user={n: reparam.user(z) for n, z in cands.items()},
+        latents={n: np.asarray(z).tolist() for n, z in cands.items()}, evaluation=evals,
+        evaluation_shifted=evals_shifted,
+        recommendation=decision, ensembles=ensembles_record(spec), model=dict(spec.model),
+        compare=None if comparison is None else dict(winner=comparison["winner"],
+                                                     pooled=comparison["pooled"]),
+        wall_s=round(time.perf_counter() - t_start, 2), devices=[str(d) for d in jax.devices()])
+    (out / "history.json").write_text(json.dumps(record, indent=1, default=json_default))
+    plot_outputs(out, record)
+    (out / "summary.md").write_text(summary_markdown(record, comparison))
+    log(f"wrote {out}/summary.md")
+    return record
 
-    evals, evals_shifted = {}, None
-    if evaluation:
-        log(f"evaluating (hard gate) on {spec.eval_n} held-out pushes (seed {spec.eval_seed}) "
-            f"and a {len(spec.eval_impulse_ns)} x {len(spec.eval_azimuth_deg)} grid ...")
-        eval_problem = problem if spec.eval_duration_s == spec.duration_s else make_problem(
-            spec, reparam, spec.eval_duration_s, False, compiler_options)
-        heldout = sample_pushes(spec, spec.eval_n, spec.eval_seed)
-        evals = evaluate(eval_problem, cands, heldout, grid_pushes(spec), spec.batch,
-                         spec.eval_seed)
-        shift_spec = shifted(spec)
-        if shift_spec is not None and spec.eval_n:
-            # [evaluate.shift] (never trained on), seeded as in [compare]: reported next to
-            # the held-out set; the recommendation stays the held-out set's.
-            log(f"evaluating (hard gate) on {spec.eval_n} shifted held-out pushes "
-                f"([evaluate.shift], seed {spec.eval_seed + SHIFT_SEED}) ...")
-            shift_recs = sample_pushes(shift_spec, spec.eval_n, spec.eval_seed + SHIFT_SEED)
-            evals_shifted = evaluate(eval_problem, cands, shift_recs, {"impulse_ns": ()},
-                                     spec.batch, spec.eval_seed + SHIFT_SEED)
 
-    # Never recommend a worse set: params_after.json is the tuned set only when the held-out
-    # evaluation says it is better (evaluate.RULE); else the starting set, with a note.
+def _evaluate(run: TuneRun, problem, cands: dict, compiler_options, log):
+    """(held-out and grid evaluation, the shifted held-out evaluation or None, the held-out
+    pushes) of the start and the tuned latents, with the hard gate."""
+    spec = run.spec
+    log(f"evaluating (hard gate) on {spec.eval_n} held-out pushes (seed {spec.eval_seed}) "
+        f"and a {len(spec.eval_impulse_ns)} x {len(spec.eval_azimuth_deg)} grid ...")
+    eval_problem = problem if spec.eval_duration_s == spec.duration_s else make_problem(
+        spec, run.reparam, spec.eval_duration_s, False, compiler_options)
+    heldout = sample_pushes(spec, spec.eval_n, spec.eval_seed)
+    evals = evaluate(eval_problem, cands, heldout, grid_pushes(spec), spec.batch,
+                     spec.eval_seed)
+    evals_shifted = None
+    shift_spec = shifted(spec)
+    if shift_spec is not None and spec.eval_n:
+        # [evaluate.shift] (never trained on), seeded as in [compare]: reported next to
+        # the held-out set; the recommendation stays the held-out set's.
+        log(f"evaluating (hard gate) on {spec.eval_n} shifted held-out pushes "
+            f"([evaluate.shift], seed {spec.eval_seed + SHIFT_SEED}) ...")
+        shift_recs = sample_pushes(shift_spec, spec.eval_n, spec.eval_seed + SHIFT_SEED)
+        evals_shifted = evaluate(eval_problem, cands, shift_recs, {"impulse_ns": ()},
+                                 spec.batch, spec.eval_seed + SHIFT_SEED)
+    return evals, evals_shifted, heldout
+
+
+def _recommend(spec: TuneSpec, evals: dict, heldout, evaluation: bool) -> dict:
+    """Never recommend a worse set: params_after.json is the tuned set only when the held-out
+    evaluation says it is better (evaluate.RULE); else the starting set, with a note."""
     harmed = []
     if evaluation and spec.eval_n:
         from tkujax.studies.compare import SECTOR_NAMES, sector_index
 
         harmed = harmed_directions(evals, sector_index(heldout["azimuth_deg"], 4),
                                    SECTOR_NAMES[4])
-    decision = recommend(evals, harmed)
-    log(decision["reason"])
+    return recommend(evals, harmed)
+
+
+def _write_params(run: TuneRun, cands: dict, decision: dict, out: Path) -> None:
+    """params_before/tuned/after.json, and for a scheduled policy policy.json and
+    policy_after.json."""
+    reparam, base, spec = run.reparam, run.base, run.spec
     params = {name: reparam.params_np(base, z) for name, z in cands.items()}
     chosen = decision["recommended"]
     note = {"recommended_from": ("tuned" if decision["verified"] else "tuned (unchecked)")
@@ -143,27 +204,3 @@ def _run_tune(spec: TuneSpec, out: Path, quiet: bool, compiler_options: dict | N
                           ("params_tuned.json", params_json(params["after"].validate())),
                           ("params_after.json", params_json(params[chosen].validate()) | note)):
         (out / name).write_text(json.dumps(payload, indent=1))
-    record = dict(
-        name=spec.name, spec=spec.raw, method=method, tuned=list(reparam.fields),
-        ranges_user_units=reparam.user_ranges(), batch=spec.batch, duration_s=spec.duration_s,
-        iterations=run["iterations"], float64=spec.float64, remat=spec.remat, run=run,
-        params_user={n: reparam.user(z) for n, z in cands.items()},
-        latents={n: np.asarray(z).tolist() for n, z in cands.items()}, evaluation=evals,
-        evaluation_shifted=evals_shifted,
-        recommendation=decision, ensembles=ensembles_record(spec), model=dict(spec.model),
-        compare=None if comparison is None else dict(winner=comparison["winner"],
-                                                     pooled=comparison["pooled"]),
-        wall_s=round(time.perf_counter() - t_start, 2), devices=[str(d) for d in jax.devices()])
-    (out / "history.json").write_text(json.dumps(record, indent=1, default=_json_default))
-    plot_outputs(out, record)
-    (out / "summary.md").write_text(summary_markdown(record, comparison))
-    log(f"wrote {out}/summary.md")
-    return record
-
-
-def _json_default(x):
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, (np.floating, np.integer)):
-        return x.item()
-    return str(x)

@@ -1,6 +1,6 @@
 """Tune specs: the TOML schema, validation, and the push batches drawn from it.
 
-Robot ensembles (issue 22: "train on the training distribution, and on the robot ensemble"):
+Robot ensembles (train on the training distribution, and on the robot ensemble):
   [randomize] ensemble = "PATH"        training pushes, and the held-out pushes of the training
                                        distribution, each run on one member drawn uniformly
   [evaluate.shift] ensemble = "PATH"   the shifted held-out set runs on the ensemble's members
@@ -89,10 +89,14 @@ class TuneSpec:
     # [model]: ModelParams overrides of the default robot ({field: number}; {} = the embedded
     # default). A study that must stay on an earlier robot names it here.
     model: dict[str, float] = dataclasses.field(default_factory=dict)
+    # Resolved once by parse_tune_spec: the [model] robot (None: the embedded default) and the
+    # starting ControllerParams (the paper's with [controller] applied, validated).
+    robot: ModelParams | None = dataclasses.field(default=None, compare=False, repr=False)
+    start: ControllerParams | None = dataclasses.field(default=None, compare=False, repr=False)
 
     def model_params(self) -> ModelParams | None:
         """The [model] robot (None: the embedded default, ModelParams())."""
-        return ModelParams.from_overrides(self.model) if self.model else None
+        return self.robot
 
     def reparam(self) -> Reparam:
         return Reparam.make(self.params, self.ranges)
@@ -103,7 +107,15 @@ class TuneSpec:
                                   self.sharpness)
 
     def base_params(self) -> ControllerParams:
-        return controller_params_from(ControllerParams.paper(), self.controller).validate()
+        """The starting ControllerParams (the paper's with [controller] applied)."""
+        if self.start is None:
+            return start_params(self.controller)
+        return self.start
+
+
+def start_params(controller: dict[str, float]) -> ControllerParams:
+    """The paper's ControllerParams with the [controller] values applied, validated."""
+    return controller_params_from(ControllerParams.paper(), controller).validate()
 
 
 TUNE_FIELDS = {"name": str, "description": str, "seed": int, "iterations": int, "batch": int,
@@ -279,41 +291,41 @@ def parse_tune_spec(data: dict) -> TuneSpec:
     if robots and tune["float64"]:
         raise SpecError("tune.float64: an ensemble ([randomize] or [evaluate.shift] ensemble) "
                         "runs in float32; set tune.float64 = false")
-    model = _parse_model(data.get("model", {}))
+    model, robot = _parse_model(data.get("model", {}))
     if model and robots:
         raise SpecError("[model]: an ensemble ([randomize] or [evaluate.shift] ensemble) gives "
                         "the robots; remove [model] or the ensemble")
     spec = TuneSpec(**tune, push=push, azimuth_jitter_deg=jitter, controller=controller,
                     randomize=randomize, **baseline, **evaluate, raw=data, compare=compare,
-                    shift=shift, study=study, ensemble=ensemble, robot_table=robots, model=model)
+                    shift=shift, study=study, ensemble=ensemble, robot_table=robots, model=model,
+                    robot=robot, start=start_params(controller))
     # Start values must lie strictly inside the ranges (their latents are finite).
     for key, policy in [("tune.policy", spec.policy)] + [
             (f"study.policies[{i}]", p) for i, p in enumerate((study or {}).get("policies", []))]:
         if policy != "scalars" and not spec.schedule:
             raise SpecError(f"tune.schedule: {key} = {policy!r} schedules fields, but none of "
                             f"tune.params is scheduled (set tune.schedule)")
-    rep, start_params = spec.reparam(), spec.base_params()
-    for f, (a, b) in rep.user_ranges().items():
-        v = float(getattr(start_params, f)) / user_factor(f)
+    for f, (a, b) in spec.reparam().user_ranges().items():
+        v = float(getattr(spec.start, f)) / user_factor(f)
         if not a < v < b:
             raise SpecError(f"{TUNABLE[f][0]}: start value {v:g} (from [controller] or the "
                             f"paper) must lie strictly inside tune.ranges ({a:g}, {b:g})")
     return spec
 
 
-def _parse_model(given) -> dict[str, float]:
-    """[model]: {ModelParams field: number}, validated (unknown keys and out-of-range values
-    raise SpecError naming the key)."""
+def _parse_model(given) -> tuple[dict[str, float], ModelParams | None]:
+    """[model]: ({ModelParams field: number}, the robot they make, None for no overrides),
+    validated (unknown keys and out-of-range values raise SpecError naming the key)."""
     if not isinstance(given, dict):
         raise SpecError(f"[model]: expected a table of model parameters, got {given!r}")
     for k, v in given.items():
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             raise SpecError(f"model.{k}: expected a number, got {v!r}")
     try:
-        ModelParams.from_overrides(dict(given))
+        robot = ModelParams.from_overrides(dict(given)) if given else None
     except ValueError as err:
         raise SpecError(f"[model]: {err}") from None
-    return {k: float(v) for k, v in given.items()}
+    return {k: float(v) for k, v in given.items()}, robot
 
 
 def _parse_shift(raw) -> dict:
