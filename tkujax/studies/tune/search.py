@@ -27,6 +27,7 @@ from tkujax.studies.tune.searchers import (METHODS, SearchConfig, adam_update,
                                            alpha_order_mix, finite_loss, searcher_class)
 
 __all__ = ["METHODS", "SearchConfig", "alpha_order_mix", "run_search", "drive", "warm_up",
+           "calls_used",
            "warm_up_calls", "first_order_grads", "clipped_group_means", "OneSeedCalls"]
 
 _adam = adam_update          # the name results/tune_dimension/cpu_gradient_check imports
@@ -114,6 +115,18 @@ def warm_up_plan(cls, calls: SeedCalls, Z0: np.ndarray, cfg: SearchConfig) -> di
         plan["population"] = lambda: calls.population(np.repeat(Z0[:, None], width, 1))
     plan["forward"] = lambda: calls.forward(Z0)
     return plan
+
+
+def calls_used(method: str) -> set[str]:
+    """The compiled calls `method` makes, by their warm-up names: "forward" always,
+    "population" and "gradient" as its searcher asks."""
+    cls = searcher_class(method)
+    out = {"forward"}
+    if cls.population_width(SearchConfig()) is not None:
+        out.add("population")
+    if cls.uses_gradient:
+        out.add("gradient")
+    return out
 
 
 def drive(method: str, calls: SeedCalls, z0, cfg: SearchConfig, seeds: Sequence[int],

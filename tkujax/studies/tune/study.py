@@ -52,6 +52,7 @@ from pathlib import Path
 import numpy as np
 
 from tkujax.studies.tune.compare import json_default
+from tkujax.studies.tune.search import calls_used
 from tkujax.studies.tune.study_report import plot_study, study_markdown
 
 RUN_KEYS = ("policy", "method", "seed")
@@ -226,17 +227,6 @@ def write_best_policy(out: Path, spec, runs: list[dict]) -> Path | None:
                        out / "best_policy.json", source)
 
 
-def _uses(method: str) -> set[str]:
-    out = {"forward"}
-    if method in ("cma", "sepcma", "hybrid"):
-        out.add("population")
-    if method in ("gradient", "hybrid", "linesearch"):
-        out.add("gradient")
-    if method == "linesearch":
-        out.add("population")
-    return out
-
-
 class StudyRunner:
     """The real runs: one TuneProblem per policy (compiled once per process), run_search (or
     run_search_lockstep for seeds side by side, `run_group`), and the hard-gate evaluation of
@@ -255,7 +245,7 @@ class StudyRunner:
         compiles the forward, the population call (cma, sepcma, hybrid) and the grouped
         gradient (gradient, hybrid) before its clock starts; side_by_side = S: the lockstep
         versions for S seeds, which the group's evaluation uses too)."""
-        return _uses(method) <= self.done.get((policy, side_by_side), set())
+        return calls_used(method) <= self.done.get((policy, side_by_side), set())
 
     def problem(self, policy: str):
         from tkujax.studies.tune.spec import make_problem
@@ -348,7 +338,7 @@ class StudyRunner:
             problem, rep, z0, variant, m, cfg = self._setup(policy, method)
             train, keys = self._train(seed)
             r = run_search(m, problem, z0, train, keys, cfg, seed=seed, log=self.log)
-            self.done.setdefault((policy, 0), set()).update(_uses(method))
+            self.done.setdefault((policy, 0), set()).update(calls_used(method))
             fell = {}
             for label, (recs, ekeys) in self.eval_sets(seed).items():
                 f = fell_rates(problem, {"start": z0, "best": np.asarray(r["z_best"])},
@@ -371,7 +361,7 @@ class StudyRunner:
             rs = run_search_lockstep(m, problem, z0, [t[0] for t in trains],
                                      [t[1] for t in trains], cfg, seeds, log=self.log,
                                      compiler_options=self.opts)
-            self.done.setdefault((policy, len(seeds)), set()).update(_uses(method))
+            self.done.setdefault((policy, len(seeds)), set()).update(calls_used(method))
             sets = [self.eval_sets(s) for s in seeds]
             latents = {"start": np.repeat(np.asarray(z0, float)[None], len(seeds), 0),
                        "best": np.stack([np.asarray(r["z_best"], float) for r in rs])}
