@@ -76,8 +76,8 @@ def test_default_reference_is_the_finest():
 
 
 def test_shipped_specs_parse():
-    for path, backend in (("sweeps/convergence.toml", "mjx"),
-                          ("sweeps/convergence_cpu.toml", "mujoco")):
+    for path, backend in (("specs/converge/convergence.toml", "mjx"),
+                          ("specs/converge/convergence_cpu.toml", "mujoco")):
         s = C.load_spec(path)
         assert s.backend == backend and s.reference == "0.5ms-newton4-ls8"
         assert {x.timestep_ms for x in s.settings} == {0.5, 1.0, 2.0, 3.0}

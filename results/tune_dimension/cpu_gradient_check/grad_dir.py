@@ -4,7 +4,7 @@ import numpy as np, jax
 from tkujax.studies.tune.spec import load_tune_spec, make_problem, sample_pushes
 policy = sys.argv[1] if len(sys.argv) > 1 else "mlp"
 n = int(sys.argv[2]) if len(sys.argv) > 2 else 64
-spec = load_tune_spec("sweeps/tune_dimension.toml")
+spec = load_tune_spec("specs/tune/tune_dimension.toml")
 spec = dataclasses.replace(spec, batch=n)
 rep = spec.policy_reparam(policy)
 prob = make_problem(spec, rep)

@@ -4,7 +4,7 @@ import dataclasses, sys, time
 import numpy as np, jax
 from tkujax.studies.tune.spec import load_tune_spec, make_problem, sample_pushes
 policy = sys.argv[1]; n = int(sys.argv[2])
-spec = dataclasses.replace(load_tune_spec("sweeps/tune_dimension.toml"), batch=n)
+spec = dataclasses.replace(load_tune_spec("specs/tune/tune_dimension.toml"), batch=n)
 rep = spec.policy_reparam(policy); prob = make_problem(spec, rep)
 z0 = rep.latent_of(spec.base_params())
 batch = sample_pushes(spec, n, spec.seed); keys = jax.random.split(jax.random.PRNGKey(spec.seed), n)

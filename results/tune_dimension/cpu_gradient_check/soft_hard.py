@@ -9,7 +9,7 @@ from tkujax.studies.tune.search import SearchConfig, first_order_grads, _adam
 from tkujax.studies.tune.methods import make_optimizer
 policy, n, iters = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
 lr = float(sys.argv[4]) if len(sys.argv) > 4 else 0.05
-spec = dataclasses.replace(load_tune_spec("sweeps/tune_dimension.toml"), batch=n)
+spec = dataclasses.replace(load_tune_spec("specs/tune/tune_dimension.toml"), batch=n)
 rep = spec.policy_reparam(policy); prob = make_problem(spec, rep)
 z = jnp.asarray(rep.latent_of(spec.base_params()))
 batch = sample_pushes(spec, n, spec.seed); keys = jax.random.split(jax.random.PRNGKey(spec.seed), n)
