@@ -1,14 +1,16 @@
 """Cold compile of one lean MJX physics step of TKU-X, forward and its VJP, vmapped over a
-batch (session 14): is a per-substep VJP a program XLA compiles in well under the tuning
+batch (results/bench/h200_step_compile.jsonl): is a per-substep VJP a program XLA compiles in well under the tuning
 gradient's ~96 s? That is the piece a host-driven adjoint (the backward pass as a Python loop
 over substeps calling one compiled VJP) would compile, instead of one program holding the
 forward loop, its recompute and the backward.
 
-  python results/bench/step_compile.py BATCH fwd|vjp [OUT.json]
+  python scripts/bench_step_compile.py BATCH fwd|vjp [OUT.json]
 
 One program per process, into an empty persistent cache: trace + lower, and XLA's compile,
 timed apart; then the compiled program's run time (median of 5).
 """
+# ruff: noqa: E501   (research script, kept as run)
+
 import json
 import statistics
 import sys
@@ -36,12 +38,19 @@ def main(batch: int, which: str, out: str | None) -> None:
         fn = jax.vmap(step)
         args = (states.qpos, states.qvel, states.ctrl)
     elif which == "vjp":
+
         def vjp(qpos, qvel, ctrl, qpos_bar, qvel_bar):
             _, pullback = jax.vjp(step, qpos, qvel, ctrl)
             return pullback((qpos_bar, qvel_bar))
+
         fn = jax.vmap(vjp)
-        args = (states.qpos, states.qvel, states.ctrl, jnp.ones_like(states.qpos),
-                jnp.ones_like(states.qvel))
+        args = (
+            states.qpos,
+            states.qvel,
+            states.ctrl,
+            jnp.ones_like(states.qpos),
+            jnp.ones_like(states.qvel),
+        )
     else:
         raise SystemExit(f"which: fwd or vjp, got {which!r}")
     with fresh_compilation_cache():
@@ -56,10 +65,15 @@ def main(batch: int, which: str, out: str | None) -> None:
         t = time.perf_counter()
         jax.block_until_ready(compiled(*args))
         times.append(time.perf_counter() - t)
-    row = dict(device=str(jax.devices()[0]), batch=batch, program=which,
-               trace_lower_s=round(t1 - t0, 2), xla_compile_s=round(t2 - t1, 2),
-               stablehlo_chars=len(lowered.as_text()),
-               run_ms=round(1e3 * statistics.median(times), 3))
+    row = dict(
+        device=str(jax.devices()[0]),
+        batch=batch,
+        program=which,
+        trace_lower_s=round(t1 - t0, 2),
+        xla_compile_s=round(t2 - t1, 2),
+        stablehlo_chars=len(lowered.as_text()),
+        run_ms=round(1e3 * statistics.median(times), 3),
+    )
     print(json.dumps(row), flush=True)
     if out:
         with open(out, "a") as f:

@@ -1,7 +1,7 @@
 """The closed loop's variants (tkujax.bench_profile's names) and raw MJX, compiled one after the
 other in one process, each timed as the median of 5 calls: ms per 15 physics steps (one tick).
 
-    python results/bench/loop_ablation.py BATCH 'NAME@SECONDS;...'   (writes $OUT/seqab_BATCH.json)
+    python scripts/bench_loop_ablation.py BATCH 'NAME@SECONDS;...'   (writes $OUT/seqab_BATCH.json)
 
 NAME: a bench_profile variant ("full", "physics_only", "no_records", "raw", "unroll_substeps=5",
 ...) or "benchraw" (the bench's raw-MJX row: the keyframe state passed as an argument).
@@ -10,6 +10,7 @@ its raw loop then ran 13.6-13.7 ms per tick against 11.9 compiled alone (batch 1
 is not pinned down: a flat raw loop compiled after the closed loop in the same process was as
 slow (13.5), with GEMM autotuning off too, while the bench's own raw row stayed at 12.0.
 """
+
 import json
 import os
 import sys
@@ -40,8 +41,16 @@ for name in names:
     exe = fn.lower(*args).compile()
     compile_s = time.time() - t0
     sec = bench_profile._time_calls(lambda exe=exe, args=args: exe(*args), 5)
-    rows.append(dict(name=name, batch=batch, compile_s=round(compile_s, 1), seconds=sec,
-                     ms_per_15_steps=1e3 * sec / n_steps * 15))
+    rows.append(
+        dict(
+            name=name,
+            batch=batch,
+            compile_s=round(compile_s, 1),
+            seconds=sec,
+            ms_per_15_steps=1e3 * sec / n_steps * 15,
+        )
+    )
     print(json.dumps(rows[-1]), flush=True)
-    (OUT / f"seqab_{batch}.json").write_text(json.dumps(
-        dict(device=jax.devices()[0].device_kind, rows=rows), indent=1))
+    (OUT / f"seqab_{batch}.json").write_text(
+        json.dumps(dict(device=jax.devices()[0].device_kind, rows=rows), indent=1)
+    )

@@ -1,8 +1,8 @@
 """MJX's tree passes against tkujax.sim.tree_passes (RolloutConfig.tree_passes), in the tuner's
-gradient and in the sweeps' closed loop (session 16).
+gradient and in the sweeps' closed loop (results/bench/h200_tree_passes_compact.jsonl).
 
-  python results/bench/tree_passes_compact.py grad PASSES BATCH DURATION OUT.jsonl
-  python results/bench/tree_passes_compact.py fwd PASSES BATCHES DURATION OUT.jsonl
+  python scripts/bench_tree_passes.py grad PASSES BATCH DURATION OUT.jsonl
+  python scripts/bench_tree_passes.py fwd PASSES BATCHES DURATION OUT.jsonl
 
 PASSES: mjx or compact. One program per process, into an empty persistent cache.
   grad: the tuning gradient's cold compile (trace + lower, and XLA), its StableHLO size, and
@@ -21,6 +21,7 @@ RolloutConfig field then, `tree_passes` now):
       rows: fwd at 1,024, and at 65,536 on another start), then as gathers and sums (the last
       two rows, the code now, a third start).
 """
+
 import dataclasses
 import json
 import sys
@@ -37,8 +38,9 @@ from tkujax.studies.compile_cache import fresh_compilation_cache
 def grad(kin: str, batch: int, duration_s: float) -> list[dict]:
     from tkujax.studies.tune.benchmark import gradient_compile_times
 
-    row = gradient_compile_times(batch, duration_s, rollout_options=dict(tree_passes=kin),
-                                 cached=False, step_repeats=3)
+    row = gradient_compile_times(
+        batch, duration_s, rollout_options=dict(tree_passes=kin), cached=False, step_repeats=3
+    )
     return [row]
 
 
@@ -59,12 +61,16 @@ def fwd(kin: str, batches: list[int], duration_s: float) -> list[dict]:
         run = bench.closed_loop(b, duration_s, 2, compiled=next(iter(keep.values())))
         steps = int(round(duration_s / physics.host_model().opt.timestep))
         raw = bench.raw_stepping(b, steps, 2)
-        rows.append(dict(batch=b, compile_cold_s=round(c["cold_s"], 2),
-                         pushes_per_s=round(run["pushes_per_s"], 1),
-                         closed_steps_per_s=run["physics_steps_per_s"],
-                         raw_steps_per_s=raw["physics_steps_per_s"],
-                         closed_over_raw=round(run["physics_steps_per_s"]
-                                               / raw["physics_steps_per_s"], 3)))
+        rows.append(
+            dict(
+                batch=b,
+                compile_cold_s=round(c["cold_s"], 2),
+                pushes_per_s=round(run["pushes_per_s"], 1),
+                closed_steps_per_s=run["physics_steps_per_s"],
+                raw_steps_per_s=raw["physics_steps_per_s"],
+                closed_over_raw=round(run["physics_steps_per_s"] / raw["physics_steps_per_s"], 3),
+            )
+        )
         print(rows[-1], flush=True)
     return rows
 
@@ -80,8 +86,13 @@ def main() -> None:
         raise SystemExit(f"grad or fwd, got {what!r}")
     with open(out, "a") as f:
         for r in rows:
-            r = dict(r, what=what, tree_passes=kin, device=str(jax.devices()[0].device_kind),
-                     wall_s=round(time.perf_counter() - t0, 1))
+            r = dict(
+                r,
+                what=what,
+                tree_passes=kin,
+                device=str(jax.devices()[0].device_kind),
+                wall_s=round(time.perf_counter() - t0, 1),
+            )
             print(json.dumps(r), flush=True)
             f.write(json.dumps(r) + "\n")
 
