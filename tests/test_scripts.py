@@ -1,5 +1,6 @@
 """The research scripts (scripts/): each says what it reproduces, their outputs can never
-overwrite their inputs, and their plain logic (reading a fit, the sensitivity summary) does what it says. Nothing here simulates."""
+overwrite their inputs, and their plain logic (reading a fit, the sensitivity summary) does
+what it says. Nothing here simulates."""
 
 import importlib.util
 import json
