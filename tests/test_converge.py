@@ -1,4 +1,4 @@
-"""`tkujax converge` (issue 21, item 6): spec validation, the agreement arithmetic on hand-made
+"""`tkujax converge`: spec validation, the agreement arithmetic on hand-made
 outcomes, and a tiny MuJoCo C run (2 settings x (8 paper rows + 2 x 2 pushes), ~15 s on a CPU)."""
 
 import json

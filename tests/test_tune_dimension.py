@@ -1,4 +1,4 @@
-"""The dimension study (issue 23): parameterisations of growing size (tkujax.control.policy,
+"""The dimension study: parameterisations of growing size (tkujax.control.policy,
 tkujax.studies.tune.policy), their exact start at the hand-designed controller, the gradient
 with respect to schedule parameters, the [study] spec and its resume logic.
 

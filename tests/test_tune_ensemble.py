@@ -1,4 +1,4 @@
-"""Tuning over the robot ensemble and the "harm nowhere" weight (issue 22): the spec keys
+"""Tuning over the robot ensemble and the "harm nowhere" weight: the spec keys
 ([randomize] ensemble, [evaluate.shift] ensemble, tune.loss.w_harm), the robot_id draw (last,
 so specs without an ensemble draw exactly the pushes they drew before), the harm-weighted mean
 by hand, and one MJX check: a TuneProblem on a 2-member ensemble gives each push the loss terms
