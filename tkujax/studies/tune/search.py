@@ -318,7 +318,7 @@ def warm_up_calls(method: str, problem, z0, batch: dict, keys, cfg: SearchConfig
     """What `method` calls, each once, side by side (`warm_up`): the forward (its hard loss
     under "forward"), the population call of cfg.popsize (cma, sepcma, hybrid, linesearch) and
     the grouped first-order gradient (gradient, hybrid, linesearch). parallel=False: one after
-    the other (results/bench/warmup_parallel.py compares the two)."""
+    the other (scripts/bench_warmup_parallel.py compares the two)."""
     tau = cfg.temperature_deg * DEG
     z0 = np.asarray(z0, float)
     calls = {}
