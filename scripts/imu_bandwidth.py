@@ -1,4 +1,5 @@
-"""The IMU's bandwidth, the hit phase and the paper's rows (issue 21), on MuJoCo C (CPU).
+"""The IMU's bandwidth, the hit phase and the paper's rows, on MuJoCo C (CPU):
+results/calibration/imu_bandwidth.
 
 Unfiltered, the controller's 30 ms IMU sample catches the 20 ms ball pulse at some hit phases
 and not at others: the accelerometer reads the push's linear acceleration as a tilt (a push

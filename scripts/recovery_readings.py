@@ -1,6 +1,7 @@
 """Research: the two recovery readings (hypot(pitch, roll) vs pitch only) on the default robot's
 8 paper rows at 15 hit phases, and what each does to the calibration loss (targets.table_loss,
-the fit's objective). MuJoCo C, noise-free, the default controller (issue 21, item 5).
+the fit's objective). MuJoCo C, noise-free, the default controller
+(results/calibration/recovery_readings).
 
 PYTHONPATH=. python scripts/recovery_readings.py results/calibration/recovery_readings
 Writes recovery_readings.json and recovery_readings.md into the given folder.

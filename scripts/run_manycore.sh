@@ -10,5 +10,5 @@ BUDGET=${1:-540}
 WORKERS=${2:-$(( $(nproc) - 1 ))}
 mkdir -p "$OUT/calibration"
 export TKUJAX_CAL_THREADS=1
-python -m tkujax.cli calibrate sweeps/calibrate.toml --out "$OUT/calibration" \
+python -m tkujax.cli calibrate specs/calibrate/calibrate.toml --out "$OUT/calibration" \
     --budget-s "$BUDGET" --workers "$WORKERS"

@@ -79,8 +79,8 @@ def test_spec_defaults_and_narrowing():
 def test_shipped_specs_parse():
     from tkujax.studies.calibrate.spec import load_calibrate_spec
 
-    cpu, full = load_calibrate_spec("sweeps/calibrate_cpu.toml"), load_calibrate_spec(
-        "sweeps/calibrate.toml")
+    cpu, full = load_calibrate_spec("specs/calibrate/calibrate_cpu.toml"), load_calibrate_spec(
+        "specs/calibrate/calibrate.toml")
     assert cpu.max_evals is not None and len(full.hit_phases_ms) >= 3
     # every parameter but the front hit's (params.NEUTRAL: named by the fits that move it)
     assert set(full.params) == set(P.NAMES) - set(P.NEUTRAL)

@@ -118,8 +118,8 @@ def test_step_spec_validation_and_expansion():
     rec = parse_spec(SMALL).records()
     assert len(rec["push_id"]) == 2 * (6 + 1)
     assert rec["step_active"].sum() == 12 and set(rec["case_id"]) == {0, 1}
-    cpu = load_spec("sweeps/capture_region_cpu.toml").records()
-    gpu = load_spec("sweeps/capture_region.toml").records()
+    cpu = load_spec("specs/capture/capture_region_cpu.toml").records()
+    gpu = load_spec("specs/capture/capture_region.toml").records()
     assert len(cpu["push_id"]) < 2500 and len(gpu["push_id"]) >= 100_000
 
 

@@ -142,9 +142,9 @@ def test_second_step_spec_keys():
     act = rec["step_active"] > 0.5
     assert (rec["step_steps"][act] == 1).sum() == 12 and (rec["step_steps"] == 2).sum() == 24
     assert not rec["step_x2_m"][act & (rec["step_steps"] == 1)].any()
-    rec = load_spec("sweeps/capture2_cpu.toml").records()
+    rec = load_spec("specs/capture/capture2_cpu.toml").records()
     assert len(rec["push_id"]) == 36 * (1 + 25 + 25 * 15)
-    assert len(load_spec("sweeps/capture_region_cpu.toml").records()["push_id"]) == 1952
+    assert len(load_spec("specs/capture/capture_region_cpu.toml").records()["push_id"]) == 1952
 
 
 def test_jn_table_hand_made():

@@ -1,4 +1,4 @@
-"""`tkujax converge` (issue 21, item 6): spec validation, the agreement arithmetic on hand-made
+"""`tkujax converge`: spec validation, the agreement arithmetic on hand-made
 outcomes, and a tiny MuJoCo C run (2 settings x (8 paper rows + 2 x 2 pushes), ~15 s on a CPU)."""
 
 import json
@@ -76,8 +76,8 @@ def test_default_reference_is_the_finest():
 
 
 def test_shipped_specs_parse():
-    for path, backend in (("sweeps/convergence.toml", "mjx"),
-                          ("sweeps/convergence_cpu.toml", "mujoco")):
+    for path, backend in (("specs/converge/convergence.toml", "mjx"),
+                          ("specs/converge/convergence_cpu.toml", "mujoco")):
         s = C.load_spec(path)
         assert s.backend == backend and s.reference == "0.5ms-newton4-ls8"
         assert {x.timestep_ms for x in s.settings} == {0.5, 1.0, 2.0, 3.0}

@@ -1,4 +1,4 @@
-"""Sweeps over an ensemble of robots ([randomize] ensemble, issue 21 item 3): the spec key's
+"""Sweeps over an ensemble of robots ([randomize] ensemble): the spec key's
 validation, the robot_id draw shared by a push's settings, the MJX sweep against each member run
 alone (`tkujax.sim.rollout_mjx.simulate` on its own ModelParams: an independent reference), and
 the map's per-member fall boundaries and their band on synthetic records."""
@@ -102,11 +102,11 @@ def test_the_ensemble_content_enters_the_hash_and_both_backends_take_it(tmp_path
 
 
 def test_the_shipped_specs_parse(monkeypatch):
-    """sweeps/ensemble_cpu.toml and ensemble_map.toml with the committed 39-member ensemble of
+    """specs/sweep/ensemble_cpu.toml and ensemble_map.toml with the committed 39-member ensemble of
     results/calibration/expected (paths relative to the repository root)."""
     monkeypatch.chdir(ROOT)
     for name in ("ensemble_cpu", "ensemble_map"):
-        spec = load_spec(ROOT / "sweeps" / f"{name}.toml")
+        spec = load_spec(ROOT / "specs" / "sweep" / f"{name}.toml")
         ids = spec.records()["robot_id"]
         assert spec.ensemble.n == 39 and ids.min() >= 0 and ids.max() < 39
 

@@ -1,4 +1,4 @@
-"""Fixed-point controller twin (tkujax.control.fixed, issue 15).
+"""Fixed-point controller twin (tkujax.control.fixed).
 
 (a) bit-exact against an independent reference in plain Python ints (below: no numpy or jax in
     it, Python's >> is the floor of a two's-complement shift and its ints never overflow);
@@ -494,7 +494,7 @@ def test_wide_words_match_float_controller():
 @pytest.mark.parametrize("changes", [dict(cp_excess=1.0), dict(cp_update_window=0.03),
                                      dict(cp_update_window=0.09, cp_excess=1.0)])
 def test_wide_words_match_float_controller_with_cp_options(changes):
-    """cp_excess and cp_update_window (implemented in the twin, issue 25): near-float words
+    """cp_excess and cp_update_window (implemented in the twin): near-float words
     follow the float controller's x_Sup tick by tick, and the option changes x_Sup."""
     import dataclasses
     params = dataclasses.replace(PARAMS, **changes)
@@ -573,7 +573,7 @@ def test_words_identical_with_x64_enabled():
                for x, y in zip(jax.tree_util.tree_leaves(off), jax.tree_util.tree_leaves(on)))
 
 
-# ------------------------------------------------------------------ (d) refusal (issue 25)
+# ------------------------------------------------------------------ (d) refusal
 
 
 def test_supported_fields_are_fields_and_paper_params_pass():
@@ -618,7 +618,7 @@ def test_check_supported_refuses_traced_values():
         jax.jit(lambda g: check_supported(dataclasses.replace(PARAMS, accel_gate=g)) and 0)(1.0)
 
 
-# ------------------------------------------------------------------ (e) step lengths (issue 25)
+# ------------------------------------------------------------------ (e) step lengths
 
 SERVO_STEP = 2 * math.pi / 4096          # rad, Dynamixel MX (tkujax.sim.tick)
 
@@ -651,7 +651,7 @@ def test_forward_kinematics_inverts_the_float_ik():
 
 
 def test_ik_guard_bits_remove_the_stand_pose_bias():
-    """The cause of issue 25's step-length gap: the knee moves 22 rad/m of the ankle distance D,
+    """The cause of the float-fixed step gap: the knee moves 22 rad/m of the ankle distance D,
     so D rounded to the 7.6 um `length` LSB biased the stand knee by 0.21 mrad (0.14 servo
     step; commands near a servo rounding boundary then flip by one step). ik_guard_bits = 4
     (default) carries the IK's lengths with 4 more fraction bits."""

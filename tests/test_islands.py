@@ -1,4 +1,4 @@
-"""Island widths and the phase expectation (issue 21, item 4): the helpers on hand-made input,
+"""Island widths and the phase expectation: the helpers on hand-made input,
 and the default robot's 8 rows at the fit's phase through MuJoCo C (~5 s on a CPU)."""
 
 import pytest

@@ -26,7 +26,7 @@ RECORDS = dict(impulse_ns=[0.4, 2.5, 1.6, 2.5], azimuth_deg=[0.0, 0.0, 180.0, 90
                accel_noise_std=[0.0, 0.1, 0.0, 0.0])
 nan = math.nan
 # make_chunk_fn((), 1.5) at commit 694af53 on the CPU (keys: PRNGKey(3) split 4 ways);
-# re-stored when the default robot gained its IMU low-pass (7.5 Hz accelerometer, session 8):
+# re-stored when the default robot gained its IMU low-pass (7.5 Hz accelerometer, 0.1.2):
 # only the third push (backward, control on) changed, as the filtered IMU moves its step.
 STORED = {
     "capture_point_m": [0.0, 0.0, -0.0692421942949295, 0.0],

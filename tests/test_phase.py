@@ -1,4 +1,4 @@
-"""The push's phase in the 30 ms control period, and the robust detection option (issue 16).
+"""The push's phase in the 30 ms control period, and the robust detection option.
 
 One push, 1.0 N·s from the front at 0.30 m (the issue's contact height), on the MuJoCo C backend
 (fast on a CPU; the controller tick it compiles is shared by the 4 runs, parameters being traced
@@ -7,7 +7,7 @@ values):
   inside the 20 ms pulse;
 - on-tick: phase 0.6, the pulse's peak lands on the 0.78 s tick's IMU sample.
 Pinned behaviour, measured on the calibrated robot with an ideal-sampling IMU (no low-pass,
-`accel_lowpass_hz = 0`, the default robot before session 8: the case the option was built for;
+`accel_lowpass_hz = 0`, the default robot before 0.1.2: the case the option was built for;
 see docs/sweeps.md, "The push's phase"):
 - the paper's filter (accel_gate = 0): the on-tick sample reads the impact's acceleration as
   a forward lean: the Kalman angle is off by ~17.7 deg (mid-tick ~7.9 deg), the controller

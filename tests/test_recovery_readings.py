@@ -1,4 +1,4 @@
-"""The two recovery readings of tkujax.sim.metrics.outcomes on hand-made series (issue 21, item 5).
+"""The two recovery readings of tkujax.sim.metrics.outcomes on hand-made series.
 
 recovery_time_s reads hypot(d pitch, d roll); recovery_time_pitch_s reads |d pitch| alone (the
 paper's phi). The expected times are written out by hand from the series below (control period

@@ -1,5 +1,6 @@
-"""The research scripts (scripts/): their outputs can never overwrite their inputs, and their
-plain logic (reading a fit, the sensitivity summary) does what it says. Nothing here simulates."""
+"""The research scripts (scripts/): each says what it reproduces, their outputs can never
+overwrite their inputs, and their plain logic (reading a fit, the sensitivity summary) does
+what it says. Nothing here simulates."""
 
 import importlib.util
 import json
@@ -78,3 +79,17 @@ def test_sensitivity_summary(monkeypatch):
     assert s["bb_rec"] is None and s["bv_rec"] == 0.5 and s["fv_rec"] == 2.5
     assert s["fb_peak"] == 13.0 and s["bv_phi_past"] == -1.23
     assert s["stand"] == 2.5                     # the lean of the first row
+
+
+def test_every_script_says_what_it_reproduces():
+    """Each research script lives in scripts/ (none under results/) and opens with a docstring
+    that names the result it reproduces or the question it answers."""
+    import ast
+
+    root = SCRIPTS.parent
+    assert not sorted((root / "results").rglob("*.py")), "scripts belong in scripts/"
+    for path in sorted(SCRIPTS.glob("*.py")):
+        if path.name.startswith("_"):
+            continue
+        doc = ast.get_docstring(ast.parse(path.read_text()))
+        assert doc and len(doc) > 20, f"{path.name} has no docstring"

@@ -22,7 +22,7 @@ from tkujax.control.io import load_controller_params_json as load_params_json
 from tkujax.studies.sweep import load, run_sweep
 
 ROOT = Path(__file__).resolve().parents[1]
-TINY = ROOT / "sweeps" / "tiny.toml"
+TINY = ROOT / "specs" / "sweep" / "tiny.toml"
 GOOD = {"sweep": {"name": "t", "chunk_size": 4, "duration_s": 1.0},
         "push": {"grid": {"impulse_ns": [0.5, 1.0], "azimuth_deg": {"start": 0, "stop": 360,
                                                                    "num": 4, "endpoint": False}}}}
@@ -91,7 +91,7 @@ def test_spec_conflicts_and_empty():
     with pytest.raises(SpecError, match="nothing to run"):
         parse_spec({"sweep": {}, "push": {}})
     with pytest.raises(SpecError, match="not found"):
-        load_spec(ROOT / "sweeps" / "no_such.toml")
+        load_spec(ROOT / "specs" / "sweep" / "no_such.toml")
 
 
 def test_bad_run_options_name_the_option(tmp_path):
@@ -107,8 +107,9 @@ def test_bad_run_options_name_the_option(tmp_path):
 
 
 def test_shipped_specs_expand():
-    n = {f.stem: len(load_spec(f).records()["push_id"]) for f in (ROOT / "sweeps").glob("*.toml")
-         if not f.stem.startswith(("tune", "calibrate", "convergence"))}   # their own formats
+    n = {f.stem: len(load_spec(f).records()["push_id"])   # the sweep dialect (tune, calibrate
+         for kind in ("sweep", "capture", "fpga")          # and converge have their own)
+         for f in (ROOT / "specs" / kind).glob("*.toml")}
     assert n["stability_map"] >= 10_000
     assert n["paper"] == 8 and n["tiny"] == 8 and n["stability_map_cpu"] == 128
     assert n["ensemble_cpu"] == 384          # its ensemble: results/calibration/expected

@@ -368,7 +368,7 @@ def test_iterations_override_is_checked_like_the_spec_key(tmp_path):
     for bad in (0, -1, 2.5):
         with pytest.raises(SpecError, match=r"iterations \(tune.iterations\): expected an "
                            rf"integer in \[1, 100000\], got {bad!r}"):
-            run_tune(Path(__file__).resolve().parents[1] / "sweeps" / "tune_cpu.toml",
+            run_tune(Path(__file__).resolve().parents[1] / "specs" / "tune" / "tune_cpu.toml",
                      tmp_path / "t", iterations=bad)
     assert not (tmp_path / "t").exists()
 
@@ -464,13 +464,14 @@ def test_clipped_group_means_against_a_hand_computation():
 
 
 def test_recovery_tuning_spec_round_trips_the_recommended_set():
-    """The extended controller's tuning space (sweeps/tune_recovery.toml): the recommended set
+    """The extended controller's tuning space (specs/tune/tune_recovery.toml): the recommended set
     lies strictly inside it and maps to latents and back to itself."""
     from pathlib import Path
 
     from tkujax.studies.tune import load_tune_spec
 
-    spec = load_tune_spec(Path(__file__).resolve().parents[1] / "sweeps" / "tune_recovery.toml")
+    spec = load_tune_spec(
+        Path(__file__).resolve().parents[1] / "specs" / "tune" / "tune_recovery.toml")
     reparam = spec.reparam()
     assert set(reparam.fields) - set(PAPER_TUNABLE) >= {"stance_ankle_kp", "accel_gate"}
     rec = ControllerParams.recommended()

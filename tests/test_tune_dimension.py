@@ -160,11 +160,11 @@ def test_schedule_gradient_matches_finite_differences(policy):
 # --- The spec ---------------------------------------------------------------------------------
 
 def _spec_dict() -> dict:
-    return read_toml("sweeps/tune_dimension_cpu.toml")
+    return read_toml("specs/tune/tune_dimension_cpu.toml")
 
 
 def test_dimension_specs_parse():
-    spec = parse_tune_spec(read_toml("sweeps/tune_dimension.toml"))
+    spec = parse_tune_spec(read_toml("specs/tune/tune_dimension.toml"))
     sizes = [spec.policy_reparam(p).size for p in spec.study["policies"]]
     assert max(sizes) >= 64 and len(set(sizes)) >= 3
     assert set(spec.study["methods"]) == {"cma", "gradient", "hybrid", "es", "linesearch"}
@@ -337,7 +337,7 @@ def test_side_by_side_spec_key():
     assert parse_tune_spec(_spec_dict()).study["seeds_side_by_side"] is False
     with pytest.raises(SpecError, match="study.seeds_side_by_side"):
         _side_spec(seeds_side_by_side="yes")
-    gpu = parse_tune_spec(read_toml("sweeps/tune_dimension.toml")).study
+    gpu = parse_tune_spec(read_toml("specs/tune/tune_dimension.toml")).study
     assert gpu["seeds_side_by_side"] is True and len(gpu["seeds"]) == 3
 
 

@@ -169,13 +169,13 @@ def test_harm_weighted_mean_by_hand():
 
 
 def test_the_shipped_spec_parses(monkeypatch):
-    """sweeps/tune_recovery_ensemble.toml: the committed 39-member ensemble, w_harm = 2, its
+    """specs/tune/tune_recovery_ensemble.toml: the committed 39-member ensemble, w_harm = 2, its
     start the recommendation it improved on (results/tune_recovery's third run), strictly
     inside the tuning ranges."""
     from tkujax.studies.tune import load_tune_spec
 
     monkeypatch.chdir(ROOT)
-    spec = load_tune_spec(ROOT / "sweeps" / "tune_recovery_ensemble.toml")
+    spec = load_tune_spec(ROOT / "specs" / "tune" / "tune_recovery_ensemble.toml")
     assert spec.ensemble.n == 39 and spec.loss.w_harm == 2.0 and spec.popsize == 15
     assert spec.push["impulse_ns"] == (0.2, 2.8)
     assert spec.shift is not None and "ensemble" not in spec.shift

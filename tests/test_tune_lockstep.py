@@ -190,7 +190,7 @@ def test_lockstep_matches_run_search_through_mjx():
     from tkujax.studies.tune import parse_tune_spec
     from tkujax.studies.tune.spec import sample_pushes
 
-    data = read_toml("sweeps/tune_dimension_cpu.toml")
+    data = read_toml("specs/tune/tune_dimension_cpu.toml")
     data["tune"] = dict(data["tune"], batch=2, duration_s=0.3)
     data["study"] = dict(data["study"], groups=1)
     spec = parse_tune_spec(data)

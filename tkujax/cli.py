@@ -410,7 +410,7 @@ def _add_robot_commands(sub) -> None:
 def _add_sweep_commands(sub) -> None:
     """sweep, replay, capture, map, fpga."""
     p = sub.add_parser("sweep", help="run (or resume) a push sweep from a TOML spec")
-    p.add_argument("spec", help="sweep spec, e.g. sweeps/stability_map_cpu.toml")
+    p.add_argument("spec", help="sweep spec, e.g. specs/sweep/stability_map_cpu.toml")
     p.add_argument("--out", required=True, help="output folder (npz chunks + manifest.json)")
     p.add_argument("--params", default=None,
                    help="controller parameters JSON (tkujax tune output), a scheduled "
@@ -434,7 +434,7 @@ def _add_sweep_commands(sub) -> None:
     p = sub.add_parser("capture", help="capture regions: a [step] sweep, its regions, theory "
                                        "overlays, J_1 (and J_2 with steps = 2), gradient-optimal "
                                        "steps")
-    p.add_argument("spec", help="spec with a [step.grid], e.g. sweeps/capture_region_cpu.toml")
+    p.add_argument("spec", help="spec with [step.grid], e.g. specs/capture/capture_region_cpu.toml")
     p.add_argument("--out", required=True, help="output folder (sweep chunks + capture/)")
     p.add_argument("--params", default=None, help="controller parameters JSON (tkujax tune output)")
     p.add_argument("--optimise", type=int, default=4,
@@ -484,7 +484,7 @@ def _add_sweep_commands(sub) -> None:
     p = sub.add_parser("fpga", help="fixed-point FPGA controller: word lengths, CORDIC "
                                     "iterations, latency vs the float controller's outcomes")
     p.add_argument("spec", nargs="?", default=None,
-                   help="spec with controller.arithmetic = \"fixed\", e.g. sweeps/fpga_cpu.toml")
+                   help="spec with controller.arithmetic=\"fixed\", e.g. specs/fpga/fpga_cpu.toml")
     p.add_argument("--out", default=None, help="output folder (sweep/, float/, fpga/); with "
                                                "--resources: where resources.md/.json go")
     p.add_argument("--resources", action="store_true",
@@ -559,7 +559,7 @@ def _add_study_commands(sub) -> None:
     p = sub.add_parser("tune", help="tune T, gamma, H_Sup, eps_1, eps_2 (...) by CMA-ES, "
                                     "gradients through MJX or their alpha-order mix; evaluate "
                                     "on held-out and shifted pushes")
-    p.add_argument("spec", help="tune spec, e.g. sweeps/tune_cpu.toml")
+    p.add_argument("spec", help="tune spec, e.g. specs/tune/tune_cpu.toml")
     p.add_argument("--out", required=True, help="output folder (history.json, params_*.json, "
                                                  "loss_curve.png, summary.md)")
     p.add_argument("--iterations", type=int, default=None, help="override tune.iterations")
@@ -576,7 +576,7 @@ def _add_study_commands(sub) -> None:
 
     p = sub.add_parser("calibrate", help="fit the model's unknown parameters to the paper's "
                                          "Tables 4-5 (CMA-ES with restarts; resumable)")
-    p.add_argument("spec", help="calibrate spec, e.g. sweeps/calibrate_cpu.toml")
+    p.add_argument("spec", help="calibrate spec, e.g. specs/calibrate/calibrate_cpu.toml")
     p.add_argument("--out", required=True, help="output folder (archive.jsonl, best.json, "
                                                  "calibration.md, search_trace.png, "
                                                  "model_params.json, controller_params.json)")
@@ -596,7 +596,7 @@ def _add_study_commands(sub) -> None:
 
     p = sub.add_parser("converge", help="fall outcomes at several timesteps / solver "
                                         "iterations against the finest (resumable)")
-    p.add_argument("spec", help="converge spec, e.g. sweeps/convergence_cpu.toml")
+    p.add_argument("spec", help="converge spec, e.g. specs/converge/convergence_cpu.toml")
     p.add_argument("--out", required=True, help="output folder (spec.json, outcomes_*.npz, "
                                                  "agreement.json, agreement.md)")
     p.add_argument("--only", default=None, help="comma-separated setting names to run now")

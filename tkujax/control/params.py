@@ -165,7 +165,7 @@ class ControllerParams:
         extensions on (rate-aware capture point and trigger, stance feedback, up to two steps,
         sideways steps, the accelerometer gate), tuned by CMA-ES through MJX, last over the
         calibration's ensemble of 39 plausible robots with the no-harm weight
-        (`tkujax tune sweeps/tune_recovery_ensemble.toml`, NVIDIA H100;
+        (`tkujax tune specs/tune/tune_recovery_ensemble.toml`, NVIDIA H100;
         results/tune_recovery_ensemble/, whose params_after.json holds these values).
         Geometry and Kalman noises as `paper`."""
         return dataclasses.replace(cls.paper(model_params), **RECOMMENDED).validate()

@@ -1,5 +1,5 @@
 """`tkujax converge`: numerical convergence of the fall outcomes in the timestep and the solver
-(issue 21, item 6).
+(calibration in expectation).
 
 The same pushes run under each physics setting of the spec (ModelParams.timestep_s,
 solver_iterations, ls_iterations; everything else the default robot and the paper's controller),

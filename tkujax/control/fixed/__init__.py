@@ -1,4 +1,4 @@
-"""FPGA-faithful fixed-point twin of the balance controller (issue 15).
+"""FPGA-faithful fixed-point twin of the balance controller.
 
 Pure JAX integer arithmetic (int32 words, jit/vmap-able, independent of jax's x64 flag):
   config.py            FixedPointConfig: Q formats per signal group, CORDIC, rounding, latency

@@ -12,7 +12,7 @@ a 24-bit Kalman accumulator, 16 CORDIC iterations and 2 guard bits:
   state   rad      Q2.21     +-4 rad, 4.8e-7 rad        accumulates gyro*dt ~ 1e-5 per tick
   cov     rad^2    Q-3.20    +-0.125, 9.5e-7            P ~ 5e-4 .. 3e-3
   coef    -        18 bits   binary point per coefficient (coefficients.py)
-  IK      m        Q0.21     length + ik_guard_bits: the IK's internal lengths (issue 25)
+  IK      m        Q0.21     length + ik_guard_bits: the IK's internal lengths
 
 Limits: every group's word 1 + int_bits + frac_bits is <= 26 bits and guard bits <= 3, so the
 widest CORDIC register (word + 2 headroom + 3 guard bits) still fits the 31-bit limit of the
@@ -49,7 +49,7 @@ class FixedPointConfig:
                          ankle position, leg-plane length L', ankle distance D), capped so the
                          word stays <= 26 bits. The knee moves 22 rad per metre of D at the
                          stand pose, so D rounded to the 7.6 um length LSB alone costs
-                         0.17 mrad (0.11 servo LSB); 4 bits cut that 16-fold (issue 25).
+                         0.17 mrad (0.11 servo LSB); 4 bits cut that 16-fold.
     latency_ticks        whole control periods between sensor read and servo command (delay
                          line in the state).
     latency_frac         extra fraction of a period [0, 1): the sim applies the previous

@@ -16,7 +16,7 @@ infinite derivative to avoid.
 
 Internal lengths (the pelvis-frame ankle position, L', D, the law-of-cosines offsets) are words
 of `config.ik_length`: the `length` format with `ik_guard_bits` more fraction bits. The CPG's
-targets enter in `length` and are shifted left exactly. Why (issue 25): the knee moves
+targets enter in `length` and are shifted left exactly. Why: the knee moves
 dknee/dD = 2 D / (2 l_t l_c sin knee) = 22 rad/m at the stand pose (D = 0.2 m, l_t = l_c =
 0.11 m), so rounding D to the 7.6 um `length` LSB alone moved the knee by up to 0.17 mrad (the
 measured stand-pose knee error was 0.21 mrad, 0.14 of the servo's 1.53 mrad step). Commands that

@@ -1,4 +1,4 @@
-"""What the fixed-point twin implements, and a refusal of everything else (issue 25).
+"""What the fixed-point twin implements, and a refusal of everything else.
 
 The twin (`controller_step_fx`) reads the ControllerParams fields of `IMPLEMENTED_FIELDS` (the
 coefficient registers of `coefficients.py` are built from them). Every other field is an
@@ -12,7 +12,7 @@ as soon as it is set away from its default, until it is implemented here and add
 `IMPLEMENTED_FIELDS`. Options refused today: accel_gate (robust Kalman R) and
 gate_temperature (the twin's gate is the hard one of Algorithm 1; a soft gate acts only on
 the straight-through gradient path of `controller_step_fx` called directly, never on the
-values). cp_excess and cp_update_window are implemented (controller_fx.py, issue 25).
+values). cp_excess and cp_update_window are implemented (controller_fx.py).
 """
 
 from __future__ import annotations

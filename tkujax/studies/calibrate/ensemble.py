@@ -1,5 +1,5 @@
 """From a calibration's archive to an ensemble of plausible robots, a default robot in the middle
-of them, and each fitted parameter's island width in expectation (issue 21, items 3-4).
+of them, and each fitted parameter's island width in expectation.
 
 - The ensemble: every archived candidate whose expected loss (the mean over the samples of hit
   phase x contact time) is within `tolerance` of the best, at the best's reading, distinct in
@@ -23,7 +23,7 @@ import numpy as np
 
 from tkujax.studies.calibrate import params as P
 
-ROW_P_MIN = 0.8        # issue 21: each row's paper outcome at >= 80 % of the phases
+ROW_P_MIN = 0.8        # each row's paper outcome at >= 80 % of the phases
 
 
 def record_loss(rec: dict, objective: str, reading: str) -> float:

@@ -1,5 +1,5 @@
 """Island widths of the calibrated robot and its paper outcomes in expectation over the hit phase
-(issue 21, item 4).
+(calibration in expectation).
 
 island_slices(): for each fitted parameter (params.PARAMS: the ModelParams fields, the ball
 contact and the Kalman noises), a one-parameter slice through the default robot (the others held

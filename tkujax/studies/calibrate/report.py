@@ -145,7 +145,7 @@ def main(argv=None):
     a = ap.parse_args(argv)
     out = Path(a.out)
     recs = [r for r in load(a.archive) if "rows" in r]
-    md = ["# Calibration of TKU-X to the paper's Tables 4-5 (issue 11)", "",
+    md = ["# Calibration of TKU-X to the paper's Tables 4-5", "",
           f"{len(recs)} candidates simulated (MuJoCo C backend, CPU, noise-free), each on all 8 "
           f"rows and all {len(P.READINGS)} readings of Algorithm 1.", ""]
     summary = {"n_candidates": len(recs)}

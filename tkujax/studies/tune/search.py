@@ -195,7 +195,7 @@ def warm_up_calls(method: str, problem, z0, batch: dict, keys, cfg: SearchConfig
     """What `method` calls for one seed, each once, side by side (`warm_up`): the forward (its
     hard loss under "forward"), the population call (cma, sepcma, hybrid, linesearch) and the
     grouped first-order gradient (gradient, hybrid, linesearch). parallel=False: one after
-    the other (results/bench/warmup_parallel.py compares the two)."""
+    the other (scripts/bench_warmup_parallel.py compares the two)."""
     plan = warm_up_plan(searcher_class(method), OneSeedCalls(problem, batch, keys, cfg),
                         np.asarray(z0, float)[None], cfg)
     out = warm_up(plan, parallel)
