@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from typing import Callable
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -119,12 +119,13 @@ def legs_slice(idx: ModelIndex) -> slice:
 
 def controller_tick(idx: ModelIndex, episode: Episode, params: ControllerParams,
                     config: RolloutConfig, override: StepOverride | None, schedule, switch: int,
-                    imu, ctrl_state, key: jax.Array):
-    """One control tick: the IMU reading (with noise) through the controller. Returns
-    (ctrl_state, command, earlier command, out): with a fractional servo latency (the
-    fixed-point twin, switch > 0) the earlier command holds until substep `switch`."""
+                    sense: Callable, imu, ctrl_state, key: jax.Array):
+    """One control tick: the IMU reading through `sense(imu, key, episode)` (`noisy_imu`; the
+    bench's profile gives a stand-in) and the controller. Returns (ctrl_state, command,
+    earlier command, out): with a fractional servo latency (the fixed-point twin, switch > 0)
+    the earlier command holds until substep `switch`."""
     with jax.named_scope("sensors"):
-        gyro, accel = noisy_imu(imu, key, episode)
+        gyro, accel = sense(imu, key, episode)
     with jax.named_scope("controller"):
         if config.fixed is None:
             ctrl_state, legs, out = control_tick(ctrl_state, gyro, accel, params,
@@ -219,6 +220,6 @@ def tick_pieces(model: mjx.Model, idx: ModelIndex, episode: Episode, params: Con
     return TickPieces(
         substep=wrap_substep(substep),
         control=functools.partial(controller_tick, idx, episode, params, config, override,
-                                  schedule, switch),
+                                  schedule, switch, noisy_imu),
         record=functools.partial(record_row, model, idx, config.record_qpos),
         substeps=substeps, switch=switch)

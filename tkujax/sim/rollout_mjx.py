@@ -32,7 +32,7 @@ from tkujax.control.controller import StepOverride, controller_init
 from tkujax.control.fixed import check_supported, controller_init_fx
 from tkujax.control.params import ControllerParams
 from tkujax.model import ModelParams
-from tkujax.sim.closed_loop import imu_read, tick_pieces
+from tkujax.sim.closed_loop import TickPieces, imu_read, tick_pieces
 from tkujax.sim.loops import flat_loop, flat_loop_carry, nested_loop
 from tkujax.sim.mjx_import import mjx
 from tkujax.sim.options import (LOOPS, REMAT_MODES, TREE_PASSES, Episode,  # noqa: F401
@@ -87,18 +87,27 @@ def rollout(model: mjx.Model, state: mjx.Data, episode: Episode, params: Control
       control period.
     """
     idx = index or model_index()
-    n_ticks = int(round(config.duration_s / config.control_period_s))
     params = dataclasses.replace(params, control_period=config.control_period_s)
-    dtype = state.qpos.dtype
     if override is not None:
         override = dataclasses.replace(override, onset_s=episode.push.onset_s)
     pieces = tick_pieces(model, idx, episode, params, config, override, schedule)
+    return run_tick_pieces(pieces, state, episode, params, config, idx, schedule)
+
+
+def run_tick_pieces(pieces: TickPieces, state: mjx.Data, episode: Episode,
+                    params: ControllerParams, config: RolloutConfig, index: ModelIndex,
+                    schedule=None) -> Series:
+    """Run a closed loop's TickPieces (`tkujax.sim.closed_loop.tick_pieces`, or the bench's
+    stand-ins) from `state` for config.duration_s, in config.program's loop structure. `params`
+    as the controller runs them (control_period set); the rows come back stacked."""
+    n_ticks = int(round(config.duration_s / config.control_period_s))
+    dtype = state.qpos.dtype
     init_ctrl = (controller_init(params, dtype) if config.fixed is None else
                  controller_init_fx(params, config.fixed, dtype))
     seeds = (episode.push, params, schedule, episode.enabled, episode.gyro_noise_std,
              episode.accel_noise_std)
     tick_keys = jax.random.split(episode.key, n_ticks)
-    carry = (state, imu_read(idx, state), init_ctrl)
+    carry = (state, imu_read(index, state), init_ctrl)
     if config.program.loop == "nested":
         return nested_loop(pieces, config.program, seed_carry(carry, seeds), tick_keys)
     carry = seed_carry(flat_loop_carry(pieces, carry, tick_keys), seeds)
