@@ -17,7 +17,7 @@ from tkujax.sim.rollout_mjx import rollout
 from tkujax.sim.setup import init
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _fn(window, loop="nested", grad=False):
     """jit of (impulse, onset) -> the Series (or value_and_grad of the last tick's CoM x
     with respect to the impulse)."""
