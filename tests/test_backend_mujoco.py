@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from tkujax.sim import rollout_mujoco as bm
+from tkujax.sim.closed_loop import push_wrench
 from tkujax.sim import push as push_lib
 from tkujax.sim import rollout_mjx as sim
 from tkujax.control.params import ControllerParams
@@ -116,7 +117,7 @@ def test_period_start_wrench_approximation(runs):
 
 
 def test_push_wrench_twin_matches_sim():
-    """_force/_wrench reproduce push.force_at and rollout_mjx._push_wrench on tilted chest poses."""
+    """_force/_wrench reproduce push.force_at and closed_loop.push_wrench on tilted chest poses."""
     setup = bm._setup(None)
     m, idx = setup.model, setup.index
     data = mujoco.MjData(m)
@@ -133,7 +134,7 @@ def test_push_wrench_twin_matches_sim():
                                   xmat=jnp.asarray(data.xmat.reshape(-1, 3, 3)),
                                   xipos=jnp.asarray(data.xipos),
                                   xfrc_applied=jnp.zeros((m.nbody, 6)))
-        ref = np.asarray(sim._push_wrench(idx, d, push))
+        ref = np.asarray(push_wrench(idx, d, push))
         p = {k: np.atleast_1d(np.asarray(getattr(push, k), np.float64))
              for k in ("impulse_ns", "azimuth_rad", "height_m", "duration_s", "onset_s")}
         force = bm._force(p, np.array([[t]]))

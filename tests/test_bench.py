@@ -8,8 +8,7 @@ import json
 
 import pytest
 
-from tkujax import bench
-from tkujax.bench import MODES, parse_grad_variants, run_bench, summary_markdown
+from tkujax.bench import MODES, parse_grad_variants, run_bench, runner, stages, summary_markdown
 
 
 @pytest.mark.slow
@@ -66,9 +65,9 @@ def _fake_stages(monkeypatch, seen: list, out):
         seen.append(("cpu_peer", on_disk_stages()))
         raise RuntimeError("no MuJoCo C here")
 
-    monkeypatch.setattr(bench, "raw_stepping", raw)
-    monkeypatch.setattr(bench, "closed_loop", closed)
-    monkeypatch.setattr(bench, "cpu_peer", cpu)
+    monkeypatch.setattr(stages, "raw_stepping", raw)
+    monkeypatch.setattr(stages, "closed_loop", closed)
+    monkeypatch.setattr(stages, "cpu_peer", cpu)
 
 
 def test_stages_written_incrementally_failure_recorded(tmp_path, monkeypatch, capsys):
@@ -101,7 +100,7 @@ def test_resume_runs_only_the_unfinished_stages(tmp_path, monkeypatch):
     seen = []
     _fake_stages(monkeypatch, seen, out)
     clock = iter(range(0, 10_000, 10))     # each perf_counter() call: 10 s later; a stage
-    monkeypatch.setattr(bench.time, "perf_counter", lambda: float(next(clock)))  # takes 4
+    monkeypatch.setattr(runner.time, "perf_counter", lambda: float(next(clock)))  # takes 4
     run_bench(out, batches=(8, 16), compile_batch=0, cpu_batch=4, budget_s=55, quiet=True)
     first = json.loads(out.read_text())
     status = {st["name"]: st["status"] for st in first["stages"]}
@@ -188,13 +187,17 @@ def test_bad_sizes_fail_before_any_stage_naming_the_argument(tmp_path, kw, messa
 
 
 def test_cli_names_the_option_of_a_bad_integer_list(tmp_path, capsys):
-    from tkujax import cli
+    from tkujax.bench.__main__ import main
 
-    assert cli.main(["bench", "--out", str(tmp_path / "b.json"), "--batches", "0,abc"]) == 2
+    assert main(["--out", str(tmp_path / "b.json"), "--batches", "0,abc"]) == 2
     assert "--batches: a comma list of integers, got '0,abc'" in capsys.readouterr().err
-    assert cli.main(["bench", "--out", str(tmp_path / "b.json"), "--batches", "-5"]) == 2
+    assert main(["--out", str(tmp_path / "b.json"), "--batches", "-5"]) == 2
     assert "batches (each) must be an integer in [1, 10000000], got -5" in \
         capsys.readouterr().err
+    assert main(["--out", str(tmp_path / "b.json"), "--variant", "speed=9"]) == 2
+    assert "--variant 'speed=9': expected KEY=VALUE" in capsys.readouterr().err
+    assert main(["--out", str(tmp_path / "b.json"), "--variant", "unroll_substeps=0"]) == 2
+    assert "unroll_substeps must be >= 1, got [0]" in capsys.readouterr().err
 
 
 def test_parse_grad_variants():
@@ -214,7 +217,6 @@ def test_gradient_compile_variants_pass_their_xla_options(monkeypatch):
     import jax
 
     import tkujax.studies.tune.benchmark as tb
-    from tkujax import bench
 
     calls = []
 
@@ -227,7 +229,7 @@ def test_gradient_compile_variants_pass_their_xla_options(monkeypatch):
     variants = [{"remat": "substep"}, {"remat": "substep", "llvm": 0, "ptxas": 0},
                 {"autotune": 0}]
     monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
-    rows = bench.gradient_compile(8, 0.3, variants)
+    rows = stages.gradient_compile(8, 0.3, variants)
     assert calls == [
         (None, {"remat": "substep"}, 0),
         ({"xla_backend_optimization_level": 0, "xla_llvm_disable_expensive_passes": True,
@@ -236,39 +238,41 @@ def test_gradient_compile_variants_pass_their_xla_options(monkeypatch):
     assert rows[1]["variant"] == {"remat": "substep", "llvm": 0, "ptxas": 0}
     monkeypatch.setattr(jax, "default_backend", lambda: "cpu")
     calls.clear()
-    rows = bench.gradient_compile(8, 0.3, variants)
+    rows = stages.gradient_compile(8, 0.3, variants)
     assert calls == [(None, {"remat": "substep"}, 0)]
     assert rows[1]["skipped"] == "llvm, ptxas: GPU only" and rows[2]["skipped"]
 
 
 def test_cli_modes(tmp_path, monkeypatch):
-    """The CLI's default and --full sizes, --stages, --profile and the options reach run_bench."""
-    from tkujax import cli
+    """The CLI's default and --full sizes, --stages, --profile and the --variant options reach
+    run_bench's BenchConfig."""
+    import dataclasses
+
+    from tkujax.bench import runner
+    from tkujax.bench.__main__ import main
 
     calls = []
 
-    def fake_run_bench(out, **kw):
-        calls.append(kw)
-        res = dict(device_kind="cpu", n_devices=1, versions={}, repeats=kw["repeats"],
-                   duration_s=kw["duration_s"], raw=[], closed_loop=[], stages=[],
+    def fake_run_bench(out, config, resume=False):
+        calls.append(dict(dataclasses.asdict(config), resume=resume))
+        res = dict(device_kind="cpu", n_devices=1, versions={}, repeats=config.repeats,
+                   duration_s=config.duration_s, raw=[], closed_loop=[], stages=[],
                    total_wall_s=0.0, complete=True)
         (tmp_path / "b.json").write_text(json.dumps(res))
         return res
 
-    monkeypatch.setattr(bench, "run_bench", fake_run_bench)
+    monkeypatch.setattr(runner, "run_bench", fake_run_bench)
     out = str(tmp_path / "b.json")
-    assert cli.main(["bench", "--out", out]) == 0
-    assert cli.main(["bench", "--out", out, "--full", "--repeats", "5"]) == 0
-    assert cli.main(["bench", "--out", out, "--stages", "profile", "--profile-batches", "2,4",
-                     "--profile-variants", "no_noise;raw", "--trace", "tr"]) == 0
-    assert cli.main(["bench", "--out", out, "--stages", "gradient_compile", "--grad-variants",
-                     "remat=tick_nocse", "--grad-cold-only", "--budget-s", "300"]) == 0
-    assert cli.main(["bench", "--out", out, "--unroll-substeps", "1,15"]) == 0
-    assert cli.main(["bench", "--out", out, "--full", "--resume"]) == 0
+    assert main(["--out", out]) == 0
+    assert main(["--out", out, "--full", "--repeats", "5"]) == 0
+    assert main(["--out", out, "--stages", "profile", "--variant", "profile_batches=2,4",
+                 "--variant", "profile_variants=no_noise;raw", "--variant", "trace_dir=tr"]) == 0
+    assert main(["--out", out, "--stages", "gradient_compile", "--variant",
+                 "grad_variants=remat=tick_nocse", "--variant", "grad_cached=0",
+                 "--budget-s", "300"]) == 0
+    assert main(["--out", out, "--variant", "unroll_substeps=1,15"]) == 0
+    assert main(["--out", out, "--full", "--resume"]) == 0
     assert calls.pop()["resume"] is True
-    for bad in ("0", "x"):
-        with pytest.raises(SystemExit, match="--unroll-substeps"):
-            cli.main(["bench", "--out", out, "--unroll-substeps", bad])
     default, full, prof, grad, unroll = calls
     assert default["unroll_substeps"] is None and unroll["unroll_substeps"] == (1, 15)
     assert default["batches"] == MODES["default"]["batches"] == (1024, 65536)
@@ -282,9 +286,11 @@ def test_cli_modes(tmp_path, monkeypatch):
     assert grad["grad_variants"] == [{"remat": "tick_nocse"}] and grad["grad_cached"] is False
     assert grad["grad_compile_batch"] == MODES["full"]["grad_compile_batch"]
     assert grad["budget_s"] == 300
-    assert cli.main(["bench", "--out", out, "--stages", "gradient_step,gradient_compile"]) == 0
+    assert main(["--out", out, "--stages", "gradient_step,gradient_compile"]) == 0
     assert calls[-1]["grad_batch"] == 1024 and calls[-1]["grad_compile_batch"] == 256
     assert calls[-1]["grad_variants"] is None
+    assert main(["--out", out, "--profile"]) == 0
+    assert calls[-1]["profile_batches"] == (1024, 65536)
 
 
 @pytest.mark.slow
@@ -324,7 +330,8 @@ def test_gradient_bench_spec_parses():
         assert spec.reparam().size == len(PAPER_TUNABLE) == 8
     problem = TuneProblem(spec.reparam(), spec.base_params(), spec.loss, 0.45, "tick_nocse",
                           rollout_options=dict(unroll_substeps=3))
-    assert problem.config.remat == "tick_nocse" and problem.config.unroll_substeps == 3
+    assert problem.config.program.remat == "tick_nocse"
+    assert problem.config.program.unroll_substeps == 3
 
 
 @pytest.mark.parametrize("variant", ["raw", "physics_only", "shared_model", "no_controller"])
@@ -333,21 +340,21 @@ def test_profile_variants_step_every_robot(variant):
     and broadcast it: every variant's physics carries the batch axis."""
     import jax
 
-    from tkujax.bench import _push_batch, traced_paper_params
-    from tkujax.bench_profile import _loop_fn
+    from tkujax.bench import push_batch, traced_paper_params
+    from tkujax.bench.profile import variant_loop_fn
     from tkujax.sim import physics
 
     batch, nq = 3, physics.host_model().nq
-    recs = _push_batch(batch)
+    recs = push_batch(batch)
     keys = jax.random.split(jax.random.PRNGKey(0), batch)
     # .trace, not make_jaxpr: the loop is a jit with compiler options, which JAX refuses to nest
-    text = str(_loop_fn(variant, 0.06).trace(recs, keys, traced_paper_params()).jaxpr)
+    text = str(variant_loop_fn(variant, 0.06).trace(recs, keys, traced_paper_params()).jaxpr)
     assert f"f32[{batch},{nq}]" in text
 
 
 def test_profile_rows_written_as_measured(tmp_path, monkeypatch):
     """The profile stage's JSON holds each row as soon as it is measured (fakes: no compile)."""
-    from tkujax import bench_profile
+    from tkujax.bench import profile
 
     out = tmp_path / "p.json"
     seen = []
@@ -363,7 +370,7 @@ def test_profile_rows_written_as_measured(tmp_path, monkeypatch):
             seen.append([r["variant"] for r in json.loads(out.read_text())["profile"][0]["rows"]])
         raise RuntimeError("cut short")
 
-    monkeypatch.setattr(bench_profile, "profile_closed_loop", fake_profile)
+    monkeypatch.setattr(profile, "profile_closed_loop", fake_profile)
     run_bench(out, stages=("profile",), profile_batches=(8,), quiet=True)
     assert seen == [["full"], ["full", "raw"]]
     on_disk = json.loads(out.read_text())

@@ -124,5 +124,5 @@ def test_rollout_refuses_a_non_euler_integrator():
     push = Push(jnp.float32(1.0), jnp.float32(0.0), jnp.float32(0.36), jnp.float32(0.02),
                 jnp.float32(0.3))
     with pytest.raises(ValueError, match="Euler integrator"):
-        sim.rollout(rk4, stand, push, ControllerParams.paper(), 1.0, jax.random.PRNGKey(0),
-                    0.0, 0.0, sim.RolloutConfig(duration_s=0.06), index)
+        sim.rollout(rk4, stand, sim.Episode(push, 1.0, jax.random.PRNGKey(0)),
+                    ControllerParams.paper(), sim.RolloutConfig(duration_s=0.06), index)

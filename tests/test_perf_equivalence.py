@@ -26,7 +26,8 @@ RECORDS = dict(impulse_ns=[0.4, 2.5, 1.6, 2.5], azimuth_deg=[0.0, 0.0, 180.0, 90
                accel_noise_std=[0.0, 0.1, 0.0, 0.0])
 nan = math.nan
 # make_chunk_fn((), 1.5) at commit 694af53 on the CPU (keys: PRNGKey(3) split 4 ways);
-# re-stored when the default robot gained its IMU low-pass (7.5 Hz accelerometer, 0.1.2):
+# re-stored when the default robot gained its IMU low-pass (7.5 Hz accelerometer,
+# ModelParams.accel_lowpass_hz):
 # only the third push (backward, control on) changed, as the filtered IMU moves its step.
 STORED = {
     "capture_point_m": [0.0, 0.0, -0.0692421942949295, 0.0],
@@ -75,7 +76,7 @@ def test_sweep_chunk_outcomes_unchanged():
 @pytest.mark.slow
 def test_profile_loop_is_the_sweep_chunk():
     """The bench profile's `full` variant is the sweeps' program: the same outcomes, exactly."""
-    from tkujax.bench_profile import loop_fn
+    from tkujax.bench.profile import loop_fn
 
     args = _inputs()
     ref = {k: np.asarray(v) for k, v in make_chunk_fn((), 1.5)(*args).items()}
@@ -86,7 +87,7 @@ def test_profile_loop_is_the_sweep_chunk():
 def test_loop_options_keep_the_outcomes():
     """Checkpointing (a no-op without a gradient) and scan unrolling change the program, not
     the arithmetic: the outcomes agree to float tolerance."""
-    from tkujax.bench_profile import loop_fn
+    from tkujax.bench.profile import loop_fn
 
     args = _inputs()
     ref = {k: np.asarray(v) for k, v in make_chunk_fn((), 1.5)(*args).items()}
@@ -97,34 +98,38 @@ def test_loop_options_keep_the_outcomes():
 
 
 def test_rollout_config_checks_its_options():
-    from tkujax.sim.rollout_mjx import RolloutConfig, _checkpoints, rollout
+    from tkujax.bench.ablation import ablated_rollout
+    from tkujax.sim.options import Episode, ProgramOptions, checkpoints
+    from tkujax.sim.rollout_mjx import RolloutConfig, rollout
 
     for bad in (0, -3):
         with pytest.raises(ValueError, match="unroll_substeps"):
             make_chunk_fn((), 1.5, unroll_substeps=bad)
 
     with pytest.raises(ValueError, match="remat"):
-        _checkpoints("sometimes")
+        checkpoints("sometimes")
     with pytest.raises(ValueError, match="unknown profile variant 'loop=spiral'"):
-        from tkujax.bench_profile import _variant_config
-        _variant_config("loop=spiral")
+        from tkujax.bench.profile import variant_config
+        variant_config("loop=spiral")
     for mode in (False, True, "none", "tick", "tick_nocse", "tick_dots", "substep", "nested"):
-        _checkpoints(mode)
+        checkpoints(mode)
     from tkujax.sim.push import Push
     from tkujax.sim.setup import init
 
     _, model, index, state = init()
     push = Push(*(jnp.float32(v) for v in (1.0, 0.0, 0.36, 0.02, 0.3)))
-    with pytest.raises(ValueError, match="RolloutConfig.loop must be one of"):
-        jax.eval_shape(lambda: rollout(model, state, push, ControllerParams.paper(), 1.0,
-                                       jax.random.PRNGKey(0),
-                                       config=RolloutConfig(duration_s=0.06, loop="spiral"),
-                                       index=index))
+    with pytest.raises(ValueError, match="ProgramOptions.loop must be one of"):
+        RolloutConfig(duration_s=0.06, program=ProgramOptions(loop="spiral"))
+    for field in ("unroll_ticks", "unroll_substeps", "gradient_window_ticks"):
+        with pytest.raises(ValueError, match=f"ProgramOptions.{field} must be an integer >= 1, "
+                                             f"got 0"):
+            ProgramOptions(**{field: 0})
+    episode = Episode(push, 1.0, jax.random.PRNGKey(0))
+    jax.eval_shape(lambda: rollout(model, state, episode, ControllerParams.paper(),
+                                   RolloutConfig(duration_s=0.06), index))
     with pytest.raises(ValueError, match="ablate"):
-        jax.eval_shape(lambda: rollout(model, state, push, ControllerParams.paper(), 1.0,
-                                       jax.random.PRNGKey(0),
-                                       config=RolloutConfig(duration_s=0.06, ablate=("x",)),
-                                       index=index))
+        jax.eval_shape(lambda: ablated_rollout(model, state, episode, ControllerParams.paper(),
+                                               RolloutConfig(duration_s=0.06), index, ("x",)))
 
 
 @pytest.mark.slow
@@ -136,7 +141,7 @@ def test_flat_loop_gives_the_nested_series(fixed):
     switches commands in mid-tick (servo substep 6 of 15)."""
     from tkujax.control.fixed import FixedPointConfig, servo_switch_substep
     from tkujax.sim.push import Push
-    from tkujax.sim.rollout_mjx import RolloutConfig, rollout
+    from tkujax.sim.rollout_mjx import Episode, ProgramOptions, RolloutConfig, rollout
     from tkujax.sim.setup import init
 
     cfg = (FixedPointConfig(straight_through=False, latency_ticks=1, latency_frac=0.4)
@@ -147,9 +152,9 @@ def test_flat_loop_gives_the_nested_series(fixed):
     push = Push(*(jnp.float32(v) for v in (1.6, 0.0, 0.36, 0.02, 0.03)))
 
     def run(loop):
-        config = RolloutConfig(duration_s=0.45, fixed=cfg, loop=loop)
-        f = jax.jit(lambda key: rollout(model, state, push, ControllerParams.paper(), 1.0, key,
-                                        0.02, 0.1, config, index))
+        config = RolloutConfig(duration_s=0.45, fixed=cfg, program=ProgramOptions(loop=loop))
+        f = jax.jit(lambda key: rollout(model, state, Episode(push, 1.0, key, 0.02, 0.1),
+                                        ControllerParams.paper(), config, index))
         return jax.tree.map(np.asarray, f(jax.random.PRNGKey(5)))
 
     nested, flat = run("nested"), run("flat")

@@ -188,7 +188,7 @@ def test_unsupported_model_falls_back_to_mjx():
 def test_paper_cases_with_compact_kinematics_keep_their_outcomes():
     """The paper's eight ball pushes (`tkujax paper`, 2.4 s each): MJX's kinematics and the
     compact one give the same falls, and inclinations within float32 rounding's growth."""
-    ours = run_cases(config=sim.RolloutConfig(tree_passes="compact"))
+    ours = run_cases(config=sim.RolloutConfig(program=sim.ProgramOptions(tree_passes="compact")))
     ref = run_cases()
     np.testing.assert_array_equal(ours[2]["fell"], ref[2]["fell"])
     np.testing.assert_allclose(ours[2]["peak_incl_deg"], ref[2]["peak_incl_deg"], rtol=0.02)
@@ -196,9 +196,9 @@ def test_paper_cases_with_compact_kinematics_keep_their_outcomes():
 
 def test_unknown_kinematics_is_named():
     pushes = stack_pushes([make_push(1.0)])
-    with pytest.raises(ValueError, match="RolloutConfig.tree_passes.*'fast'"):
+    with pytest.raises(ValueError, match="ProgramOptions.tree_passes.*'fast'"):
         sim.simulate(pushes, np.ones(1, np.float32), ControllerParams.paper(),
-                     config=sim.RolloutConfig(tree_passes="fast"))
+                     config=sim.RolloutConfig(program=sim.ProgramOptions(tree_passes="fast")))
 
 
 def test_physics_without_sensors_supports_compact():

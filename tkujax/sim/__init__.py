@@ -8,6 +8,9 @@ MJX and MuJoCo C rollouts, per-push metrics and the typed records they produce.
   ball_rig.py        the paper's pendulum rig simulated with a real ball (impulse calibration)
   tick.py            the control half of a tick, shared by both backends
   recording.py       the per-tick recording shared by both backends (ZMP, lowest point, Series)
+  options.py         RolloutConfig (physics), ProgramOptions (program layout), Episode
+  closed_loop.py     the pieces of one MJX control tick (physics substep, controller, records)
+  loops.py           the nested and flat loops that run those pieces
   rollout_mjx.py     rollout / batched_rollout / simulate on MJX (jit, vmap, grad)
   rollout_mujoco.py  simulate_mujoco: the same loop on MuJoCo C (CPU)
   metrics.py         outcomes of one rollout (fell, recovery time, step, ...)
@@ -19,8 +22,10 @@ from __future__ import annotations
 from tkujax.sim.metrics import outcomes
 from tkujax.sim.push import Push, ball_push, make_push, stack_pushes
 from tkujax.sim.records import OUTCOME_FIELDS, SERIES_FIELDS, Outcomes, Series
-from tkujax.sim.rollout_mjx import RolloutConfig, batched_rollout, rollout, simulate
+from tkujax.sim.options import Episode, ProgramOptions, RolloutConfig
+from tkujax.sim.rollout_mjx import batched_rollout, rollout, simulate
 
-__all__ = ["OUTCOME_FIELDS", "SERIES_FIELDS", "Outcomes", "Push", "RolloutConfig", "Series",
+__all__ = ["OUTCOME_FIELDS", "SERIES_FIELDS", "Episode", "Outcomes", "ProgramOptions", "Push",
+           "RolloutConfig", "Series",
            "ball_push", "batched_rollout", "make_push", "outcomes", "rollout", "simulate",
            "stack_pushes"]

@@ -9,7 +9,7 @@ Only the physics half differs, and it cannot be shared: MJX steps inside a trace
 numpy, outside any trace (`rollout_mujoco.simulate_mujoco`). Everything the controller sees and
 commands goes through the functions here, so the two loops cannot drift apart in it.
 
-The fixed-point controller (issue 15, `RolloutConfig.fixed`) goes through `control_tick_fx`:
+The fixed-point controller (the FPGA twin, `RolloutConfig.fixed`) goes through `control_tick_fx`:
 it also returns the previous command, which both loops apply for the first
 `servo_switch_substep` physics substeps of the tick (the fractional latency).
 """

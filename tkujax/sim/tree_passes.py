@@ -16,7 +16,7 @@ physics step's program and of its gradient, and XLA's compile time grows with th
 Sums and products are associated differently from MJX's parent-by-parent chain, so the fields
 agree to float rounding, not bit for bit (tests/test_tree_passes.py: MuJoCo C to 1e-12 and
 1e-10 in float64). On one H200 the tuning gradient's cold compile takes 41.0 s against 76.9 s
-with MJX's passes (results/bench/README.md, session 16).
+with MJX's passes (results/bench/README.md, `h200_gradcompile_compact`).
 
 Supported joints: hinge and slide anywhere, free as a body's only joint (MuJoCo allows it on
 top-level bodies only). `supports(model)` says whether a model qualifies; `forward` falls back

@@ -296,7 +296,8 @@ def render_case(case: str, control_on: bool, out: str | Path, width: int = 480,
 
     config = RolloutConfig(duration_s=2.1, record_qpos=True)
     host, model, index, state = init()
-    series = sim.rollout(model, state, push, ControllerParams.paper(), 1.0 if control_on else 0.0,
-                         jax.random.PRNGKey(0), config=config, index=index)
+    episode = sim.Episode(push, 1.0 if control_on else 0.0, jax.random.PRNGKey(0))
+    series = sim.rollout(model, state, episode, ControllerParams.paper(), config=config,
+                         index=index)
     frames = render.render_frames(host, np.asarray(series["qpos"]), width, height)
     return render.save_gif(frames, out, fps=1.0 / config.control_period_s)

@@ -44,7 +44,7 @@ from tkujax.sim.metrics import CAPTURE_KEYS, capture_outcomes
 from tkujax.sim.metrics import outcomes as rollout_outcomes
 from tkujax.sim.push import Push
 from tkujax.sim.randomize import randomize_model
-from tkujax.sim.rollout_mjx import RolloutConfig, rollout
+from tkujax.sim.rollout_mjx import Episode, ProgramOptions, RolloutConfig, rollout
 from tkujax.sim.setup import init
 from tkujax.studies import chunks
 from tkujax.studies.progress import Progress
@@ -162,7 +162,7 @@ def _make_chunk_fn(varied, duration_s, model_params, with_qpos, steps, fixed, en
         robots = ensemble_robots(ensemble)
         model, index, state = robots.base_model, robots.index, robots.base_state
     config = RolloutConfig(duration_s=duration_s, record_qpos=with_qpos, fixed=fixed,
-                           unroll_substeps=unroll, loop=SWEEP_LOOP)
+                           program=ProgramOptions(unroll_substeps=unroll, loop=SWEEP_LOOP))
 
     def one(rec, key, base_params, schedule, robot_values=None):
         push = Push(rec["impulse_ns"], jnp.radians(rec["azimuth_deg"]), rec["height_m"],
@@ -176,8 +176,8 @@ def _make_chunk_fn(varied, duration_s, model_params, with_qpos, steps, fixed, en
         m = randomize_model(m, index.chest_body, mass_scale=rec["link_mass_scale"],
                             torso_com_dx_m=rec["torso_com_offset_x_m"],
                             friction=rec["floor_friction"], kp_scale=rec["servo_kp_scale"])
-        series = rollout(m, s, push, params, rec["control"], key, rec["gyro_noise_std"],
-                         rec["accel_noise_std"], config, index,
+        series = rollout(m, s, Episode(push, rec["control"], key, rec["gyro_noise_std"],
+                         rec["accel_noise_std"]), params, config, index,
                          step_override(rec) if steps else None, schedule)
         out = rollout_outcomes(series, push.onset_s)
         res = {k: out[k] for k in OUTCOME_KEYS} | ({"qpos": series.qpos} if with_qpos else {})

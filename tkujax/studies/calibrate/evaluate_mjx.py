@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from tkujax.sim import robots as robots_lib
-from tkujax.sim.rollout_mjx import RolloutConfig, rollout
+from tkujax.sim.rollout_mjx import Episode, RolloutConfig, rollout
 from tkujax.studies.calibrate import evaluate as E
 from tkujax.studies.calibrate import params as P
 
@@ -72,7 +72,7 @@ def _program(ids: tuple[tuple[int, ...], tuple[int, ...]], config: RolloutConfig
         model = robots_lib.put_leaves(base_model, ids[0], values[0], robot_id)
         state = robots_lib.put_leaves(base_state, ids[1], values[1], robot_id)
         params = jax.tree_util.tree_map(lambda v: v[param_row], table)
-        series = rollout(model, state, push, params, enabled, jax.random.PRNGKey(0),
+        series = rollout(model, state, Episode(push, enabled, jax.random.PRNGKey(0)), params,
                          config=config, index=index)
         out = outcomes(series, push.onset_s)
         return dict(fell=out["fell"], step_length_m=out["step_length_m"],

@@ -37,7 +37,7 @@ from tkujax.sim import push as push_lib
 from tkujax.sim.metrics import outcomes as rollout_outcomes
 from tkujax.sim.push import Push
 from tkujax.sim.randomize import randomize_model
-from tkujax.sim.rollout_mjx import RolloutConfig, rollout
+from tkujax.sim.rollout_mjx import Episode, ProgramOptions, RolloutConfig, rollout
 from tkujax.sim.setup import init
 from tkujax.studies.calibrate import params as P
 from tkujax.studies.paper import PAPER_TABLE, paper_cases
@@ -76,7 +76,7 @@ class Refiner:
     def __init__(self, model: ModelParams | None = None,
                  contact: push_lib.BallContact | None = None,
                  params: ControllerParams | None = None,
-                 config: RolloutConfig = RolloutConfig(remat=True),
+                 config: RolloutConfig = RolloutConfig(program=ProgramOptions(remat=True)),
                  cases: list[int] | None = None):
         self.model_params = model or ModelParams()
         self.contact = contact or push_lib.BallContact()
@@ -109,8 +109,8 @@ class Refiner:
                 push = Push(j * imp, az, h,
                             jnp.float32(push_lib.DEFAULT_DURATION_S),
                             jnp.float32(push_lib.PAPER_ONSET_S))
-                series = rollout(m, state, push, self.params, en, jax.random.PRNGKey(0),
-                                 0.0, 0.0, config, index)
+                series = rollout(m, state, Episode(push, en, jax.random.PRNGKey(0), 0.0, 0.0),
+                                 self.params, config, index)
                 return rollout_outcomes(series, push.onset_s)
 
             return jax.vmap(one)(jnp.asarray(self.impulse), jnp.asarray(self.azimuth),

@@ -22,7 +22,7 @@ from tkujax.control.params import ControllerParams
 from tkujax.model import ModelParams
 from tkujax.sim.metrics import capture_outcomes, outcomes
 from tkujax.sim.push import Push
-from tkujax.sim.rollout_mjx import RolloutConfig, rollout
+from tkujax.sim.rollout_mjx import Episode, ProgramOptions, RolloutConfig, rollout
 from tkujax.sim.setup import init
 from tkujax.studies.tune.reparam import CPU_COMPILER_OPTIONS
 
@@ -43,7 +43,7 @@ class MarginProblem:
     def __post_init__(self):
         _, self.model, self.index, self.state = init(self.model_params, float64=self.float64)
         self.config = RolloutConfig(duration_s=self.duration_s, quantise_targets=self.quantise,
-                                    remat=True)
+                                    program=ProgramOptions(remat=True))
         self.dtype = jnp.float64 if self.float64 else jnp.float32
         opts = CPU_COMPILER_OPTIONS if jax.default_backend() == "cpu" else None
         self._vg = jax.jit(jax.vmap(jax.value_and_grad(self._one, has_aux=True)),
@@ -57,8 +57,8 @@ class MarginProblem:
         ov = StepOverride(active=jnp.ones((), self.dtype), x_m=target[0], y_m=target[1],
                           start_delay_s=timing[0], from_detection=timing[1], period_s=timing[2],
                           onset_s=push.onset_s)
-        series = rollout(self.model, self.state, push, self.params, jnp.ones((), self.dtype),
-                         jax.random.PRNGKey(0), 0.0, 0.0, self.config, self.index, ov)
+        series = rollout(self.model, self.state, Episode(push, jnp.ones((), self.dtype),
+                         jax.random.PRNGKey(0), 0.0, 0.0), self.params, self.config, self.index, ov)
         cap = capture_outcomes(series, push.onset_s, self.params.gravity)
         return cap["margin_deg"], outcomes(series, push.onset_s).fell
 

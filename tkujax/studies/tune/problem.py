@@ -30,7 +30,7 @@ from tkujax.sim.metrics import outcomes
 from tkujax.sim.push import Push
 from tkujax.sim.randomize import randomize_model
 from tkujax.sim.robots import RobotSet, put_leaves
-from tkujax.sim.rollout_mjx import RolloutConfig, rollout
+from tkujax.sim.rollout_mjx import Episode, ProgramOptions, RolloutConfig, rollout
 from tkujax.sim.setup import init
 from tkujax.studies.spec import RANDOMIZE_FIELDS, ROBOT_ID_COLUMN
 from tkujax.studies.tune.loss import OFF_SURVIVED, LossConfig, harm_weighted_mean, push_loss
@@ -90,10 +90,11 @@ class TuneProblem:
         # rollout_options: further static RolloutConfig fields (unroll_ticks, unroll_substeps,
         # tree_passes; remat may be a RolloutConfig remat mode): `tkujax bench --grad-variants`.
         # remat=True (tune.remat) checkpoints each physics substep (TUNE_REMAT).
-        self.config = RolloutConfig(duration_s=duration_s,
-                                    remat=TUNE_REMAT if remat is True else remat,
-                                    quantise_targets=quantise_targets,
-                                    **{"tree_passes": TUNE_TREE_PASSES, **(rollout_options or {})})
+        self.config = RolloutConfig(duration_s=duration_s, quantise_targets=quantise_targets,
+                                    program=ProgramOptions(**{
+                                        "remat": TUNE_REMAT if remat is True else remat,
+                                        "tree_passes": TUNE_TREE_PASSES,
+                                        **(rollout_options or {})}))
         self.robots = robots
         if robots is None:
             host, self.model, self.index, self.state = init(model_params, float64=float64)
@@ -177,8 +178,8 @@ class TuneProblem:
             push = Push(rec["impulse_ns"], rec["azimuth_deg"] * DEG, rec["height_m"],
                         rec["duration_s"], rec["onset_s"])
             model, state = self._model_state(rec, robot_values)
-            series = rollout(model, state, push, params, 1.0, key, rec["gyro_noise_std"],
-                             rec["accel_noise_std"], self.config, idx, schedule=schedule)
+            series = rollout(model, state, Episode(push, 1.0, key, rec["gyro_noise_std"],
+                             rec["accel_noise_std"]), params, self.config, idx, schedule=schedule)
             out = outcomes(series, push.onset_s)
             return push_loss(series, push.onset_s, cfg), {k: out[k] for k in EVAL_KEYS}
 
@@ -199,9 +200,10 @@ class TuneProblem:
         push = Push(rec["impulse_ns"], rec["azimuth_deg"] * DEG, rec["height_m"],
                     rec["duration_s"], rec["onset_s"])
         model, state = self._model_state(rec, robot_values)
-        config = dataclasses.replace(self.config, remat=False)   # forward only
-        series = rollout(model, state, push, self.base, 0.0, key, rec["gyro_noise_std"],
-                         rec["accel_noise_std"], config, self.index)
+        config = dataclasses.replace(self.config, program=dataclasses.replace(
+            self.config.program, remat=False))   # forward only
+        series = rollout(model, state, Episode(push, 0.0, key, rec["gyro_noise_std"],
+                         rec["accel_noise_std"]), self.base, config, self.index)
         out = outcomes(series, push.onset_s)
         return {k: out[k] for k in ("fell", "diverged")}
 
