@@ -19,7 +19,8 @@ from tkujax.sim.rollout_mujoco import simulate_mujoco
 from tkujax.sim.tick import control_tick, control_tick_fx
 from tkujax.studies.fpga import analyse, float_reference_spec
 from tkujax.studies.spec import SpecError, fixed_point_config, parse_spec
-from tkujax.studies.sweep import _spec_hash, load, run_sweep, shares_robot_draws
+from tkujax.studies.sweep_hash import spec_hash
+from tkujax.studies.sweep import load, run_sweep, shares_robot_draws
 
 BASE = {"sweep": {"name": "f", "chunk_size": 4, "duration_s": 1.5, "control": ["on"]},
         "push": {"grid": {"impulse_ns": [0.5, 2.2], "onset_s": [0.3]}},
@@ -135,7 +136,7 @@ def test_fpga_spec_expands_and_hashes():
     assert ref.arithmetic == "float" and not ref.fpga_grid and ref.fixed_point_config() is None
     assert len(ref.records()["push_id"]) == 2
     p = ControllerParams.paper()
-    h = {_spec_hash(s, p, ModelParams())
+    h = {spec_hash(s, p, ModelParams())
          for s in (spec, ref, parse_spec(_with("fpga.cordic_iterations", 11,
                                                _with("controller.grid.fpga.angle_state_frac_bits",
                                                      [8, 12]))))}
@@ -170,9 +171,9 @@ def test_old_sweeps_keep_their_hash():
         model = model_params_from_dict({"accel_lowpass_hz": 0.0, "gyro_lowpass_hz": 0.0,
                                         **m["model_params"]}, str(path))
         if shares_robot_draws(spec) and not new:
-            assert _spec_hash(spec, params, model) != m["spec_hash"], path
+            assert spec_hash(spec, params, model) != m["spec_hash"], path
         else:
-            assert _spec_hash(spec, params, model) == m["spec_hash"], path
+            assert spec_hash(spec, params, model) == m["spec_hash"], path
 
 
 # --- Closed loop on MuJoCo C (the fixed tick compiles in seconds) ---
