@@ -1,4 +1,4 @@
-"""Sweeps over an ensemble of robots ([randomize] ensemble, issue 21 item 3): the spec key's
+"""Sweeps over an ensemble of robots ([randomize] ensemble): the spec key's
 validation, the robot_id draw shared by a push's settings, the MJX sweep against each member run
 alone (`tkujax.sim.rollout_mjx.simulate` on its own ModelParams: an independent reference), and
 the map's per-member fall boundaries and their band on synthetic records."""

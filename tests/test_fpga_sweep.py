@@ -1,4 +1,4 @@
-"""The fixed-point (FPGA) controller in sweeps (issue 15): spec keys, the closed loop on MuJoCo C
+"""The fixed-point (FPGA) controller in sweeps: spec keys, the closed loop on MuJoCo C
 against the float controller, latency, a gridded fpga key, and the study's analysis."""
 
 import copy
@@ -75,7 +75,7 @@ def test_fpga_spec_conflicts():
         parse_spec(_with("step", {"grid": {"x_m": [0.05]}}))
 
 
-# --- Options the fixed-point twin does not implement are refused (issue 25) ---
+# --- Options the fixed-point twin does not implement are refused (check_supported) ---
 
 # cp_excess and cp_update_window are implemented (tests/test_fixed_point.py checks them).
 UNIMPLEMENTED = [("accel_gate", 3.0), ("gate_temperature", 0.02)]
@@ -144,10 +144,10 @@ def test_fpga_spec_expands_and_hashes():
 
 
 def test_old_sweeps_keep_their_hash():
-    """A float sweep written before issue 15 still resumes: its stored hash is reproduced from
-    its manifest (spec, controller and model parameters). The model entered the hash with the
-    calibration (a changed default robot is a different sweep), so every committed sweep
-    manifest records it. Sweeps whose robot draws are now shared by the settings of a push
+    """A float sweep written before the fixed-point controller still resumes: its stored hash
+    is reproduced from its manifest (spec, controller and model parameters). The model entered
+    the hash with the calibration (a changed default robot is a different sweep), so every
+    committed sweep manifest records it. Sweeps whose robot draws are now shared by the settings of a push
     (`shares_robot_draws`) have other records today, so their hash must differ: they are
     never resumed into a folder of the new rule. Manifests without the IMU low-pass fields
     read as the unfiltered robot they ran."""
@@ -166,7 +166,7 @@ def test_old_sweeps_keep_their_hash():
                                      if k in fields})
         assert "model_params" in m, path
         # A manifest written before the IMU low-pass existed ran without one; one written
-        # after it (session 8) also postdates the shared robot draws.
+        # after it also postdates the shared robot draws.
         new = "accel_lowpass_hz" in m["model_params"]
         model = model_params_from_dict({"accel_lowpass_hz": 0.0, "gyro_lowpass_hz": 0.0,
                                         **m["model_params"]}, str(path))
@@ -308,10 +308,10 @@ def test_analysis_agreement_threshold_and_boundary():
     assert rows[8.0]["boundary_moved"] and rows[8.0]["moved_azimuths_deg"] == [0.0, 180.0]
 
 
-def test_issue25_stepping_pushes_agree_to_a_millimetre():
-    """Issue 25's check at zero latency, MuJoCo C: 0.5-0.9 N s from behind and in front,
-    phases 0.2 and 0.5 of the period after 0.5 s, default words (18 bits). Every fall outcome
-    agrees, and where both controllers step and stand the step lengths agree to <= 1 mm
+def test_fixed_point_stepping_pushes_agree_to_a_millimetre():
+    """The fixed-point stepping check at zero latency, MuJoCo C: 0.5-0.9 N s from behind and
+    in front, phases 0.2 and 0.5 of the period after 0.5 s, default words (18 bits). Every fall
+    outcome agrees, and where both controllers step and stand the step lengths agree to <= 1 mm
     (before the IK's guard bits: up to 15.9 mm; now 0.34 mm measured on this 2-core CPU).
     The rest of the gap is a one-servo-step flip of a command whose float value lies within
     ~0.2 mrad of a rounding boundary; one such flip moves the step by up to 2.4 mm even with
