@@ -147,9 +147,9 @@ def test_old_sweeps_keep_their_hash():
     """A float sweep written before the fixed-point controller still resumes: its stored hash
     is reproduced from its manifest (spec, controller and model parameters). The model entered
     the hash with the calibration (a changed default robot is a different sweep), so every
-    committed sweep manifest records it. Sweeps whose robot draws are now shared by the settings of a push
-    (`shares_robot_draws`) have other records today, so their hash must differ: they are
-    never resumed into a folder of the new rule. Manifests without the IMU low-pass fields
+    committed sweep manifest records it. Sweeps whose robot draws are now shared by the
+    settings of a push (`shares_robot_draws`) have other records today, so their hash must
+    differ: they are never resumed into a folder of the new rule. Manifests without the IMU low-pass fields
     read as the unfiltered robot they ran."""
     from pathlib import Path
     from tkujax.model.io import model_params_from_dict
