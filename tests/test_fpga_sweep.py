@@ -149,8 +149,8 @@ def test_old_sweeps_keep_their_hash():
     the hash with the calibration (a changed default robot is a different sweep), so every
     committed sweep manifest records it. Sweeps whose robot draws are now shared by the
     settings of a push (`shares_robot_draws`) have other records today, so their hash must
-    differ: they are never resumed into a folder of the new rule. Manifests without the IMU low-pass fields
-    read as the unfiltered robot they ran."""
+    differ: they are never resumed into a folder of the new rule. Manifests without the IMU
+    low-pass fields read as the unfiltered robot they ran."""
     from pathlib import Path
     from tkujax.model.io import model_params_from_dict
     root = Path(__file__).resolve().parents[1] / "results"
