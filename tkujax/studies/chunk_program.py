@@ -25,7 +25,7 @@ from tkujax.sim.push import Push
 from tkujax.sim.randomize import randomize_model
 from tkujax.sim.rollout_mjx import RolloutConfig, rollout
 from tkujax.sim.setup import init
-from tkujax.studies.spec import (RANDOMIZE_DEFAULTS, ROBOT_ID_COLUMN, FPGA_COLUMN, EnsembleRef,
+from tkujax.studies.spec import (FPGA_COLUMN, RANDOMIZE_DEFAULTS, ROBOT_ID_COLUMN, EnsembleRef,
                                  SpecError, SweepSpec)
 
 # lax.scan unrolling of each control tick's physics substeps in the sweeps' program
@@ -46,6 +46,7 @@ SWEEP_COMPILER_OPTIONS = {"xla_gpu_graph_min_graph_size": 1}
 
 OUTCOME_KEYS = ("fell", "diverged", "recovery_time_s", "step_length_m", "step_width_m",
                 "peak_incl_deg", "capture_point_m", "capture_point_y_m", "zmp_excursion_m")
+
 
 def step_override(rec: dict) -> StepOverride:
     """The StepOverride of record(s) with step_* columns (onset_s is filled by the rollout)."""
