@@ -21,6 +21,8 @@ MAX_PHASE_BINS = 15      # 2 ms: the physics time step
 MIN_MEMBER_PUSHES = 6    # records of a member at an azimuth (one control setting) for its boundary
 MIN_BAND_MEMBERS = 3     # members with a boundary at an azimuth for the band there
 BAND_QUANTILES = (0.1, 0.5, 0.9)
+
+
 def bin_axis(values: np.ndarray, max_bins: int, period: float | None = None,
              keep_empty: bool = False):
     """(bin centres, bin index of each value). Grid values map to themselves; when there are
