@@ -12,6 +12,7 @@ import numpy as np
 
 from tkujax.studies.map_cells import polar_mesh
 
+
 def write_text_atomic(path: Path, text: str) -> None:
     """Write `text` to `path` whole or not at all (a temporary file, then a rename)."""
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
