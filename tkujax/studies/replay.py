@@ -11,6 +11,10 @@ backend recorded in the manifest. The noise is the sweep's too:
     differently from the sweep's batch, so floats may differ in the last bits (and, after a
     fall, by more: the tumbling is chaotic); fell and diverged are what must agree.
 
+A manifest written by an older tkujax lacks the parameter fields added since: each takes the
+value that reproduces the code from before it existed (`tkujax.studies.record_schema`), and the
+result names them (fields_missing).
+
 The state at every control period comes back for rendering (`tkujax.render`, in the CLI: this
 layer does not draw).
 """
