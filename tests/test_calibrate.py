@@ -143,15 +143,15 @@ def test_model_params_json():
 
 
 def test_cli_model_option(tmp_path):
-    from tkujax.cli import _model_params
+    from tkujax.cli.options import model_params_from_options as model_params_from
     from tkujax.model.io import save_model_params_json
 
     mp = P.model_params(P.from_unit(np.full(len(P.NAMES), 0.3)))
     path = save_model_params_json(mp, tmp_path / "model_params.json")
-    assert _model_params([str(path)]) == mp
-    both = _model_params([str(path), "floor_friction=0.8"])
+    assert model_params_from([str(path)]) == mp
+    both = model_params_from([str(path), "floor_friction=0.8"])
     assert both.floor_friction == 0.8 and both.leg_servo == mp.leg_servo
-    assert _model_params([]) is None
+    assert model_params_from([]) is None
 
 
 # ----------------------------------------------------------------------------- the search

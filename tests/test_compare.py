@@ -173,7 +173,7 @@ def test_unpaired_robots_accepts_other_draws_and_uses_independent_errors(tmp_pat
     """Two runs of one push set whose robot draws differ: refused by default, accepted with
     unpaired_robots, with the standard error of a difference of two independent rates."""
     import numpy as np
-    from tkujax.studies.compare import Run, _paired, check_same_pushes
+    from tkujax.studies.compare import Run, check_same_pushes, fall_difference
     from tkujax.studies.spec import SpecError
 
     n = 200
@@ -185,6 +185,6 @@ def test_unpaired_robots_accepts_other_draws_and_uses_independent_errors(tmp_pat
     with pytest.raises(SpecError, match="link_mass_scale"):
         check_same_pushes(ref, run)
     check_same_pushes(ref, run, frozenset({"link_mass_scale"}))
-    d, se = _paired(np.zeros(n, int), 1, ref, run, unpaired=True)
+    d, se = fall_difference(np.zeros(n, int), 1, ref, run, unpaired=True)
     assert d[0] == pytest.approx(0.4 - 0.25)
     assert se[0] == pytest.approx(np.sqrt(0.25 * 0.75 / n + 0.4 * 0.6 / n))

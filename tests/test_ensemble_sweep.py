@@ -13,7 +13,8 @@ from tkujax.model.ensemble import save_ensemble
 from tkujax.studies import maps
 from tkujax.studies.calibrate import params as P
 from tkujax.studies.spec import SpecError, load_spec, parse_spec
-from tkujax.studies.sweep import _spec_hash, choose_backend, record_inputs
+from tkujax.studies.sweep_hash import spec_hash
+from tkujax.studies.sweep import choose_backend, record_inputs
 from tkujax.control.params import ControllerParams
 from tkujax.model import ModelParams
 
@@ -93,10 +94,10 @@ def test_robot_id_is_drawn_per_push_and_shared_by_its_settings(tmp_path):
 def test_the_ensemble_content_enters_the_hash_and_both_backends_take_it(tmp_path):
     path = _ensemble(tmp_path / "e.json")
     spec = parse_spec(_spec(path))
-    h = _spec_hash(spec, ControllerParams.paper(), ModelParams())
-    assert h == _spec_hash(parse_spec(_spec(path)), ControllerParams.paper(), ModelParams())
+    h = spec_hash(spec, ControllerParams.paper(), ModelParams())
+    assert h == spec_hash(parse_spec(_spec(path)), ControllerParams.paper(), ModelParams())
     _ensemble(path, n_members=3)                    # same path, other content
-    assert h != _spec_hash(parse_spec(_spec(path)), ControllerParams.paper(), ModelParams())
+    assert h != spec_hash(parse_spec(_spec(path)), ControllerParams.paper(), ModelParams())
     assert choose_backend("mujoco", spec) == "mujoco"
     assert choose_backend("mjx", spec) == "mjx"
 

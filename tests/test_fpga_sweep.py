@@ -19,7 +19,8 @@ from tkujax.sim.rollout_mujoco import simulate_mujoco
 from tkujax.sim.tick import control_tick, control_tick_fx
 from tkujax.studies.fpga import analyse, float_reference_spec
 from tkujax.studies.spec import SpecError, fixed_point_config, parse_spec
-from tkujax.studies.sweep import _spec_hash, load, run_sweep, shares_robot_draws
+from tkujax.studies.sweep_hash import spec_hash
+from tkujax.studies.sweep import load, run_sweep, shares_robot_draws
 
 BASE = {"sweep": {"name": "f", "chunk_size": 4, "duration_s": 1.5, "control": ["on"]},
         "push": {"grid": {"impulse_ns": [0.5, 2.2], "onset_s": [0.3]}},
@@ -74,7 +75,7 @@ def test_fpga_spec_conflicts():
         parse_spec(_with("step", {"grid": {"x_m": [0.05]}}))
 
 
-# --- Options the fixed-point twin does not implement are refused ---
+# --- Options the fixed-point twin does not implement are refused (check_supported) ---
 
 # cp_excess and cp_update_window are implemented (tests/test_fixed_point.py checks them).
 UNIMPLEMENTED = [("accel_gate", 3.0), ("gate_temperature", 0.02)]
@@ -135,7 +136,7 @@ def test_fpga_spec_expands_and_hashes():
     assert ref.arithmetic == "float" and not ref.fpga_grid and ref.fixed_point_config() is None
     assert len(ref.records()["push_id"]) == 2
     p = ControllerParams.paper()
-    h = {_spec_hash(s, p, ModelParams())
+    h = {spec_hash(s, p, ModelParams())
          for s in (spec, ref, parse_spec(_with("fpga.cordic_iterations", 11,
                                                _with("controller.grid.fpga.angle_state_frac_bits",
                                                      [8, 12]))))}
@@ -143,13 +144,13 @@ def test_fpga_spec_expands_and_hashes():
 
 
 def test_old_sweeps_keep_their_hash():
-    """A float sweep written before the fixed-point twin still resumes: its stored hash is
-    reproduced from its manifest (spec, controller and model parameters). The model entered the
-    hash with the calibration (a changed default robot is a different sweep), so every committed
-    sweep manifest records it. Sweeps whose robot draws are now shared by the settings of a push
-    (`shares_robot_draws`) have other records today, so their hash must differ: they are never
-    resumed into a folder of the new rule. Manifests without the IMU low-pass fields read as the
-    unfiltered robot they ran."""
+    """A float sweep written before the fixed-point controller still resumes: its stored hash
+    is reproduced from its manifest (spec, controller and model parameters). The model entered
+    the hash with the calibration (a changed default robot is a different sweep), so every
+    committed sweep manifest records it. Sweeps whose robot draws are now shared by the
+    settings of a push (`shares_robot_draws`) have other records today, so their hash must
+    differ: they are never resumed into a folder of the new rule. Manifests without the IMU
+    low-pass fields read as the unfiltered robot they ran."""
     from pathlib import Path
     from tkujax.model.io import model_params_from_dict
     root = Path(__file__).resolve().parents[1] / "results"
@@ -165,14 +166,14 @@ def test_old_sweeps_keep_their_hash():
                                      if k in fields})
         assert "model_params" in m, path
         # A manifest written before the IMU low-pass existed ran without one; one written
-        # after it (0.1.2) also postdates the shared robot draws.
+        # after it also postdates the shared robot draws.
         new = "accel_lowpass_hz" in m["model_params"]
         model = model_params_from_dict({"accel_lowpass_hz": 0.0, "gyro_lowpass_hz": 0.0,
                                         **m["model_params"]}, str(path))
         if shares_robot_draws(spec) and not new:
-            assert _spec_hash(spec, params, model) != m["spec_hash"], path
+            assert spec_hash(spec, params, model) != m["spec_hash"], path
         else:
-            assert _spec_hash(spec, params, model) == m["spec_hash"], path
+            assert spec_hash(spec, params, model) == m["spec_hash"], path
 
 
 # --- Closed loop on MuJoCo C (the fixed tick compiles in seconds) ---
@@ -307,10 +308,10 @@ def test_analysis_agreement_threshold_and_boundary():
     assert rows[8.0]["boundary_moved"] and rows[8.0]["moved_azimuths_deg"] == [0.0, 180.0]
 
 
-def test_stepping_pushes_agree_to_a_millimetre():
-    """The step-agreement check at zero latency, MuJoCo C: 0.5-0.9 N s from behind and in front,
-    phases 0.2 and 0.5 of the period after 0.5 s, default words (18 bits). Every fall outcome
-    agrees, and where both controllers step and stand the step lengths agree to <= 1 mm
+def test_fixed_point_stepping_pushes_agree_to_a_millimetre():
+    """The fixed-point stepping check at zero latency, MuJoCo C: 0.5-0.9 N s from behind and
+    in front, phases 0.2 and 0.5 of the period after 0.5 s, default words (18 bits). Every fall
+    outcome agrees, and where both controllers step and stand the step lengths agree to <= 1 mm
     (before the IK's guard bits: up to 15.9 mm; now 0.34 mm measured on this 2-core CPU).
     The rest of the gap is a one-servo-step flip of a command whose float value lies within
     ~0.2 mrad of a rounding boundary; one such flip moves the step by up to 2.4 mm even with

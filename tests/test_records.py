@@ -280,7 +280,8 @@ def test_replay_of_an_older_manifest_fills_what_it_lacks_as_the_code_was(referen
 
     from tkujax.cli import main
     from tkujax.model import ModelParams
-    from tkujax.studies.replay import MODEL_FIELDS_BEFORE, model_params_from, replay
+    from tkujax.studies.record_schema import added_fields, manifest_model_params
+    from tkujax.studies.replay import replay
 
     _, out, rec = reference
     assert replay(out, 0)["fields_missing"] == {}
@@ -288,11 +289,12 @@ def test_replay_of_an_older_manifest_fills_what_it_lacks_as_the_code_was(referen
     shutil.copytree(out, old)
     manifest = json.loads((old / chunks.MANIFEST).read_text())
     assert manifest["model_params"]["accel_lowpass_hz"] == ModelParams().accel_lowpass_hz > 0
-    for name in MODEL_FIELDS_BEFORE:
+    for name in added_fields("model_params"):
         del manifest["model_params"][name]
     del manifest["controller_params"]["stance_ankle_kp"]
+    del manifest["schema_version"]               # as an older tkujax wrote it
     (old / chunks.MANIFEST).write_text(json.dumps(manifest))
-    assert model_params_from(manifest["model_params"]).accel_lowpass_hz == 0.0
+    assert manifest_model_params(manifest).accel_lowpass_hz == 0.0
     i = int(np.flatnonzero(rec["control"])[0])
     result = replay(old, i)
     assert result["fields_missing"] == {"model_params.accel_lowpass_hz": 0.0,
@@ -301,6 +303,17 @@ def test_replay_of_an_older_manifest_fills_what_it_lacks_as_the_code_was(referen
     assert not result["identical"]        # the sweep ran with today's 7.5 Hz low-pass
     assert main(["replay", str(old), "--index", str(i)]) in (0, 1)
     assert "its manifest lacks 3 field(s)" in capsys.readouterr().out
+
+
+def test_a_new_sweep_records_the_schema_version(reference):
+    """A new manifest names its record schema version and records every field it has."""
+    from tkujax.studies.record_schema import (SCHEMA_KEY, SCHEMA_VERSION, fields_missing,
+                                              fields_of)
+
+    manifest = chunks.read_manifest(reference[1])
+    assert manifest[SCHEMA_KEY] == SCHEMA_VERSION and fields_missing(manifest) == {}
+    for group in ("controller_params", "model_params"):
+        assert set(manifest[group]) == set(fields_of(SCHEMA_VERSION, group))
 
 
 def test_load_as_frame(reference):

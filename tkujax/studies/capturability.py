@@ -48,7 +48,7 @@ def _cross2(a, b) -> float:
     return float(a[0] * b[1] - a[1] * b[0])
 
 
-def _convex_hull(points: np.ndarray) -> np.ndarray:
+def convex_hull(points: np.ndarray) -> np.ndarray:
     """Andrew's monotone chain; counter-clockwise, no repeated end point."""
     pts = sorted(map(tuple, points))
 
@@ -78,7 +78,7 @@ def lip_model(model_params: ModelParams | None = None) -> LipModel:
                 corners.append(centre[:2] + [sx * p.foot_length_m / 2, sy * p.foot_width_m / 2])
     com = data.subtree_com[model.body("pelvis").id]
     return LipModel(mass_kg=float(mujoco.mj_getTotalmass(model)), com_height_m=float(com[2]),
-                    com_xy_m=com[:2].copy(), support_polygon=_convex_hull(np.array(corners)))
+                    com_xy_m=com[:2].copy(), support_polygon=convex_hull(np.array(corners)))
 
 
 def r_max(lip: LipModel, azimuth_rad) -> np.ndarray:

@@ -1,5 +1,5 @@
 """`tkujax fpga SPEC --out DIR`: which word lengths, CORDIC iterations and latencies keep the
-push recovery of the float controller (issue 15).
+push recovery of the float controller.
 
 Runs the spec (controller.arithmetic = "fixed", [fpga] keys gridded in [controller.grid]) into
 DIR/sweep, and the float reference (the same pushes, float controller, no [fpga]) into
@@ -31,11 +31,12 @@ import numpy as np
 from tkujax.control.fixed.qformat import ROUNDING_MODES
 from tkujax.control.fixed.support import check_supported
 from tkujax.control.params import ControllerParams
-from tkujax.studies.maps import max_recoverable_impulse
+from tkujax.studies.map_cells import max_recoverable_impulse
 from tkujax.control.fixed.config import FixedPointConfig
 from tkujax.studies.spec import (FPGA_COLUMN, SpecError, SweepSpec, fixed_point_config, load_spec,
                                  parse_spec)
-from tkujax.studies.sweep import controller_params_from, load, run_sweep
+from tkujax.control.io import controller_params_from
+from tkujax.studies.sweep import load, run_sweep
 
 # Keys whose generous end is the smallest value (less latency is better); the rest: largest
 # (more bits, more iterations); rounding: "nearest" (index 0).
@@ -83,22 +84,16 @@ def _label(k: str, v: float) -> str:
     return f"{k}={ROUNDING_MODES[int(v)]}" if k == "rounding" else f"{k}={v:g}"
 
 
-def analyse(fixed: dict, ref: dict, spec: SweepSpec, step_tol_m: float = 0.005) -> dict:
-    """The hardware designer's numbers (see the module doc) from the two record sets."""
-    gridded = list(spec.fpga_grid)
-    keys = _PUSH_KEYS + tuple(sorted(spec.controller_grid))
-    match = _match_float(fixed, ref, keys)
+def _config_rows(fixed: dict, ref: dict, match: np.ndarray, cfgs: np.ndarray, which: np.ndarray,
+                 gridded: list[str], grid_step: float, step_tol_m: float) -> list[dict]:
+    """One row per fixed-point configuration: agreement of the fall outcomes with the float
+    controller's, step differences, and the fall boundary's shift per azimuth."""
     fell, fell_ref = fixed["fell"].astype(bool), ref["fell"][match].astype(bool)
     div = fixed["diverged"].astype(bool) | ref["diverged"][match].astype(bool)
     same = (fell == fell_ref) & ~div
     both_up = ~fell & ~fell_ref & ~div
     dstep = np.abs(fixed["step_length_m"] - ref["step_length_m"][match])
-    cfgs, which = _configs(fixed, gridded)
-    gen = _generous(cfgs, gridded)
-    impulses = np.unique(np.round(fixed["impulse_ns"], 6))
-    grid_step = float(np.median(np.diff(impulses))) if len(impulses) > 1 else 0.0
     azs, b_ref = max_recoverable_impulse(ref, True)
-
     rows = []
     for c, cfg in enumerate(cfgs):
         sel = which == c
@@ -117,8 +112,13 @@ def analyse(fixed: dict, ref: dict, spec: SweepSpec, step_tol_m: float = 0.005) 
             boundary_moved=bool((np.abs(shift) > grid_step + 1e-9).any()),
             moved_azimuths_deg=[float(a) for a, s in zip(azs, shift)
                                 if abs(s) > grid_step + 1e-9]))
+    return rows
 
-    # One key at a time, the others at their generous value.
+
+def _one_key_at_a_time(cfgs: np.ndarray, gen: np.ndarray, gridded: list[str],
+                       rows: list[dict]) -> dict:
+    """Per gridded key, the others at their generous value: agreement and boundary by value,
+    and the stingiest value from which on every more generous one agrees fully."""
     axes = {}
     for j, k in enumerate(gridded):
         others = np.all(np.delete(cfgs, j, 1) == np.delete(gen, j), 1)
@@ -138,36 +138,56 @@ def analyse(fixed: dict, ref: dict, spec: SweepSpec, step_tol_m: float = 0.005) 
                        boundary_mean_ns=[float(np.mean(rows[i]["boundary_ns"])) for i in idx],
                        boundary_min_ns=[float(np.min(rows[i]["boundary_ns"])) for i in idx],
                        moved=[rows[i]["boundary_moved"] for i in idx])
+    return axes
 
-    latency = None
+
+def _latency(cfgs: np.ndarray, gen: np.ndarray, gridded: list[str],
+             rows: list[dict]) -> dict | None:
+    """The boundary and agreement by total latency (ticks + fraction, in control periods),
+    the other keys at their generous value; None when the spec grids no latency."""
     lat_keys = [k for k in ("latency_ticks", "latency_frac") if k in gridded]
-    if lat_keys:
-        lat_j = [gridded.index(k) for k in lat_keys]
-        rest = [j for j in range(len(gridded)) if j not in lat_j]
-        sel_cfg = [c for c in range(len(cfgs)) if np.all(cfgs[c, rest] == gen[rest])]
-        per = {}
-        for c in sel_cfg:
-            total = sum(float(cfgs[c, j]) for j in lat_j)   # ticks + fraction, in periods
-            per[total] = c
-        lats = sorted(per)
-        latency = dict(periods=lats, configs=[per[t] for t in lats],
-                       boundary_mean_ns=[float(np.mean(rows[per[t]]["boundary_ns"])) for t in lats],
-                       boundary_min_ns=[float(np.min(rows[per[t]]["boundary_ns"])) for t in lats],
-                       agreement=[rows[per[t]]["agreement"] for t in lats],
-                       moved=[rows[per[t]]["boundary_moved"] for t in lats])
-        ok = None   # largest latency up to which no boundary moved more than one step
-        for t in lats:
-            if rows[per[t]]["boundary_moved"]:
-                break
-            ok = t
-        latency["tolerated_periods"] = ok
+    if not lat_keys:
+        return None
+    lat_j = [gridded.index(k) for k in lat_keys]
+    rest = [j for j in range(len(gridded)) if j not in lat_j]
+    sel_cfg = [c for c in range(len(cfgs)) if np.all(cfgs[c, rest] == gen[rest])]
+    per = {}
+    for c in sel_cfg:
+        total = sum(float(cfgs[c, j]) for j in lat_j)   # ticks + fraction, in periods
+        per[total] = c
+    lats = sorted(per)
+    latency = dict(periods=lats, configs=[per[t] for t in lats],
+                   boundary_mean_ns=[float(np.mean(rows[per[t]]["boundary_ns"])) for t in lats],
+                   boundary_min_ns=[float(np.min(rows[per[t]]["boundary_ns"])) for t in lats],
+                   agreement=[rows[per[t]]["agreement"] for t in lats],
+                   moved=[rows[per[t]]["boundary_moved"] for t in lats])
+    ok = None   # largest latency up to which no boundary moved more than one step
+    for t in lats:
+        if rows[per[t]]["boundary_moved"]:
+            break
+        ok = t
+    latency["tolerated_periods"] = ok
+    return latency
 
+
+def analyse(fixed: dict, ref: dict, spec: SweepSpec, step_tol_m: float = 0.005) -> dict:
+    """The hardware designer's numbers (see the module doc) from the two record sets."""
+    gridded = list(spec.fpga_grid)
+    keys = _PUSH_KEYS + tuple(sorted(spec.controller_grid))
+    match = _match_float(fixed, ref, keys)
+    cfgs, which = _configs(fixed, gridded)
+    gen = _generous(cfgs, gridded)
+    impulses = np.unique(np.round(fixed["impulse_ns"], 6))
+    grid_step = float(np.median(np.diff(impulses))) if len(impulses) > 1 else 0.0
+    azs, b_ref = max_recoverable_impulse(ref, True)
+    rows = _config_rows(fixed, ref, match, cfgs, which, gridded, grid_step, step_tol_m)
     full = [r for r in rows if r["agreement"] == 1.0]
     return dict(gridded=gridded, generous={k: float(v) for k, v in zip(gridded, gen)},
                 azimuths_deg=[float(a) for a in azs], impulse_step_ns=grid_step,
                 float_boundary_ns=[float(x) for x in b_ref], step_tol_m=step_tol_m,
                 float_fell_fraction=float(ref["fell"].astype(bool).mean()),
-                configs=rows, axes=axes, latency=latency,
+                configs=rows, axes=_one_key_at_a_time(cfgs, gen, gridded, rows),
+                latency=_latency(cfgs, gen, gridded, rows),
                 n_configs=len(rows), n_full_agreement=len(full),
                 n_boundary_moved=sum(r["boundary_moved"] for r in rows))
 

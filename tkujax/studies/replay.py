@@ -11,66 +11,32 @@ backend recorded in the manifest. The noise is the sweep's too:
     differently from the sweep's batch, so floats may differ in the last bits (and, after a
     fall, by more: the tumbling is chaotic); fell and diverged are what must agree.
 
+A manifest written by an older tkujax lacks the parameter fields added since: each takes the
+value that reproduces the code from before it existed (`tkujax.studies.record_schema`), and the
+result names them (fields_missing).
+
 The state at every control period comes back for rendering (`tkujax.render`, in the CLI: this
 layer does not draw).
 """
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import numpy as np
 
-from tkujax.control.io import controller_params_from, controller_params_from_dict
-from tkujax.control.fixed.config import FixedPointConfig
-from tkujax.control.params import ControllerParams
+from tkujax.control.io import controller_params_from
 from tkujax.control.policy import schedule_from_dict
-from tkujax.model import ModelParams
-from tkujax.model.io import model_params_from_dict
 from tkujax.sim.rollout_mjx import RolloutConfig
 from tkujax.studies import chunks
+from tkujax.studies.chunk_program import (OUTCOME_KEYS, chunk_keys, make_chunk_fn, record_inputs,
+                                          traced_params)
+from tkujax.studies.mujoco_chunk import mujoco_chunk
+from tkujax.studies.record_schema import (fields_missing, manifest_controller_params,
+                                          manifest_model_params)
 from tkujax.studies.spec import parse_spec
-from tkujax.studies.sweep import (OUTCOME_KEYS, chunk_keys, make_chunk_fn, mujoco_chunk,
-                                  record_inputs, traced_params)
 
 RTOL, ATOL = 1e-4, 1e-5     # "identical" numbers; fell and diverged must be equal exactly
-
-# A sweep written by an older tkujax lacks the model fields added since. Such a field takes the
-# value that reproduces the code from before it existed, not today's default: the IMU low-pass
-# filters (session 8) were absent, so the controller read the instantaneous sample (0 = none).
-# A missing controller field takes its default, which is its feature off (stance feedback 0,
-# cp_trigger 0, max_steps 1, ...), as the code was before the field existed.
-MODEL_FIELDS_BEFORE = {"accel_lowpass_hz": 0.0, "gyro_lowpass_hz": 0.0}
-
-
-def model_params_from(d: dict | None) -> ModelParams | None:
-    """ModelParams from its manifest form (dataclasses.asdict), validated by the model's JSON
-    loader (tkujax.model.io), or None for the default. Fields the manifest lacks (an older
-    tkujax wrote it) take MODEL_FIELDS_BEFORE's values, else today's defaults."""
-    if not d:
-        return None
-    before = {k: v for k, v in MODEL_FIELDS_BEFORE.items() if k not in d}
-    return model_params_from_dict(dict(d, **before), "manifest model_params")
-
-
-def fields_missing(manifest: dict) -> dict[str, object]:
-    """{"model_params.FIELD" / "controller_params.FIELD" / "fixed_point_defaults.FIELD": the
-    value the replay uses} for every field of today's ModelParams, ControllerParams and (a
-    fixed-point sweep) FixedPointConfig that the manifest does not record: the sweep was
-    written by an older tkujax, and a different outcome may be the code's change since, not a
-    fault of the record. (A fixed-point field takes today's default: for ik_guard_bits, 4
-    where the code before issue 25 had the equivalent of 0.)"""
-    # (key, what the manifest records, the values the replay uses). model_params_from fills
-    # the model as replay does; None (no model recorded: the default robot) reports nothing.
-    recorded = [("model_params", manifest.get("model_params"),
-                 model_params_from(manifest.get("model_params"))),
-                ("controller_params", manifest.get("controller_params"), ControllerParams()),
-                ("fixed_point_defaults", manifest.get("fixed_point_defaults"),
-                 FixedPointConfig())]
-    return {f"{key}.{f.name}": getattr(used, f.name)
-            for key, fields, used in recorded if fields is not None and used is not None
-            for f in dataclasses.fields(used) if f.name not in fields}
 
 
 def _stored_record(run_dir: Path, manifest: dict, chunk: int, pos: int) -> dict:
@@ -89,7 +55,8 @@ def replay(run_dir: str | Path, index: int) -> dict:
     (fell and diverged equal), identical (every column within RTOL/ATOL), differences
     {column: (stored, replayed)}, qpos (n_ticks, nq), control_period_s, model_params (the
     record's robot: its ensemble member, or the sweep's model; None: the default),
-    fields_missing (`fields_missing`: what an older manifest lacks, and the value used))."""
+    fields_missing (`tkujax.studies.record_schema.fields_missing`: what an older
+    manifest lacks, and the value used))."""
     run_dir = Path(run_dir)
     manifest = chunks.read_manifest(run_dir)
     if not manifest:
@@ -106,12 +73,12 @@ def replay(run_dir: str | Path, index: int) -> dict:
     size = int(manifest["chunk_size"])
     chunk, pos = divmod(index, size)
     stored = _stored_record(run_dir, manifest, chunk, pos)
-    params = controller_params_from_dict(manifest["controller_params"],
-                                         f"{run_dir / chunks.MANIFEST}: controller_params",
-                                         base=ControllerParams())
+    # Fields the manifest lacks (an older tkujax wrote it) take their values from before they
+    # existed (tkujax.studies.record_schema).
+    params = manifest_controller_params(manifest,
+                                        f"{run_dir / chunks.MANIFEST}: controller_params")
     # An ensemble sweep's robots are its members (the manifest's model_params is then unused).
-    model_params = (None if spec.ensemble is not None
-                    else model_params_from(manifest.get("model_params")))
+    model_params = None if spec.ensemble is not None else manifest_model_params(manifest)
     base = controller_params_from(params, spec.controller)
     # A scheduled policy's sweep (`--params POLICY.json` / `recommended`) replays with its schedule.
     schedule = (schedule_from_dict(manifest["schedule"],

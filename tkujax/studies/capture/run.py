@@ -15,7 +15,8 @@ from tkujax.control.params import ControllerParams
 from tkujax.studies.capture import figures, theory
 from tkujax.studies.capture.region import analyse
 from tkujax.studies.spec import SpecError, SweepSpec, load_spec
-from tkujax.studies.sweep import controller_params_from, run_sweep
+from tkujax.control.io import controller_params_from
+from tkujax.studies.sweep import run_sweep
 
 
 def optimise_cases(regs, spec: SweepSpec, params: ControllerParams, n_cases: int,

@@ -26,7 +26,7 @@ from tkujax.control.params import ControllerParams
 from tkujax.model import ModelParams
 from tkujax.sim import physics
 from tkujax.studies import capturability
-from tkujax.studies.capturability import G, _convex_hull
+from tkujax.studies.capturability import G, convex_hull
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,7 +60,7 @@ def icp_after_push(feet: Feet, impulse_ns, azimuth_rad) -> np.ndarray:
 
 
 def minkowski(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return _convex_hull((a[:, None, :] + b[None, :, :]).reshape(-1, 2))
+    return convex_hull((a[:, None, :] + b[None, :, :]).reshape(-1, 2))
 
 
 def one_step_region(feet: Feet, impulse_ns: float, azimuth_rad: float, dt_s: float,

@@ -1,0 +1,61 @@
+"""Options shared by several commands: the robot model (--model), the parameter file
+(--params), the backend and multi-process options."""
+
+from __future__ import annotations
+
+import argparse
+
+RENDER_HELP = ("Install EGL (apt-get install libegl1 libgl1-mesa-dri) and set MUJOCO_GL=egl, or "
+               "OSMesa (apt-get install libosmesa6) and MUJOCO_GL=osmesa.")
+
+
+def model_params_from_options(items: list[str], variant: str = "calibrated"):
+    """--model: a model_params.json file (tkujax calibrate output) and/or KEY=VALUE overrides,
+    applied in order to the variant's model; None when none is given (the variant's default)."""
+    import dataclasses
+
+    from tkujax.model import ModelParams
+    from tkujax.model.io import load_model_params_json
+
+    if not items:
+        return None
+    mp = ModelParams.estimated() if variant == "estimated" else ModelParams()
+    for item in items:
+        if item.endswith(".json"):
+            mp = load_model_params_json(item)
+        else:
+            over = ModelParams.from_overrides([item])      # validates the key and the number
+            key = item.split("=", 1)[0].strip()
+            mp = dataclasses.replace(mp, **{key: getattr(over, key)}).validate()
+    return mp
+
+
+def policy_from_option(path: str | None):
+    """--params: (ControllerParams, Schedule or None) of a parameter or policy file, or
+    (None, None) when none is given."""
+    from tkujax.control.io import load_policy_json
+
+    return load_policy_json(path) if path else (None, None)
+
+
+def controller_params_from_option(path: str | None):
+    """--params of the commands that take plain controller parameters: ControllerParams or
+    None."""
+    from tkujax.control.io import load_controller_params_json
+
+    return load_controller_params_json(path) if path else None
+
+
+def add_parallel_options(p: argparse.ArgumentParser) -> None:
+    """--backend and the multi-process options of the sweep-running commands."""
+    p.add_argument("--backend", choices=["auto", "mjx", "mujoco"], default="auto",
+                   help="auto: MJX on a GPU, MuJoCo C on a CPU when the spec allows it")
+    p.add_argument("--process-id", type=int, default=None, help="multi-process: this process")
+    p.add_argument("--num-processes", type=int, default=None, help="multi-process: how many")
+    p.add_argument("--coordinator", default=None, help="multi-process: HOST:PORT of process 0")
+
+
+def parallel_kwargs(args) -> dict:
+    """The parsed parallel options as keyword arguments of run_sweep / run_capture."""
+    return dict(process_id=args.process_id, num_processes=args.num_processes,
+                coordinator=args.coordinator, backend=args.backend)

@@ -1,0 +1,183 @@
+"""Commands of the fitting and checking studies: tune, calibrate, refine, converge, islands."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+from tkujax.cli.options import model_params_from_options
+
+
+def _cmd_calibrate(args) -> int:
+    from tkujax.studies.calibrate import run_calibrate
+    from tkujax.studies.calibrate.spec import load_calibrate_spec
+
+    spec = load_calibrate_spec(args.spec)
+    over = {k: v for k, v in (("budget_s", args.budget_s), ("max_evals", args.max_evals),
+                              ("workers", args.workers)) if v is not None}
+    if over:
+        from tkujax.studies.calibrate.spec import parse_calibrate_spec
+        from tkujax.studies.spec import read_toml
+
+        raw = read_toml(args.spec)
+        raw.setdefault("search", {}).update(over)      # re-validated like the spec's own keys
+        spec = parse_calibrate_spec(raw)
+    summary = run_calibrate(spec, args.out)
+    print("\n".join(summary["files"]))
+    print(Path(args.out, "calibration.md").read_text())
+    return 0
+
+
+def _cmd_refine(args) -> int:
+    from tkujax.studies.calibrate.refine import Refiner, refine
+
+    model = model_params_from_options(args.model or [])
+    res = refine(args.out, iterations=args.iterations, lr=args.lr,
+                 refiner=Refiner(model=model) if model is not None else None,
+                 log=lambda m: print(m, flush=True))
+    b = res["best"]
+    print(f"best: iteration {b['iteration']}, loss {b['loss']:.4f} (start "
+          f"{res['history'][0]['loss']:.4f}), {b['params']}; {Path(args.out, 'refine.json')}")
+    return 0
+
+
+def _cmd_tune(args) -> int:
+    from tkujax.studies.tune import run_tune
+
+    record = run_tune(args.spec, args.out, iterations=args.iterations,
+                      compare=not args.no_compare, evaluation=not args.no_eval,
+                      only=args.only, deadline_s=args.deadline_s)
+    if "summary" in record and "left" in record:          # a [study] spec
+        print(Path(args.out, "study.md").read_text())
+        print(f"study: {len(record['left'])} run(s) left"
+              + (f"; stopped before {record['stopped']}" if record["stopped"] else ""))
+        return 0
+    print(Path(args.out, "summary.md").read_text())
+    print(f"recommendation: {record['recommendation']['reason']} "
+          f"({Path(args.out, 'params_after.json')})")
+    return 0
+
+
+def _cmd_converge(args) -> int:
+    from tkujax.studies.converge import load_spec, run_converge
+
+    spec = load_spec(args.spec)
+    only = tuple(x.strip() for x in (args.only or "").split(",") if x.strip())
+    run_converge(spec, args.out, only=only, log=lambda m: print(m, flush=True),
+                 run=not args.no_run, reference=args.reference)
+    return 0
+
+
+def _cmd_islands(args) -> int:
+    from tkujax.studies.calibrate import islands
+    from tkujax.studies.calibrate import params as fit_params
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    if args.phases:
+        table = islands.phase_expectation(args.phases)
+        (out / "phase_expectation.json").write_text(json.dumps(table, indent=1))
+        (out / "phase_expectation.md").write_text(islands.phase_markdown(table))
+        print(islands.phase_markdown(table), flush=True)
+    names = (fit_params.DEFAULT_FIT if args.params is None
+             else tuple(s.strip() for s in args.params.split(",") if s.strip()))
+    if names:
+        slices = islands.island_slices(names, args.points, args.refine,
+                                       islands.phases_ms(args.slice_phases),
+                                       log=lambda s: print(s, flush=True), window=args.window)
+        (out / "islands.json").write_text(json.dumps(slices, indent=1))
+        md = islands.islands_markdown(slices)
+        if args.slice_phases > 1:
+            md += "\n" + islands.expectation_markdown(slices)
+        (out / "islands.md").write_text(md)
+        print(md)
+    print(f"wall {time.perf_counter() - t0:.0f} s")
+    return 0
+
+
+def add_study_commands(sub) -> None:
+    """tune, calibrate, refine, converge, islands."""
+    _add_tune(sub)
+    _add_calibrate(sub)
+    _add_refine(sub)
+    _add_converge(sub)
+    _add_islands(sub)
+
+
+def _add_tune(sub) -> None:
+    p = sub.add_parser("tune", help="tune T, gamma, H_Sup, eps_1, eps_2 (...) by CMA-ES, "
+                                    "gradients through MJX or their alpha-order mix; evaluate "
+                                    "on held-out and shifted pushes")
+    p.add_argument("spec", help="tune spec, e.g. specs/tune/tune_cpu.toml")
+    p.add_argument("--out", required=True, help="output folder (history.json, params_*.json, "
+                                                 "loss_curve.png, summary.md)")
+    p.add_argument("--iterations", type=int, default=None, help="override tune.iterations")
+    p.add_argument("--no-compare", action="store_true",
+                   help="skip the spec's [compare] study (methods x seeds at one budget)")
+    p.add_argument("--no-eval", action="store_true", help="skip the held-out evaluation")
+    p.add_argument("--only", action="append", default=None, metavar="KEY=V1[,V2]",
+                   help="[study] specs: run only these runs (KEY: policy, method or seed; "
+                        "repeat for AND), e.g. --only policy=mlp --only seed=0,1")
+    p.add_argument("--deadline-s", type=float, default=None,
+                   help="[study] specs: start no run that would end after this many seconds "
+                        "(finished runs are kept; rerun to resume)")
+    p.set_defaults(func=_cmd_tune)
+
+
+def _add_calibrate(sub) -> None:
+    p = sub.add_parser("calibrate", help="fit the model's unknown parameters to the paper's "
+                                         "Tables 4-5 (CMA-ES with restarts; resumable)")
+    p.add_argument("spec", help="calibrate spec, e.g. specs/calibrate/calibrate_cpu.toml")
+    p.add_argument("--out", required=True, help="output folder (archive.jsonl, best.json, "
+                                                 "calibration.md, search_trace.png, "
+                                                 "model_params.json, controller_params.json)")
+    p.add_argument("--budget-s", type=float, default=None, help="override search.budget_s")
+    p.add_argument("--max-evals", type=int, default=None, help="override search.max_evals")
+    p.add_argument("--workers", type=int, default=None, help="override search.workers")
+    p.set_defaults(func=_cmd_calibrate)
+
+
+def _add_refine(sub) -> None:
+    p = sub.add_parser("refine", help="gradient refinement of the calibration through MJX: "
+                                      "leg stiffness and damping, ball impulse, chest CoM")
+    p.add_argument("--out", required=True, help="output folder (refine.json)")
+    p.add_argument("--iterations", type=int, default=10, help="Adam iterations (1-500)")
+    p.add_argument("--lr", type=float, default=0.01, help="Adam step per parameter (scales, cm)")
+    p.add_argument("--model", action="append", metavar="FILE.json|KEY=VALUE",
+                   help="start from this model (default: the calibrated ModelParams())")
+    p.set_defaults(func=_cmd_refine)
+
+
+def _add_converge(sub) -> None:
+    p = sub.add_parser("converge", help="fall outcomes at several timesteps / solver "
+                                        "iterations against the finest (resumable)")
+    p.add_argument("spec", help="converge spec, e.g. specs/converge/convergence_cpu.toml")
+    p.add_argument("--out", required=True, help="output folder (spec.json, outcomes_*.npz, "
+                                                 "agreement.json, agreement.md)")
+    p.add_argument("--only", default=None, help="comma-separated setting names to run now")
+    p.add_argument("--no-run", action="store_true",
+                   help="run nothing: write the agreement from the settings in --out")
+    p.add_argument("--reference", default=None, help="compare against this setting instead of "
+                                                     "the spec's (writes agreement_vs_NAME.*)")
+    p.set_defaults(func=_cmd_converge)
+
+
+def _add_islands(sub) -> None:
+    p = sub.add_parser("islands", help="island widths of the fitted parameters (1-D slices "
+                                       "through the default robot) and its paper rows over "
+                                       "the hit phase (MuJoCo C)")
+    p.add_argument("--out", required=True, help="output folder (islands.*, "
+                                                 "phase_expectation.*)")
+    p.add_argument("--points", type=int, default=41, help="grid values per slice (3-1000)")
+    p.add_argument("--refine", type=int, default=4, help="bisections per island edge (0-20)")
+    p.add_argument("--params", default=None, help="comma-separated parameters (default all)")
+    p.add_argument("--slice-phases", type=int, default=1,
+                   help="hit phases per slice value (1: the fit's 0 ms)")
+    p.add_argument("--phases", type=int, default=15,
+                   help="phases of the default robot's expectation table (0 skips it)")
+    p.add_argument("--window", type=float, default=1.0,
+                   help="fraction of each parameter's bounds a slice spans, centred on the "
+                        "default (default 1: the whole bounds)")
+    p.set_defaults(func=_cmd_islands)
