@@ -9,10 +9,10 @@ from tkujax.studies.calibrate import params as P
 
 def test_island_is_the_run_around_the_default():
     holds = [True, False, True, True, True, False, True]
-    assert I._island(list(range(7)), holds, 3) == (2, 4)
-    assert I._island(list(range(7)), holds, 0) == (0, 0)
-    assert I._island(list(range(7)), holds, 1) is None
-    assert I._island(list(range(3)), [True] * 3, 1) == (0, 2)
+    assert I.island(list(range(7)), holds, 3) == (2, 4)
+    assert I.island(list(range(7)), holds, 0) == (0, 0)
+    assert I.island(list(range(7)), holds, 1) is None
+    assert I.island(list(range(3)), [True] * 3, 1) == (0, 2)
 
 
 def test_row_ok_fall_and_step_direction():
