@@ -32,7 +32,7 @@ from tkujax.studies.tune.loss import LossConfig, push_loss
 
 VARIANTS = {
     "margin": MarginConfig(),
-    "margin_both_feet": MarginConfig(drop_airborne_foot=False),
+    "margin_drop_airborne": MarginConfig(drop_airborne_foot=True),
     "margin_hard_max": MarginConfig(softmax_m=1e-4),
     "margin_soft_20mm": MarginConfig(softmax_m=0.02),
 }
@@ -48,19 +48,24 @@ def sample_pushes(n: int, seed: int, impulse_ns=(0.6, 3.2)) -> Push:
                 f(rng.uniform(0.30, 0.42, n)), f(rng.uniform(0.01, 0.05, n)), f(onset))
 
 
-def scores(series, onset_s) -> dict[str, np.ndarray]:
-    """Every candidate score of each push (higher = more likely to fall)."""
-    s = jax.tree_util.tree_map(jnp.asarray, series)
+def scores(series, onset_s, early_ticks: int) -> dict[str, np.ndarray]:
+    """Every candidate score of each push (higher = more likely to fall); the "early_" ones
+    read only the first early_ticks ticks (before most falls: a prediction, not a record)."""
+    full = jax.tree_util.tree_map(jnp.asarray, series)
+    early = jax.tree_util.tree_map(lambda x: x[:, :early_ticks], full)
     onset = jnp.asarray(onset_s, jnp.float32)
-    out = {name: np.asarray(jax.jit(lambda a, b, c=cfg: batched_margin(a, b, c))(s, onset))
-           for name, cfg in VARIANTS.items()}
-    soft = jax.jit(jax.vmap(lambda a, b: push_loss(a, b, LossConfig())))(s, onset)
-    out["soft_fall_term"] = np.asarray(soft["fall"])
-    out["soft_total"] = np.asarray(soft["total"])
+    out = {}
+    for prefix, s in (("", full), ("early_", early)):
+        for name, cfg in VARIANTS.items():
+            out[prefix + name] = np.asarray(
+                jax.jit(lambda a, b, c=cfg: batched_margin(a, b, c))(s, onset))
+        soft = jax.jit(jax.vmap(lambda a, b: push_loss(a, b, LossConfig())))(s, onset)
+        out[prefix + "soft_fall_term"] = np.asarray(soft["fall"])
+        out[prefix + "soft_total"] = np.asarray(soft["total"])
     return out
 
 
-def run_set(pushes: Push, duration_s: float, controllers: dict) -> dict:
+def run_set(pushes: Push, duration_s: float, controllers: dict, early_ticks: int) -> dict:
     """{controller: dict(fell, diverged, scores)} on one push set."""
     cfg = RolloutConfig(duration_s=duration_s)
     res = {}
@@ -69,7 +74,7 @@ def run_set(pushes: Push, duration_s: float, controllers: dict) -> dict:
         series, out = simulate_mujoco(pushes, enabled, params, config=cfg, n_threads=1,
                                       schedule=schedule)
         res[name] = dict(fell=np.asarray(out.fell), diverged=np.asarray(out.diverged),
-                         scores=scores(series, pushes.onset_s))
+                         scores=scores(series, pushes.onset_s, early_ticks))
         print(f"  {name}: {time.time() - t0:.1f} s, fell {res[name]['fell'].mean():.3f}",
               flush=True)
     return res
@@ -99,7 +104,8 @@ def figure(res: dict, path: Path) -> None:
     for ctrl, r in res.items():
         for s, style in (("margin", "-"), ("soft_fall_term", ":")):
             fpr, tpr = roc_curve(r["scores"][s], r["fell"])
-            axes[0].plot(fpr, tpr, style, label=f"{ctrl} {s} AUC {roc_auc(r['scores'][s], r['fell']):.3f}")
+            auc = roc_auc(r["scores"][s], r["fell"])
+            axes[0].plot(fpr, tpr, style, label=f"{ctrl} {s} AUC {auc:.3f}")
         m = r["scores"]["margin"] * 100
         axes[1].scatter(m, r["fell"] + 0.08 * (list(res).index(ctrl) - 1), s=6, label=ctrl)
     axes[0].set(xlabel="false positive rate", ylabel="true positive rate",
@@ -118,19 +124,22 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=256)
     ap.add_argument("--n-dev", type=int, default=128)
     ap.add_argument("--duration", type=float, default=1.5)
+    ap.add_argument("--early-s", type=float, default=0.6,
+                    help="the early scores read the series up to this time (s; onsets 0.30-0.33)")
     a = ap.parse_args()
+    early_ticks = int(round(a.early_s / CONTROL_PERIOD_S))
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     pol_params, pol_schedule = recommended_policy()
     controllers = {"recommended": (1.0, ControllerParams.recommended(), None),
                    "policy": (1.0, pol_params, pol_schedule),
                    "off": (0.0, ControllerParams.recommended(), None)}
-    result = dict(duration_s=a.duration, variants={k: dataclasses.asdict(v)
+    result = dict(duration_s=a.duration, early_s=a.early_s, variants={k: dataclasses.asdict(v)
                                                    for k, v in VARIANTS.items()})
     sets = {"dev": (a.n_dev, 101), "held_out": (a.n, 202)}
     for name, (n, seed) in sets.items():
         print(name, flush=True)
-        res = run_set(sample_pushes(n, seed), a.duration, controllers)
+        res = run_set(sample_pushes(n, seed), a.duration, controllers, early_ticks)
         result[name] = dict(seed=seed, n=n, auc=aucs(res))
         if name == "held_out":
             figure(res, out / "margin_auc.png")
