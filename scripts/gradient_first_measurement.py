@@ -20,7 +20,7 @@ from tkujax.control import ControllerParams
 from tkujax.sim.rollout_mjx import RolloutConfig
 from tkujax.sim.rollout_mujoco import simulate_mujoco
 from tkujax.studies.gradient import diagnostics as dg
-from tkujax.studies.gradient.measure import (LOSSES, Latent, batch_functions, make_per_push,
+from tkujax.studies.gradient.measure import (Latent, batch_functions, loss_names, make_per_push,
                                              pushes_from)
 
 CPU_OPTIONS = {"xla_llvm_disable_expensive_passes": True}
@@ -53,7 +53,10 @@ def main() -> None:
     ap.add_argument("--n-held-out", type=int, default=192)
     ap.add_argument("--duration", type=float, default=1.2)
     ap.add_argument("--timing-gradient", action="store_true")
+    ap.add_argument("--margins", default="margin", help="comma-separated names of MARGINS")
     a = ap.parse_args()
+    margins = tuple(a.margins.split(","))
+    losses = loss_names(margins)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     latent = Latent(ControllerParams.recommended(), timing_gradient=a.timing_gradient)
@@ -62,7 +65,7 @@ def main() -> None:
     train = sample(a.n, 1, (1.2, 2.6))
     held = sample(a.n_held_out, 2, (1.2, 2.6))
     keys = jax.random.split(jax.random.PRNGKey(0), a.n)
-    fwd, jac = batch_functions(make_per_push(latent, a.duration), CPU_OPTIONS)
+    fwd, jac = batch_functions(make_per_push(latent, a.duration, margins), CPU_OPTIONS)
     res = dict(device="cpu", n=a.n, duration_s=a.duration, params=list(latent.names),
                timing_gradient=a.timing_gradient)
     t0 = time.time()
@@ -71,7 +74,7 @@ def main() -> None:
     L0, aux = fwd(z0, train, keys)
     L0 = np.asarray(L0)
     res["train"] = dict(fell=int(np.asarray(aux["fell"]).sum()),
-                        mean_loss={k: float(L0[:, i].mean()) for i, k in enumerate(LOSSES)})
+                        mean_loss={k: float(L0[:, i].mean()) for i, k in enumerate(losses)})
     print("jacobian", res["jacobian_s"], "s;", res["train"], flush=True)
     np.savez(out / "per_push.npz", J=J, L=L0, margin_m=np.asarray(aux["margin_m"]),
              fell=np.asarray(aux["fell"]))
@@ -79,7 +82,7 @@ def main() -> None:
     J = np.where(np.isfinite(J), J, 0.0)
     base_falls = held_out_falls(latent, z0, held, a.duration)
     res["held_out"] = dict(n=a.n_held_out, base=base_falls)
-    for i, name in enumerate(LOSSES):
+    for i, name in enumerate(losses):
         G = J[:, i, :]
         res[name] = dict(diagnostics=dg.summary(G), steps={})
         for dname, g in directions(G).items():
@@ -93,7 +96,7 @@ def main() -> None:
                 held_out_fell={str(s): f["fell"] for s, f in falls.items()})
             print(name, dname, res[name]["steps"][dname], flush=True)
         (out / "first_measurement.json").write_text(json.dumps(res, indent=1) + "\n")
-    print(json.dumps({k: res[k]["diagnostics"] for k in LOSSES}, indent=1))
+    print(json.dumps({k: res[k]["diagnostics"] for k in losses}, indent=1))
 
 
 if __name__ == "__main__":

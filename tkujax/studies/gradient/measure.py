@@ -26,7 +26,10 @@ SCALES = {"step_period": 0.03, "cp_gain": 0.3, "cp_trigger_forward_m": 0.01,
           "cp_trigger_backward_m": 0.03, "cp_trigger_lateral_m": 0.02, "stance_ankle_kp": 0.1,
           "stance_ankle_kd": 0.03, "stance_hip_kp": 0.1, "stance_roll_kp": 0.1,
           "lift_height": 0.01}
-LOSSES = ("soft", "margin")
+# Margin losses measured beside the tuning loss: the default squash (centred at 0 m), and one
+# centred in the gap between survivors' (< 5 cm) and falls' (> 15 cm) margins that
+# scripts/gradient_margin_auc.py found on held-out pushes.
+MARGINS = {"margin": MarginConfig(), "margin_gap": MarginConfig(offset_m=0.10, scale_m=0.04)}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -58,11 +61,16 @@ def pushes_from(impulse_ns, azimuth_rad, onset_s, height_m=0.36, duration_s=0.02
     return Push(f(impulse_ns), f(azimuth_rad), f(height_m), f(duration_s), f(onset_s))
 
 
-def make_per_push(latent: Latent, duration_s: float, margin_cfg: MarginConfig | None = None,
+def loss_names(margins: tuple[str, ...]) -> tuple[str, ...]:
+    """The order of make_per_push's losses."""
+    return ("soft", *margins)
+
+
+def make_per_push(latent: Latent, duration_s: float, margins: tuple[str, ...] = ("margin",),
                   loss_cfg: LossConfig = LossConfig()):
-    """f(z, push, key) -> (losses (2,) [soft, margin], aux {fell, diverged, margin_m}) of one
-    push with control on, no sensor noise; the tuner's rollout settings (remat per substep,
-    compact tree passes)."""
+    """f(z, push, key) -> (losses [soft, *margins] (MARGINS' names), aux {fell, diverged,
+    margin_m}) of one push with control on, no sensor noise; the tuner's rollout settings
+    (remat per substep, compact tree passes)."""
     setup = init(None)
     config = RolloutConfig(duration_s=duration_s, remat="substep", tree_passes="compact")
 
@@ -70,17 +78,17 @@ def make_per_push(latent: Latent, duration_s: float, margin_cfg: MarginConfig | 
         series = rollout(setup.device_model, setup.stand_state, push, latent.apply(z), 1.0, key,
                          0.0, 0.0, config, setup.index)
         soft = push_loss(series, push.onset_s, loss_cfg)["total"]
-        m = margin_loss(series, push.onset_s, margin_cfg or MarginConfig())
+        ms = [margin_loss(series, push.onset_s, MARGINS[name]) for name in margins]
         out = outcomes(series, push.onset_s)
-        aux = dict(fell=out.fell, diverged=out.diverged, margin_m=m["margin_m"])
-        return jnp.stack([soft, m["total"]]), aux
+        aux = dict(fell=out.fell, diverged=out.diverged, margin_m=ms[0]["margin_m"])
+        return jnp.stack([soft, *(m["total"] for m in ms)]), aux
 
     return f
 
 
 def batch_functions(per_push, compiler_options=None):
     """(forward, jacobian): jitted over a batch of pushes (z shared). forward(z, pushes, keys)
-    -> (losses (n, 2), aux); jacobian(...) -> (n, 2, d) per-push gradients of both losses."""
+    -> (losses (n, k), aux); jacobian(...) -> (n, k, d) per-push gradients of the k losses."""
     fwd = jax.jit(jax.vmap(per_push, in_axes=(None, 0, 0)), compiler_options=compiler_options)
     jac = jax.jit(jax.vmap(lambda z, p, k: jax.jacrev(lambda zz: per_push(zz, p, k)[0])(z),
                            in_axes=(None, 0, 0)), compiler_options=compiler_options)
