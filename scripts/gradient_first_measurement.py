@@ -24,7 +24,6 @@ from tkujax.studies.gradient.measure import (Latent, batch_functions, loss_names
                                              pushes_from)
 
 CPU_OPTIONS = {"xla_llvm_disable_expensive_passes": True}
-STEPS = (0.1, 0.3, 1.0)
 
 
 def sample(n: int, seed: int, impulse_ns):
@@ -54,9 +53,11 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=1.2)
     ap.add_argument("--timing-gradient", action="store_true")
     ap.add_argument("--margins", default="margin", help="comma-separated names of MARGINS")
+    ap.add_argument("--steps", default="0.1,0.3,1.0", help="step sizes along -g (latent units)")
     a = ap.parse_args()
     margins = tuple(a.margins.split(","))
     losses = loss_names(margins)
+    steps = tuple(float(x) for x in a.steps.split(","))
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     latent = Latent(ControllerParams.recommended(), timing_gradient=a.timing_gradient)
@@ -87,9 +88,9 @@ def main() -> None:
         res[name] = dict(diagnostics=dg.summary(G), steps={})
         for dname, g in directions(G).items():
             loss = lambda z, i=i: float(np.asarray(fwd(np.float32(z), train, keys)[0])[:, i].mean())  # noqa: E731
-            checks = dg.step_check(loss, z0, g, STEPS)
+            checks = dg.step_check(loss, z0, g, steps)
             falls = {s: held_out_falls(latent, z0 - s * g / np.linalg.norm(g), held, a.duration)
-                     for s in STEPS}
+                     for s in steps}
             res[name]["steps"][dname] = dict(
                 direction=(g / np.linalg.norm(g)).tolist(),
                 predicted=[c.predicted for c in checks], measured=[c.measured for c in checks],
