@@ -110,3 +110,18 @@ def test_crossing_offset_is_zero_in_value_and_guarded():
             np.testing.assert_allclose(float(g[1]), 0.03 * e_prev / d ** 2, rtol=1e-5)
         else:
             assert float(g[0]) == 0.0 and float(g[1]) == 0.0
+
+
+def test_latent_moves_the_named_fields_and_carries_the_option():
+    from tkujax.control.controller import TimingGradientParams
+    from tkujax.studies.gradient.measure import Latent
+    base = ControllerParams.recommended()
+    lat = Latent(base, timing_gradient=True)
+    z = np.zeros(len(lat.names))
+    p = lat.apply(jnp.asarray(z))
+    assert isinstance(p, TimingGradientParams)
+    assert all(float(getattr(p, n)) == getattr(base, n) for n in lat.names)
+    z[lat.names.index("cp_gain")] = 2.0
+    moved = lat.concrete(z)
+    assert type(moved) is ControllerParams
+    assert moved.cp_gain == base.cp_gain + 2.0 * lat.scales[lat.names.index("cp_gain")]
