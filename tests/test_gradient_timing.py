@@ -120,7 +120,7 @@ def test_latent_moves_the_named_fields_and_carries_the_option():
     z = np.zeros(len(lat.names))
     p = lat.apply(jnp.asarray(z))
     assert isinstance(p, TimingGradientParams)
-    assert all(float(getattr(p, n)) == getattr(base, n) for n in lat.names)
+    assert all(float(getattr(p, n)) == float(np.float32(getattr(base, n))) for n in lat.names)
     z[lat.names.index("cp_gain")] = 2.0
     moved = lat.concrete(z)
     assert type(moved) is ControllerParams
