@@ -86,3 +86,11 @@ def test_non_finite_ticks_close_the_window_with_finite_gradients():
     g = jax.grad(lambda c: push_margin(dataclasses.replace(s, com=c), 0.1))(s.com)
     assert np.all(np.isfinite(np.asarray(g)))
     assert np.isfinite(float(push_margin(s, 0.1)))
+
+
+def test_window_s_closes_the_window_early():
+    mask = np.asarray(window_mask(_series(np.zeros(N)), 0.1, MarginConfig(window_s=0.2)))
+    t = DT * np.arange(1, N + 1)
+    np.testing.assert_array_equal(mask, (t > 0.1) & (t <= 0.3 + 1e-6))
+    far = push_margin(_series(0.01 * np.arange(N)), 0.1, MarginConfig(window_s=0.2))
+    assert float(far) < float(push_margin(_series(0.01 * np.arange(N)), 0.1))

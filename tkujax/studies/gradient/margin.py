@@ -18,9 +18,14 @@ Per control tick k of the `Series` (tkujax.sim.records):
 The push's margin is a soft maximum (temperature `softmax_m`) of d_k over its window: the ticks
 after the push onset, up to and including the first tick at which the clearance of the fall
 test (tkujax.sim.metrics: lowest non-foot point - 5 mm, pelvis height - 0.12 m) is below
-`stop_clearance_m`. Ticks after it are masked out of the value and the gradient (a body lying
-on the floor says nothing about the controller), as are non-finite ticks (numerical blow-up),
-which also close the window.
+`stop_clearance_m`, and at most `window_s` after the onset. Over a long window the margin is
+bimodal (held-out pushes, recommended controller: survivors below ~3 cm, falls above ~20 cm,
+the DCM of a body about to touch the floor), so a squash centred between the two modes gives
+falls almost no gradient; a window of ~0.3-0.45 s after the onset keeps the margin continuous
+across the fall boundary and still predicts the fall (scripts/gradient_margin_auc.py).
+Ticks after the window are masked out of the value and the gradient (a body lying on the
+floor says nothing about the controller), as are non-finite ticks (numerical blow-up), which
+also close the window.
 
 The loss is the squashed margin sigmoid((margin - offset_m) / scale_m) in (0, 1): about 1 for
 a push that falls (its gradient vanishes), about 0 for one that stays well inside, and steep
@@ -56,6 +61,7 @@ class MarginConfig:
     n_directions: int = 32             # directions of the support-function distance
     softmax_m: float = 0.005           # temperature of the soft maximum over ticks
     stop_clearance_m: float = 0.01     # the window ends at the first tick below this clearance
+    window_s: float = math.inf         # ... or this long after the onset, whichever comes first
     min_com_z_m: float = 0.05          # omega's CoM height floor
     offset_m: float = 0.0              # the loss's centre: sigmoid((margin - offset) / scale)
     scale_m: float = 0.02              # the loss's width
@@ -121,13 +127,14 @@ def clearance_m(series: Series) -> jax.Array:
 
 def window_mask(series: Series, onset_s, cfg: MarginConfig = MarginConfig()) -> jax.Array:
     """(n_ticks,) bool: after the onset, up to and including the first tick whose clearance is
-    below stop_clearance_m (or whose CoM / ankles are not finite)."""
+    below stop_clearance_m (or whose CoM / ankles are not finite), and within window_s."""
     finite = (jnp.all(jnp.isfinite(series.com), -1) & jnp.all(jnp.isfinite(series.r_ankle), -1)
               & jnp.all(jnp.isfinite(series.l_ankle), -1))
     low = (clearance_m(series) < cfg.stop_clearance_m) | ~finite
     # Ticks strictly after the first low tick: a low tick earlier than this one exists.
     after_fall = (jnp.cumsum(low) - low) > 0
-    return (_finite(series.t) > onset_s) & ~after_fall
+    t = _finite(series.t)
+    return (t > onset_s) & (t <= onset_s + cfg.window_s) & ~after_fall
 
 
 def dcm_distance(series: Series, cfg: MarginConfig = MarginConfig()) -> jax.Array:

@@ -29,7 +29,10 @@ SCALES = {"step_period": 0.03, "cp_gain": 0.3, "cp_trigger_forward_m": 0.01,
 # Margin losses measured beside the tuning loss: the default squash (centred at 0 m), and one
 # centred in the gap between survivors' (< 5 cm) and falls' (> 15 cm) margins that
 # scripts/gradient_margin_auc.py found on held-out pushes.
-MARGINS = {"margin": MarginConfig(), "margin_gap": MarginConfig(offset_m=0.10, scale_m=0.04)}
+# "margin_early": the window closed 0.4 s after the onset, where the margin is continuous across
+# the fall boundary (survivors' up to ~3 cm, falls' from ~1 cm), squashed around 2 cm.
+MARGINS = {"margin": MarginConfig(), "margin_gap": MarginConfig(offset_m=0.10, scale_m=0.04),
+           "margin_early": MarginConfig(window_s=0.4, offset_m=0.02, scale_m=0.02)}
 
 
 @dataclasses.dataclass(frozen=True)
