@@ -35,6 +35,8 @@ VARIANTS = {
     "margin_drop_airborne": MarginConfig(drop_airborne_foot=True),
     "margin_hard_max": MarginConfig(softmax_m=1e-4),
     "margin_soft_20mm": MarginConfig(softmax_m=0.02),
+    "margin_window_0.3s": MarginConfig(window_s=0.3),
+    "margin_window_0.4s": MarginConfig(window_s=0.4),
 }
 
 
