@@ -51,6 +51,8 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=32)
     ap.add_argument("--n-held-out", type=int, default=192)
     ap.add_argument("--duration", type=float, default=1.2)
+    ap.add_argument("--eval-duration", type=float, default=None,
+                    help="held-out MuJoCo C horizon (s; default --duration)")
     ap.add_argument("--timing-gradient", action="store_true")
     ap.add_argument("--margins", default="margin", help="comma-separated names of MARGINS")
     ap.add_argument("--steps", default="0.1,0.3,1.0", help="step sizes along -g (latent units)")
@@ -58,6 +60,7 @@ def main() -> None:
     margins = tuple(a.margins.split(","))
     losses = loss_names(margins)
     steps = tuple(float(x) for x in a.steps.split(","))
+    eval_s = a.eval_duration or a.duration
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     latent = Latent(ControllerParams.recommended(), timing_gradient=a.timing_gradient)
@@ -67,7 +70,8 @@ def main() -> None:
     held = sample(a.n_held_out, 2, (1.2, 2.6))
     keys = jax.random.split(jax.random.PRNGKey(0), a.n)
     fwd, jac = batch_functions(make_per_push(latent, a.duration, margins), CPU_OPTIONS)
-    res = dict(device="cpu", n=a.n, duration_s=a.duration, params=list(latent.names),
+    res = dict(device="cpu", n=a.n, duration_s=a.duration, eval_duration_s=eval_s,
+               params=list(latent.names),
                timing_gradient=a.timing_gradient)
     t0 = time.time()
     J = np.asarray(jac(z0, train, keys))                      # (n, 2, d)
@@ -81,7 +85,7 @@ def main() -> None:
              fell=np.asarray(aux["fell"]))
     res["nonfinite_grads"] = int((~np.isfinite(J)).any(axis=(1, 2)).sum())
     J = np.where(np.isfinite(J), J, 0.0)
-    base_falls = held_out_falls(latent, z0, held, a.duration)
+    base_falls = held_out_falls(latent, z0, held, eval_s)
     res["held_out"] = dict(n=a.n_held_out, base=base_falls)
     for i, name in enumerate(losses):
         G = J[:, i, :]
@@ -89,7 +93,7 @@ def main() -> None:
         for dname, g in directions(G).items():
             loss = lambda z, i=i: float(np.asarray(fwd(np.float32(z), train, keys)[0])[:, i].mean())  # noqa: E731
             checks = dg.step_check(loss, z0, g, steps)
-            falls = {s: held_out_falls(latent, z0 - s * g / np.linalg.norm(g), held, a.duration)
+            falls = {s: held_out_falls(latent, z0 - s * g / np.linalg.norm(g), held, eval_s)
                      for s in steps}
             res[name]["steps"][dname] = dict(
                 direction=(g / np.linalg.norm(g)).tolist(),
