@@ -54,6 +54,8 @@ def main() -> None:
     ap.add_argument("--eval-duration", type=float, default=None,
                     help="held-out MuJoCo C horizon (s; default --duration)")
     ap.add_argument("--timing-gradient", action="store_true")
+    ap.add_argument("--z0", default="", help="start latents, e.g. cp_gain=-3,step_period=2 "
+                    "(field = recommended + scale * z; default all 0: the recommended controller)")
     ap.add_argument("--margins", default="margin", help="comma-separated names of MARGINS")
     ap.add_argument("--steps", default="0.1,0.3,1.0", help="step sizes along -g (latent units)")
     a = ap.parse_args()
@@ -66,12 +68,15 @@ def main() -> None:
     latent = Latent(ControllerParams.recommended(), timing_gradient=a.timing_gradient)
     d = len(latent.names)
     z0 = np.zeros(d, np.float32)
+    for item in filter(None, a.z0.split(",")):
+        name, value = item.split("=")
+        z0[latent.names.index(name)] = float(value)
     train = sample(a.n, 1, (1.2, 2.6))
     held = sample(a.n_held_out, 2, (1.2, 2.6))
     keys = jax.random.split(jax.random.PRNGKey(0), a.n)
     fwd, jac = batch_functions(make_per_push(latent, a.duration, margins), CPU_OPTIONS)
     res = dict(device="cpu", n=a.n, duration_s=a.duration, eval_duration_s=eval_s,
-               params=list(latent.names),
+               params=list(latent.names), z0=z0.tolist(),
                timing_gradient=a.timing_gradient)
     t0 = time.time()
     J = np.asarray(jac(z0, train, keys))                      # (n, 2, d)
