@@ -23,6 +23,17 @@ trigger (`cp_trigger`), stance feedback on the ankles and hips (`stance_*`) and 
 serves every setting. Later steps (2..max_steps) alternate the swing foot and move both feet
 from where the last step left them (`_later_step_feet`); the first step keeps the paper's CPG.
 
+Step timing with a gradient (a tkujax extension, off by default): with `TimingGradientParams`
+(`with_timing_gradient(params)`), the first step's start time is, for the gradient only, the
+crossing time interpolated between the two ticks around the trigger: the detection value e
+(`detection_value`: how far the trigger quantity is beyond its band, > 0 exactly when the hard
+gate fires) was e_prev <= 0 at the previous tick and e > 0 now, so it crossed 0 at the fraction
+f = e_prev / (e_prev - e) of the period before this tick. Straight-through: the start time's
+value stays the hard controller's (this tick's time; `t + (t_x - stop_gradient(t_x))` adds
+exactly 0), its gradient is that of t_x = t - (1 - f) dt. The option is the params' type, read
+at trace time (a Python `isinstance`, never a traced branch): plain `ControllerParams` trace
+the program they always did, and the state's `detect_prev` is None there.
+
 Step override (a tkujax extension, for capture-region studies): `controller_step(...,
 override=StepOverride(...))` sends the one recovery step to a commanded target instead of the
 capture point, with the same CPG shape (`cpg_feet_lateral`), IK and servos. Every field is a
@@ -66,7 +77,8 @@ class ControllerState:
     """kalman: [pitch, roll] filter; time_s: controller clock; step_weight: 0 before the step,
     1 once triggered (in between only with a soft gate); step_start_s: when it started;
     x_sup_m: the latched step length; phi_at_detect: filtered pitch at the trigger (rad).
-    steps: `StepsState`, the bookkeeping of further steps (max_steps > 1)."""
+    steps: `StepsState`, the bookkeeping of further steps (max_steps > 1). detect_prev: the
+    previous tick's `detection_value` with `TimingGradientParams`; None otherwise."""
 
     kalman: KalmanState
     time_s: jax.Array
@@ -76,6 +88,25 @@ class ControllerState:
     y_sup_m: jax.Array
     phi_at_detect: jax.Array
     steps: StepsState
+    detect_prev: jax.Array | None = None
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class TimingGradientParams(ControllerParams):
+    """ControllerParams whose first step's start time carries the gradient of the interpolated
+    trigger crossing (module docstring). The same fields and forward values."""
+
+
+def with_timing_gradient(params: ControllerParams) -> TimingGradientParams:
+    """params as TimingGradientParams (the same field values)."""
+    return TimingGradientParams(**{f.name: getattr(params, f.name)
+                                   for f in dataclasses.fields(ControllerParams)})
+
+
+def has_timing_gradient(params: ControllerParams) -> bool:
+    """Whether the step start carries the interpolated crossing's gradient (static)."""
+    return isinstance(params, TimingGradientParams)
 
 
 @jax.tree_util.register_dataclass
@@ -148,7 +179,8 @@ def controller_init(params: ControllerParams, dtype=jnp.float32) -> ControllerSt
     return ControllerState(
         kalman=kalman_init(jnp.stack([jnp.asarray(params.standing_lean, dtype), zero]), params),
         time_s=zero, step_weight=zero, step_start_s=jnp.asarray(_NOT_STARTED_S, dtype),
-        x_sup_m=zero, y_sup_m=zero, phi_at_detect=zero, steps=StepsState.init(dtype))
+        x_sup_m=zero, y_sup_m=zero, phi_at_detect=zero, steps=StepsState.init(dtype),
+        detect_prev=jnp.asarray(-1.0, dtype) if has_timing_gradient(params) else None)
 
 
 def cp_angle(phi: jax.Array, params: ControllerParams) -> jax.Array:
@@ -198,6 +230,11 @@ def controller_step(state: ControllerState, sensors: Sensors, params: Controller
     y_sup = state.y_sup_m + trigger * params.lateral_steps * det.y_new
     starts_now = (state.step_weight < 0.5) & (step_weight >= 0.5)
     step_start = jnp.where(starts_now, state.time_s, state.step_start_s)
+    detect_prev = None
+    if state.detect_prev is not None:      # static: TimingGradientParams (module docstring)
+        detect_prev = detection_value(det, phi, psi, params)
+        step_start = step_start + crossing_time_offset(
+            starts_now, state.detect_prev, detect_prev, state.time_s, params.control_period)
     # cp_update_window > 0: after the first detection x_Sup follows the current capture point
     # while the step is young enough and the push is still detected (default 0: latched).
     age = state.time_s - step_start
@@ -230,7 +267,8 @@ def controller_step(state: ControllerState, sensors: Sensors, params: Controller
                                                  kalman.phi[..., 1], rates[..., 1], params)
     new_state = ControllerState(kalman=kalman, time_s=state.time_s + params.control_period,
                                 step_weight=step_weight, step_start_s=step_start, x_sup_m=x_sup,
-                                y_sup_m=y_sup, phi_at_detect=phi_at_detect, steps=steps)
+                                y_sup_m=y_sup, phi_at_detect=phi_at_detect, steps=steps,
+                                detect_prev=detect_prev)
     return new_state, ControllerOutput(targets, phi, kalman.phi[..., 1], gate, reachable,
                                        touchdown)
 
@@ -268,6 +306,30 @@ def _detect(phi, psi, pitch_rate, psi_rate, params: ControllerParams) -> Detecti
         on_cp, band_gate(y_cp, -params.cp_trigger_lateral_m, params.cp_trigger_lateral_m, tau_m),
         band_gate(psi, -params.eps_lateral, params.eps_lateral, params.gate_temperature))
     return Detection(pitch_gate, lateral_gate, x_new, y_new, x_cp, y_cp)
+
+
+def detection_value(det: Detection, phi, psi, params: ControllerParams) -> jax.Array:
+    """How far the trigger quantity is beyond its band (m for the capture-point trigger, rad for
+    the angle trigger; the larger of pitch and, with lateral steps, lateral): > 0 exactly when
+    the hard gate fires, negative inside the band."""
+    on_cp = params.cp_trigger > 0.5
+    pitch = jnp.where(on_cp, jnp.maximum(det.x_cp - params.cp_trigger_forward_m,
+                                         -params.cp_trigger_backward_m - det.x_cp),
+                      jnp.maximum(phi - params.eps_forward, -params.eps_backward - phi))
+    lateral = jnp.where(on_cp, jnp.abs(det.y_cp) - params.cp_trigger_lateral_m,
+                        jnp.abs(psi) - params.eps_lateral)
+    return jnp.where(params.lateral_steps > 0, jnp.maximum(pitch, lateral), pitch)
+
+
+def crossing_time_offset(starts_now, e_prev, e_now, time_s, period_s) -> jax.Array:
+    """0.0 in value; the gradient of the crossing time t_x = time_s - (1 - f) period_s, f =
+    e_prev / (e_prev - e_now), on the tick where the step starts after a crossing (e_prev <= 0
+    < e_now); a zero gradient elsewhere (NaN-free: the division's inputs are guarded)."""
+    crossed = starts_now & (e_prev <= 0.0) & (e_now > 0.0)
+    denom = jnp.where(crossed, e_prev - e_now, -1.0)
+    frac = jnp.where(crossed, jnp.clip(e_prev / denom, 0.0, 1.0), 1.0)
+    t_cross = time_s - (1.0 - frac) * period_s
+    return jnp.where(crossed, t_cross - jax.lax.stop_gradient(t_cross), 0.0)
 
 
 def stance_offsets(pitch_dev, pitch_rate, roll, roll_rate, params: ControllerParams):
