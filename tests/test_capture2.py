@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from tkujax.control import ControllerParams, StepOverride
-from tkujax.control.controller import _override_feet
+from tkujax.control.controller import override_feet
 from tkujax.control.cpg import cpg_feet_lateral
 from tkujax.studies.capture.region import jn_table
 from tkujax.studies.spec import SpecError, load_spec, parse_spec
@@ -23,7 +23,7 @@ D_Y, D_Z, H = 0.045, 0.20, 0.03   # hip_offset_y, hip_to_ankle_z, lift_height (p
 
 def _feet(ov, t):
     z = jnp.zeros(3, jnp.float32)
-    r, lf, td = _override_feet(ov, jnp.float32(t), jnp.float32(-1e9), z, z, jnp.float32(-1.0), P)
+    r, lf, td = override_feet(ov, jnp.float32(t), jnp.float32(-1e9), z, z, jnp.float32(-1.0), P)
     return np.asarray(r), np.asarray(lf), float(td)
 
 
@@ -103,7 +103,7 @@ def test_swing_left_argument():
 
 def test_two_step_override_jits_with_traced_steps():
     """steps is a traced option: one compiled function serves 1 and 2."""
-    f = jax.jit(lambda s: _override_feet(
+    f = jax.jit(lambda s: override_feet(
         StepOverride(**(TWO | dict(steps=s))), jnp.float32(1.0), jnp.float32(-1e9),
         jnp.zeros(3), jnp.zeros(3), jnp.float32(-1.0), P)[2])
     assert float(f(1.0)) == pytest.approx(0.27, abs=1e-6)

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from tkujax.control.capture_point import capture_point, capture_point_rate, push_gate
-from tkujax.control.controller import (Sensors, StepsState, _detect, _later_step_feet, cp_angle,
+from tkujax.control.controller import (Sensors, StepsState, detect_push, later_step_feet, cp_angle,
                                        controller_init, controller_step, stance_offsets)
 from tkujax.control.params import ControllerParams
 from tkujax.model import LEG_ACTUATORS
@@ -113,7 +113,7 @@ def test_stance_gain_gradient_matches_finite_differences(params):
 def test_paper_gates_when_capture_point_trigger_is_off(params):
     phis = np.radians(np.linspace(-10, 25, 71))
     for phi in phis:
-        det = _detect(jnp.float32(phi), jnp.float32(0.0), jnp.float32(0.7), jnp.float32(0.0),
+        det = detect_push(jnp.float32(phi), jnp.float32(0.0), jnp.float32(0.7), jnp.float32(0.0),
                       params)
         assert float(det.pitch_gate) == float(push_gate(jnp.float32(phi), params))
         want = params.cp_gain * capture_point(cp_angle(jnp.float32(phi), params),
@@ -130,7 +130,7 @@ def test_capture_point_trigger_reads_the_rate_not_the_angle(params):
     back = -1.2
     x_cp = leg_len * math.sin(phi - lean) + leg_len * math.cos(phi - lean) * back * math.sqrt(h / G)
     assert -p.cp_trigger_backward_m < x_cp < p.cp_trigger_forward_m
-    det = _detect(jnp.float32(phi), jnp.float32(0.0), jnp.float32(back), jnp.float32(0.0), p)
+    det = detect_push(jnp.float32(phi), jnp.float32(0.0), jnp.float32(back), jnp.float32(0.0), p)
     assert float(det.x_cp) == pytest.approx(x_cp, abs=1e-6)
     assert float(det.pitch_gate) == 0.0
     assert float(push_gate(jnp.float32(phi), params)) == 1.0
@@ -138,7 +138,7 @@ def test_capture_point_trigger_reads_the_rate_not_the_angle(params):
     fwd = 2.0
     x_cp = leg_len * math.cos(0.0) * fwd * math.sqrt(h / G)
     assert x_cp > p.cp_trigger_forward_m
-    det = _detect(jnp.float32(lean), jnp.float32(0.0), jnp.float32(fwd), jnp.float32(0.0), p)
+    det = detect_push(jnp.float32(lean), jnp.float32(0.0), jnp.float32(fwd), jnp.float32(0.0), p)
     assert float(det.pitch_gate) == 1.0
     assert float(push_gate(jnp.float32(lean), params)) == 0.0
 
@@ -189,14 +189,14 @@ def test_later_step_feet_profile(params):
                        swing_left=jnp.float32(0.0))
     T, gamma = params.step_period, params.double_support_ratio
     d_y, d_z = params.hip_offset_y, params.hip_to_ankle_z
-    r0, l0 = (np.asarray(v) for v in _later_step_feet(0.0, steps, params))
+    r0, l0 = (np.asarray(v) for v in later_step_feet(0.0, steps, params))
     np.testing.assert_allclose(r0, [-0.02, -d_y, -d_z], atol=1e-7)
     np.testing.assert_allclose(l0, [0.02, d_y, -d_z], atol=1e-7)
-    r1, l1 = (np.asarray(v) for v in _later_step_feet(T, steps, params))
+    r1, l1 = (np.asarray(v) for v in later_step_feet(T, steps, params))
     np.testing.assert_allclose(r1, [0.03, -d_y - 0.01, -d_z], atol=1e-7)
     np.testing.assert_allclose(l1, [-0.03, d_y + 0.01, -d_z], atol=1e-7)
     mid = 0.5 * T                 # mid-swing: the right (swing) foot at the lift height
-    rm, lm = (np.asarray(v) for v in _later_step_feet(mid, steps, params))
+    rm, lm = (np.asarray(v) for v in later_step_feet(mid, steps, params))
     assert rm[2] == pytest.approx(-d_z + params.lift_height, abs=1e-6)
     assert lm[2] == pytest.approx(-d_z, abs=1e-7)
     assert 0.0 < gamma < 0.9

@@ -18,7 +18,7 @@ from tkujax.bench.common import n_ticks, timed, traced_paper_params
 def _parts(params, batch: int, dtype):
     """{name: (init carry, step(carry, (gyro, accel)) -> carry)} of the controller's pieces, each
     vmapped over the batch; the carry folds in every output so nothing is dead code."""
-    from tkujax.control.controller import (_detect, _later_step_feet, controller_init,
+    from tkujax.control.controller import (detect_push, later_step_feet, controller_init,
                                           controller_step, Sensors, StepsState, stance_offsets)
     from tkujax.control.cpg import cpg_feet, cpg_feet_lateral
     from tkujax.control.kalman import (accel_to_angle, accel_variance, gyro_to_rates,
@@ -47,7 +47,7 @@ def _parts(params, batch: int, dtype):
 
     def detection(acc, x):
         g, a = x
-        det = vm(lambda g, a: _detect(accel_to_angle(a)[0], -accel_to_angle(a)[1],
+        det = vm(lambda g, a: detect_push(accel_to_angle(a)[0], -accel_to_angle(a)[1],
                                       gyro_to_rates(g)[0], -gyro_to_rates(g)[1], params))(g, a)
         return fold(acc, det)
 
@@ -58,7 +58,7 @@ def _parts(params, batch: int, dtype):
         x_sup, y_sup = jnp.full_like(t, 0.03), jnp.full_like(t, 0.01)
         return fold(acc, vm(lambda t, x: cpg_feet(t, x, params))(t, x_sup),
                     vm(lambda t, x, y: cpg_feet_lateral(t, x, y, params))(t, x_sup, y_sup),
-                    vm(lambda t, s: _later_step_feet(t, s, params))(t, steps))
+                    vm(lambda t, s: later_step_feet(t, s, params))(t, steps))
 
     def ik(acc, x):
         g, _ = x

@@ -21,7 +21,7 @@ Algorithm 1): a rate-aware capture point (`cp_rate_blend`, `cp_lookahead_s`), a 
 trigger (`cp_trigger`), stance feedback on the ankles and hips (`stance_*`) and further steps
 (`max_steps`). Every option is a traced leaf selected by `where`, so one compiled program
 serves every setting. Later steps (2..max_steps) alternate the swing foot and move both feet
-from where the last step left them (`_later_step_feet`); the first step keeps the paper's CPG.
+from where the last step left them (`later_step_feet`); the first step keeps the paper's CPG.
 
 Step timing with a gradient (a tkujax extension, off by default): with `TimingGradientParams`
 (`with_timing_gradient(params)`), the first step's start time is, for the gradient only, the
@@ -52,7 +52,7 @@ import jax
 import jax.numpy as jnp
 
 from tkujax.control.capture_point import band_gate, capture_point_rate, push_gate
-from tkujax.control.cpg import _unit_oscillators, cpg_feet, cpg_feet_lateral
+from tkujax.control.cpg import unit_oscillators, cpg_feet, cpg_feet_lateral
 from tkujax.control.kalman import (KalmanState, accel_to_angle, accel_variance, gyro_to_rates,
                                    kalman_init, kalman_step)
 from tkujax.control.params import ControllerParams
@@ -218,7 +218,7 @@ def controller_step(state: ControllerState, sensors: Sensors, params: Controller
         params = scheduled_params(schedule, params, phi - params.standing_lean, pitch_rate,
                                   kalman.phi[..., 1], rates[..., 1])
     enabled = jnp.asarray(enabled, phi.dtype)
-    det = _detect(phi, psi, pitch_rate, psi_rate, params)
+    det = detect_push(phi, psi, pitch_rate, psi_rate, params)
     # Either detector triggers the (first) step: 1 - (1 - a)(1 - b) is "a or b" for 0/1 gates.
     gate = enabled * (1.0 - (1.0 - det.pitch_gate) * (1.0 - det.lateral_gate))
     # The step weight is the running max of the gate: a hard gate latches 0 -> 1 once; a soft
@@ -255,12 +255,12 @@ def controller_step(state: ControllerState, sensors: Sensors, params: Controller
     use_lateral = params.lateral_steps > 0
     p_right = jnp.where(use_lateral, p_lateral[0], p_paper[0])
     p_left = jnp.where(use_lateral, p_lateral[1], p_paper[1])
-    later = _later_step_feet(t_step, steps, params)
+    later = later_step_feet(t_step, steps, params)
     p_right = jnp.where(steps.count > 1.5, later[0], p_right)
     p_left = jnp.where(steps.count > 1.5, later[1], p_left)
     touchdown = step_start + _land_time(params.step_period, params)
     if override is not None:
-        p_right, p_left, touchdown = _override_feet(override, state.time_s, step_start, p_right,
+        p_right, p_left, touchdown = override_feet(override, state.time_s, step_start, p_right,
                                                     p_left, touchdown, params)
     targets, reachable = solve_legs(p_right, p_left, params)
     targets = targets + enabled * stance_offsets(phi - params.standing_lean, pitch_rate,
@@ -286,7 +286,7 @@ class Detection(NamedTuple):
     y_cp: jax.Array
 
 
-def _detect(phi, psi, pitch_rate, psi_rate, params: ControllerParams) -> Detection:
+def detect_push(phi, psi, pitch_rate, psi_rate, params: ControllerParams) -> Detection:
     """Detectors and step targets: the paper's angle thresholds (cp_trigger = 0) or the
     capture point leaving the support (cp_trigger = 1), selected by `where`."""
     theta = cp_angle(phi, params)
@@ -408,11 +408,11 @@ def _later_steps(steps: StepsState, time_s, step_start, step_weight, det: Detect
     return new, jnp.where(go, time_s, step_start)
 
 
-def _later_step_feet(t_step, steps: StepsState, params: ControllerParams):
+def later_step_feet(t_step, steps: StepsState, params: ControllerParams):
     """Ankle targets (p_right, p_left) of step 2.. at time t_step into it: both feet move from
     feet_from to feet_to with the CPG's quarter-sine profile (Eq. 13/16) and the swing foot
     lifts by H_Sup (Eq. 15/18), as `cpg_feet_lateral` does from the stand pose."""
-    unit_x, _, unit_z = _unit_oscillators(jnp.asarray(t_step, steps.feet_to.dtype), params)
+    unit_x, _, unit_z = unit_oscillators(jnp.asarray(t_step, steps.feet_to.dtype), params)
     d = steps.feet_from + (steps.feet_to - steps.feet_from) * unit_x
     lift = params.lift_height * unit_z
     d_y, d_z = params.hip_offset_y, params.hip_to_ankle_z
@@ -423,11 +423,11 @@ def _later_step_feet(t_step, steps: StepsState, params: ControllerParams):
 
 
 def _land_time(period, params: ControllerParams):
-    """Step start -> touchdown: T - gamma T / 2 (end of the swing, `cpg._unit_oscillators`)."""
+    """Step start -> touchdown: T - gamma T / 2 (end of the swing, `cpg.unit_oscillators`)."""
     return period * (1.0 - 0.5 * params.double_support_ratio)
 
 
-def _override_feet(ov: StepOverride, time_s, detect_s, p_right, p_left, touchdown,
+def override_feet(ov: StepOverride, time_s, detect_s, p_right, p_left, touchdown,
                    params: ControllerParams):
     """Feet of the commanded step, selected by `where` on ov.active (see StepOverride)."""
     dtype = p_right.dtype

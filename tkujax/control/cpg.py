@@ -31,7 +31,7 @@ def cpg_feet(t: jax.Array, x_sup: jax.Array,
     """
     dtype = jnp.result_type(t, x_sup, float)
     t, x_sup = jnp.broadcast_arrays(jnp.asarray(t, dtype), jnp.asarray(x_sup, dtype))
-    unit_x, unit_y, unit_z = _unit_oscillators(t, params)
+    unit_x, unit_y, unit_z = unit_oscillators(t, params)
     zero = jnp.zeros_like(x_sup)
     rho_r = (-0.5 * x_sup, zero, zero)
     rho_l = (0.5 * x_sup, zero, params.lift_height + zero)
@@ -44,7 +44,7 @@ def cpg_feet(t: jax.Array, x_sup: jax.Array,
     return p_right.astype(dtype), p_left.astype(dtype)
 
 
-def _unit_oscillators(t: jax.Array, params: ControllerParams):
+def unit_oscillators(t: jax.Array, params: ControllerParams):
     """Eq. 13-18 with unit amplitudes: (x, y, z) profiles at time t since the step started."""
     T = params.step_period
     gamma = params.double_support_ratio
@@ -79,7 +79,7 @@ def cpg_feet_lateral(t: jax.Array, x_sup: jax.Array, y_sup: jax.Array,
     """
     dtype = jnp.result_type(t, x_sup, y_sup, float)
     t, x_sup, y_sup = jnp.broadcast_arrays(*(jnp.asarray(a, dtype) for a in (t, x_sup, y_sup)))
-    unit_x, _, unit_z = _unit_oscillators(t, params)
+    unit_x, _, unit_z = unit_oscillators(t, params)
     swing_left = (y_sup >= 0.0 if swing_left is None
                   else jnp.broadcast_to(jnp.asarray(swing_left, bool), t.shape))
     lift = params.lift_height * unit_z
