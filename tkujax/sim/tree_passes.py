@@ -221,6 +221,60 @@ def rne(model: mjx.Model, d: mjx.Data) -> mjx.Data:
     return d.replace(qfrc_bias=qfrc_bias)
 
 
+def com_pos(model: mjx.Model, d: mjx.Data) -> mjx.Data:
+    """`mujoco.mjx._src.smooth.com_pos` (subtree_com, cinert, cdof) with the subtree sums over
+    static index lists: MJX's reverse tree scan sums children with a segment sum, a scatter-add
+    that a GPU runs with atomics, in an order that changes from run to run
+    (tests/test_tree_passes.py checks the fields against MuJoCo C)."""
+    t = _tree_sums(model)
+    mass = model.body_mass.astype(d.xipos.dtype)
+    pos = _masked_sum(t["subtree"], d.xipos * mass[:, None])
+    subtree_mass = _masked_sum(t["subtree"], mass[:, None])[:, 0]
+    subtree_com = pos / jnp.maximum(subtree_mass, mujoco.mjMINVAL)[:, None]
+    subtree_com = jnp.where((subtree_mass < mujoco.mjMINVAL)[:, None], d.xipos, subtree_com)
+    root_com = subtree_com[np.asarray(model.body_rootid)]
+
+    @jax.vmap
+    def inert_com(inert, ximat, off, body_mass):   # MJX's formula
+        h = jnp.cross(off, -jnp.eye(3, dtype=off.dtype))
+        inert = math.matmul_unroll(ximat * inert, ximat.T)
+        inert += math.matmul_unroll(h, h.T) * body_mass
+        inert = inert[(np.array([0, 1, 2, 0, 0, 1]), np.array([0, 1, 2, 1, 2, 2]))]
+        return jnp.concatenate([inert, off * body_mass, body_mass[None]])
+
+    cinert = inert_com(model.body_inertia, d.ximat, d.xipos - root_com, mass)
+    return d.tree_replace({"subtree_com": subtree_com, "_impl.cinert": cinert,
+                           "cdof": _cdof(model, d, root_com)})
+
+
+def _cdof(model: mjx.Model, d: mjx.Data, root_com: jax.Array) -> jax.Array:
+    """Each dof's motion axis in the frame centred at its tree's CoM (MJX's com_pos formulas;
+    hinge, slide and free joints, as `supports` allows)."""
+    dof_jnt = np.asarray(model.dof_jntid)
+    types = np.asarray(model.jnt_type)[dof_jnt]
+    offset = np.arange(model.nv) - np.asarray(model.jnt_dofadr)[dof_jnt]
+    body = np.asarray(model.jnt_bodyid)[dof_jnt]
+    com_offset = root_com[body] - d.xanchor[dof_jnt]                     # (nv, 3)
+    hinge = jnp.concatenate([d.xaxis[dof_jnt], jnp.cross(d.xaxis[dof_jnt], com_offset)], -1)
+    slide = jnp.concatenate([jnp.zeros_like(com_offset), d.xaxis[dof_jnt]], -1)
+    rot_axis = d.xmat[body][np.arange(model.nv), :, np.clip(offset - 3, 0, 2)]   # xmat.T rows
+    free_rot = jnp.concatenate([rot_axis, jnp.cross(rot_axis, com_offset)], -1)
+    free_trans = jnp.eye(3, 6, 3, dtype=com_offset.dtype)[np.clip(offset, 0, 2)]
+    is_free = types == _FREE
+    return jnp.where((is_free & (offset < 3))[:, None], free_trans,
+                     jnp.where(is_free[:, None], free_rot,
+                               jnp.where((types == _SLIDE)[:, None], slide, hinge)))
+
+
+def crb(model: mjx.Model, d: mjx.Data) -> mjx.Data:
+    """`mujoco.mjx._src.smooth.crb` (composite inertias, the mass matrix) with the subtree sums
+    over static index lists (see `com_pos`)."""
+    crb_body = _masked_sum(_tree_sums(model)["subtree"], d._impl.cinert).at[0].set(0.0)
+    crb_cdof = jax.vmap(math.inert_mul)(crb_body[np.asarray(model.dof_bodyid)], d.cdof)
+    qm = support.make_m(model, crb_cdof, d.cdof, model.dof_armature)
+    return d.tree_replace({"_impl.crb": crb_body, "_impl.M": qm})
+
+
 def fwd_velocity(model: mjx.Model, d: mjx.Data) -> mjx.Data:
     """`mjx_forward.fwd_velocity` with `com_vel` and `rne` in place of MJX's."""
     d = d.tree_replace({"_impl.actuator_velocity": d._impl.actuator_moment @ d.qvel,
@@ -234,10 +288,10 @@ def fwd_velocity(model: mjx.Model, d: mjx.Data) -> mjx.Data:
 def fwd_position(model: mjx.Model, d: mjx.Data) -> mjx.Data:
     """`mjx_forward.fwd_position` with `kinematics` in place of MJX's."""
     d = kinematics(model, d)
-    d = smooth.com_pos(model, d)
+    d = com_pos(model, d)
     d = smooth.camlight(model, d)
     d = smooth.tendon(model, d)
-    d = smooth.crb(model, d)
+    d = crb(model, d)
     d = smooth.tendon_armature(model, d)
     d = smooth.factor_m(model, d)
     d = collision_driver.collision(model, d)
