@@ -10,9 +10,9 @@ Its gradient with respect to theta, built two ways:
 
   python scripts/bench_adjoint_compile.py BATCH N_STEPS autodiff|adjoint [OUT.jsonl]
 
-and the same two with the whole MJX state (mjx.Data) as the carry, as in the closed loop:
-`autodiff_data` (jax.checkpoint per step) and `adjoint_data` (tkujax.sim.adjoint.iterate,
-which stores the leaves a step reads).
+and `autodiff_data`: the whole MJX state (mjx.Data) as the carry, as in the closed loop
+(jax.checkpoint per step). Its adjoint peer, `adjoint_data`, ran at commit 83b01a8 (`git show
+83b01a8:results/bench/adjoint_compile.py`): it imports tkujax/sim/adjoint.py, removed since.
 
 One program per process, into an empty persistent cache: trace + lower and XLA's compile timed
 apart, the run time (median of 3), and the gradient (to compare the two).
@@ -72,20 +72,9 @@ def main(batch: int, n_steps: int, how: str, out: str | None) -> None:
         (_, g), _ = jax.lax.scan(bwd, (zero, jnp.zeros_like(theta)), xs, reverse=True)
         return g
 
-    def loss_data(theta, adjoint):
+    def loss_data(theta):
         def step_d(d):
             return mjx.euler(lean, mjx.forward(lean, d.replace(ctrl=theta)))
-
-        if adjoint:
-            from tkujax.sim.adjoint import iterate
-
-            def step_z(c):
-                d, acc = c
-                d = step_d(d)
-                return d, acc + d.qpos[2]
-
-            _, acc = iterate(step_z, (state, jnp.zeros((), state.qpos.dtype)), n_steps)
-            return acc / n_steps
 
         def body(d, _):
             d = jax.checkpoint(step_d)(d)
@@ -97,8 +86,7 @@ def main(batch: int, n_steps: int, how: str, out: str | None) -> None:
     fn = {
         "autodiff": jax.vmap(jax.grad(loss_autodiff)),
         "adjoint": jax.vmap(grad_adjoint),
-        "autodiff_data": jax.vmap(jax.grad(lambda t: loss_data(t, False))),
-        "adjoint_data": jax.vmap(jax.grad(lambda t: loss_data(t, True))),
+        "autodiff_data": jax.vmap(jax.grad(loss_data)),
     }[how]
     thetas = theta0 + 0.01 * jax.random.normal(jax.random.PRNGKey(0), (batch, theta0.size))
     with fresh_compilation_cache():

@@ -36,7 +36,7 @@ from jax.profiler import ProfileData
 from tkujax.studies.compile_cache import fresh_compilation_cache
 from tkujax.studies.tune.benchmark import bench_spec
 from tkujax.studies.tune.problem import TuneProblem
-from tkujax.studies.tune.reparam import DEG
+from tkujax.studies.tune.reparam import CPU_COMPILER_OPTIONS, DEG
 from tkujax.studies.tune.spec import sample_pushes
 
 OUT = Path(os.environ.get("OUT", "/tmp/out"))
@@ -126,11 +126,16 @@ def run_variant(batch, text):
             compiler_options=xla or None,
             rollout_options=roll,
         )
-        args = (*problem._args(z, DEG, recs, keys), problem._robot_values)
+        # The problem's value_and_grad program (no RobotSet: the loss takes no robot values),
+        # with the compiler options TuneProblem gives it.
+        vg = jax.jit(jax.value_and_grad(problem.loss, has_aux=True),
+                     compiler_options=xla or (CPU_COMPILER_OPTIONS
+                                          if jax.default_backend() == "cpu" else None))
+        args = problem.cast_args(z, DEG, recs, keys)
         tdir = tempfile.mkdtemp()
         if prog == "grad":
             t0 = time.perf_counter()
-            traced = problem._vg.trace(*args)
+            traced = vg.trace(*args)
             t1 = time.perf_counter()
             lowered = traced.lower()
             t2 = time.perf_counter()
@@ -151,7 +156,7 @@ def run_variant(batch, text):
             opts = xla or None
 
             def fwd(z, *rest):
-                loss, vjp, aux = jax.vjp(lambda z: problem._loss(z, *rest), z, has_aux=True)
+                loss, vjp, aux = jax.vjp(lambda z: problem.loss(z, *rest), z, has_aux=True)
                 return (loss, aux), vjp
 
             fj = jax.jit(fwd, compiler_options=opts)
@@ -195,7 +200,7 @@ def run_variant(batch, text):
 
             exe = eb
             g_split = call()
-            g_ref = problem._vg(*args)[1]
+            g_ref = vg(*args)[1]
             row["max_abs_grad_diff_vs_single"] = float(
                 jax.numpy.max(jax.numpy.abs(g_split - g_ref))
             )

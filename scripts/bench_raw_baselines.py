@@ -9,8 +9,7 @@ import time
 import statistics
 import jax
 import jax.numpy as jnp
-from tkujax import bench
-from tkujax.bench_profile import loop_fn
+from tkujax.bench import loop_fn, push_batch
 from tkujax.sim import physics
 from tkujax.sim.setup import init
 from tkujax.sim.randomize import randomize_model
@@ -30,7 +29,7 @@ def raw(batch, n_steps, settle_s, per_push_model, reps):
     host, model, index, stand = init(settle_s=settle_s)
     state = physics.batch_state(stand, batch)
     ctrl = jnp.asarray(host.key("stand").ctrl, jnp.float32)
-    recs = bench._push_batch(batch)
+    recs = push_batch(batch)
     if per_push_model:
 
         def one(d, rec):
@@ -68,7 +67,7 @@ def loop(batch, name, reps):
         "flat_raw": None,
     }[name]
     fn = loop_fn(1.5, cfg or {}, shared_model=name == "physics_only", raw=name == "flat_raw")
-    recs = bench._push_batch(batch)
+    recs = push_batch(batch)
     keys = jax.random.split(jax.random.PRNGKey(0), batch)
     params = traced_params(ControllerParams.paper())
     t0 = time.perf_counter()
@@ -78,21 +77,25 @@ def loop(batch, name, reps):
     return dict(steps=750, seconds=sec, compile_s=round(c, 1), steps_per_s=batch * 750 / sec)
 
 
-batch, reps = int(sys.argv[1]), int(sys.argv[2])
-for row in sys.argv[3].split(","):
-    t0 = time.time()
-    if row == "bench_raw":
-        r = raw(batch, 300, 0.0, False, reps)
-    elif row == "key750":
-        r = raw(batch, 750, 0.0, False, reps)
-    elif row == "settled750":
-        r = raw(batch, 750, 1.0, False, reps)
-    elif row == "settled750_model":
-        r = raw(batch, 750, 1.0, True, reps)
-    else:
-        r = loop(batch, row, reps)
-    print(
-        "ROW",
-        json.dumps(dict(row=row, batch=batch, device=jax.devices()[0].device_kind, **r)),
-        flush=True,
-    )
+def main() -> None:
+    batch, reps = int(sys.argv[1]), int(sys.argv[2])
+    for row in sys.argv[3].split(","):
+        if row == "bench_raw":
+            r = raw(batch, 300, 0.0, False, reps)
+        elif row == "key750":
+            r = raw(batch, 750, 0.0, False, reps)
+        elif row == "settled750":
+            r = raw(batch, 750, 1.0, False, reps)
+        elif row == "settled750_model":
+            r = raw(batch, 750, 1.0, True, reps)
+        else:
+            r = loop(batch, row, reps)
+        print(
+            "ROW",
+            json.dumps(dict(row=row, batch=batch, device=jax.devices()[0].device_kind, **r)),
+            flush=True,
+        )
+
+
+if __name__ == "__main__":
+    main()

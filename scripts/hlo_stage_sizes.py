@@ -27,86 +27,92 @@ from tkujax.sim.setup import init
 from tkujax.sim import physics
 from mujoco.mjx._src import smooth, collision_driver, constraint, solver, forward as F
 
-host, model, index, state = init()
-m = physics.without_sensors(model)
-print(
-    "nv",
-    host.nv,
-    "ncon",
-    state._impl.contact.dist.shape if hasattr(state, "_impl") else None,
-    "nefc",
-    state._impl.efc_J.shape,
-)
-stages = [
-    ("kinematics", smooth.kinematics),
-    ("com_pos", smooth.com_pos),
-    ("crb", smooth.crb),
-    ("factor_m", smooth.factor_m),
-    ("collision", collision_driver.collision),
-    ("make_constraint", constraint.make_constraint),
-    ("transmission", smooth.transmission),
-]
+
+def main() -> None:
+    host, model, index, state = init()
+    m = physics.without_sensors(model)
+    print(
+        "nv",
+        host.nv,
+        "ncon",
+        state._impl.contact.dist.shape if hasattr(state, "_impl") else None,
+        "nefc",
+        state._impl.efc_J.shape,
+    )
+    stages = [
+        ("kinematics", smooth.kinematics),
+        ("com_pos", smooth.com_pos),
+        ("crb", smooth.crb),
+        ("factor_m", smooth.factor_m),
+        ("collision", collision_driver.collision),
+        ("make_constraint", constraint.make_constraint),
+        ("transmission", smooth.transmission),
+    ]
 
 
-def upto(k):
-    def f(d):
-        for _, s in stages[:k]:
-            d = s(m, d)
+    def upto(k):
+        def f(d):
+            for _, s in stages[:k]:
+                d = s(m, d)
+            return d
+
+        return f
+
+
+    def sz(f, *a):
+        l = jax.jit(f).lower(*a)
+        return round(len(l.as_text()) / 1e6, 3)
+
+
+    def loss_of(f):
+        return lambda q, v, c: sum(
+            jnp.sum(x)
+            for x in jax.tree_util.tree_leaves(f(state.replace(qpos=q, qvel=v, ctrl=c)))
+            if jnp.issubdtype(x.dtype, jnp.floating)
+        )
+
+
+    prev = (0, 0)
+    for k in range(1, len(stages) + 1):
+        fw = sz(upto(k), state)
+        gr = sz(jax.grad(loss_of(upto(k)), argnums=(0, 1, 2)), state.qpos, state.qvel, state.ctrl)
+        print(
+            f"{stages[k - 1][0]:18s} fwd {fw:.3f} (+{fw - prev[0]:.3f})  grad {gr:.3f} (+{gr - prev[1]:.3f})",
+            flush=True,
+        )
+        prev = (fw, gr)
+
+
+    def rest(d):
+        d = F.fwd_position(m, d)
+        d = F.fwd_velocity(m, d)
         return d
 
-    return f
+
+    def act(d):
+        d = rest(d)
+        d = F.fwd_actuation(m, d)
+        d = F.fwd_acceleration(m, d)
+        return d
 
 
-def sz(f, *a):
-    l = jax.jit(f).lower(*a)
-    return round(len(l.as_text()) / 1e6, 3)
+    def sol(d):
+        return solver.solve(m, act(d))
 
 
-def loss_of(f):
-    return lambda q, v, c: sum(
-        jnp.sum(x)
-        for x in jax.tree_util.tree_leaves(f(state.replace(qpos=q, qvel=v, ctrl=c)))
-        if jnp.issubdtype(x.dtype, jnp.floating)
-    )
+    def full(d):
+        return F.euler(m, sol(d))
 
 
-prev = (0, 0)
-for k in range(1, len(stages) + 1):
-    fw = sz(upto(k), state)
-    gr = sz(jax.grad(loss_of(upto(k)), argnums=(0, 1, 2)), state.qpos, state.qvel, state.ctrl)
-    print(
-        f"{stages[k - 1][0]:18s} fwd {fw:.3f} (+{fw - prev[0]:.3f})  grad {gr:.3f} (+{gr - prev[1]:.3f})",
-        flush=True,
-    )
-    prev = (fw, gr)
+    for name, f in [("+velocity", rest), ("+act+acc", act), ("+solve", sol), ("+euler", full)]:
+        fw = sz(f, state)
+        gr = sz(jax.grad(loss_of(f), argnums=(0, 1, 2)), state.qpos, state.qvel, state.ctrl)
+        print(
+            f"{name:18s} fwd {fw:.3f} (+{fw - prev[0]:.3f})  grad {gr:.3f} (+{gr - prev[1]:.3f})",
+            flush=True,
+        )
+        prev = (fw, gr)
 
 
-def rest(d):
-    d = F.fwd_position(m, d)
-    d = F.fwd_velocity(m, d)
-    return d
-
-
-def act(d):
-    d = rest(d)
-    d = F.fwd_actuation(m, d)
-    d = F.fwd_acceleration(m, d)
-    return d
-
-
-def sol(d):
-    return solver.solve(m, act(d))
-
-
-def full(d):
-    return F.euler(m, sol(d))
-
-
-for name, f in [("+velocity", rest), ("+act+acc", act), ("+solve", sol), ("+euler", full)]:
-    fw = sz(f, state)
-    gr = sz(jax.grad(loss_of(f), argnums=(0, 1, 2)), state.qpos, state.qvel, state.ctrl)
-    print(
-        f"{name:18s} fwd {fw:.3f} (+{fw - prev[0]:.3f})  grad {gr:.3f} (+{gr - prev[1]:.3f})",
-        flush=True,
-    )
-    prev = (fw, gr)
+if __name__ == "__main__":
+    main()

@@ -56,3 +56,28 @@ def test_expectation_markdown_picks_the_best_worst_row():
     line = I.expectation_markdown(sl).splitlines()[2]
     cells = [c.strip() for c in line.strip("|").split("|")]
     assert cells == ["leg_kp", "2", "0.60 / 0.80", "20", "0.80 / 0.85", "20"]
+
+
+def test_run_islands_with_nothing_to_do_writes_nothing(tmp_path):
+    logged = []
+    res = I.run_islands(tmp_path / "out", params=[" ", ""], phases=0, log=logged.append)
+    assert res == {"phase_expectation": None, "islands": None}
+    assert list((tmp_path / "out").iterdir()) == [] and logged[-1].startswith("wall ")
+
+
+@pytest.mark.parametrize("entry", ["cli", "module"])
+def test_cli_and_module_both_call_run_islands(entry, tmp_path, monkeypatch):
+    """`tkujax islands` and `python -m tkujax.studies.calibrate.islands` are one library call."""
+    calls = []
+    monkeypatch.setattr(I, "run_islands", lambda out, **kw: calls.append((str(out), kw)) or {})
+    argv = ["--out", str(tmp_path), "--params", "leg_kp,ankle_kp", "--points", "5",
+            "--refine", "1", "--slice-phases", "2", "--phases", "0", "--window", "0.5"]
+    if entry == "cli":
+        from tkujax.cli import main
+        assert main(["islands", *argv]) == 0
+    else:
+        assert I.main(argv) == 0
+    out, kw = calls[0]
+    assert out == str(tmp_path)
+    assert [s.strip() for s in kw.pop("params")] == ["leg_kp", "ankle_kp"]
+    assert kw == dict(points=5, refine=1, slice_phases=2, phases=0, window=0.5)

@@ -93,3 +93,40 @@ def test_every_script_says_what_it_reproduces():
             continue
         doc = ast.get_docstring(ast.parse(path.read_text()))
         assert doc and len(doc) > 20, f"{path.name} has no docstring"
+
+
+ALL_SCRIPTS = sorted(p.stem for p in SCRIPTS.glob("*.py"))
+
+
+@pytest.mark.parametrize("name", ALL_SCRIPTS)
+def test_every_script_imports(name, monkeypatch):
+    """Importing a script runs nothing (its work sits behind `if __name__ == "__main__"`) and
+    fails when a name it imports at the top is gone."""
+    monkeypatch.setattr("sys.argv", ["script"])           # a script reading argv would fail
+    _load(name, monkeypatch)
+
+
+def _tkujax_imports(path: Path):
+    """(module, name) of every `from tkujax... import name` in the file, nested ones too."""
+    import ast
+
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module \
+                and node.module.split(".")[0] == "tkujax":
+            yield from ((node.module, a.name) for a in node.names)
+        elif isinstance(node, ast.Import):
+            yield from ((a.name, None) for a in node.names if a.name.split(".")[0] == "tkujax")
+
+
+@pytest.mark.parametrize("name", ALL_SCRIPTS)
+def test_scripts_import_public_names_that_exist(name):
+    """Every tkujax name a script imports (inside its functions too) exists and is public."""
+    import importlib
+
+    for module, attr in _tkujax_imports(SCRIPTS / f"{name}.py"):
+        mod = importlib.import_module(module)
+        if attr is None:
+            continue
+        assert not attr.startswith("_"), f"{name}.py imports the private {module}.{attr}"
+        assert hasattr(mod, attr) or importlib.util.find_spec(f"{module}.{attr}"), \
+            f"{name}.py imports {module}.{attr}, which is gone"

@@ -10,6 +10,9 @@ MUJOCO_GL and XLA options first):
   tkujax.recommended_policy                  the recommended recovery policy (params, schedule)
   tkujax.make_push, tkujax.stack_pushes      pushes (tkujax.sim.push)
   tkujax.simulate                            a batch of closed-loop rollouts on MJX
+  tkujax.RolloutConfig, tkujax.ProgramOptions  its physics and its program (remat, unrolling,
+                                             loop, tree passes; tkujax.sim.options)
+  tkujax.Episode                             one rollout's push, control switch, key, noise
   tkujax.simulate_mujoco                     the same on MuJoCo C (CPU)
   tkujax.run_paper                           the paper's experiment
   tkujax.run_sweep, tkujax.load              sweeps and their records
@@ -34,7 +37,8 @@ _API = {
     "recommended_policy": "tkujax.control.io",
     "Push": "tkujax.sim.push", "make_push": "tkujax.sim.push", "stack_pushes": "tkujax.sim.push",
     "Series": "tkujax.sim.records", "Outcomes": "tkujax.sim.records",
-    "simulate": "tkujax.sim.rollout_mjx", "RolloutConfig": "tkujax.sim.rollout_mjx",
+    "simulate": "tkujax.sim.rollout_mjx", "RolloutConfig": "tkujax.sim.options",
+    "ProgramOptions": "tkujax.sim.options", "Episode": "tkujax.sim.options",
     "simulate_mujoco": "tkujax.sim.rollout_mujoco",
     "init": "tkujax.sim.setup", "SimSetup": "tkujax.sim.setup",
     "run_paper": "tkujax.studies.paper",

@@ -25,12 +25,13 @@ Speeds are reported, never asserted.
 from __future__ import annotations
 
 from tkujax.bench.common import push_batch, timed, traced_paper_params
+from tkujax.bench.profile import loop_fn, per_robot, variant_loop_fn
 from tkujax.bench.report import profile_markdown, summary_markdown
 from tkujax.bench.runner import MODES, STAGE_GROUPS, BenchConfig, run_bench
 from tkujax.bench.stages import (closed_loop, compile_times, cpu_peer, gradient_compile,
                                  parse_grad_variants, raw_program, raw_stepping)
 
 __all__ = ["MODES", "STAGE_GROUPS", "BenchConfig", "closed_loop", "compile_times", "cpu_peer",
-           "gradient_compile", "parse_grad_variants", "profile_markdown", "push_batch",
-           "raw_program", "raw_stepping", "run_bench", "summary_markdown", "timed",
-           "traced_paper_params"]
+           "gradient_compile", "loop_fn", "parse_grad_variants", "per_robot", "profile_markdown",
+           "push_batch", "raw_program", "raw_stepping", "run_bench", "summary_markdown", "timed",
+           "traced_paper_params", "variant_loop_fn"]

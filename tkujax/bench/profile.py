@@ -216,8 +216,8 @@ def profile_closed_loop(batch: int, duration_s: float = 0.3, repeats: int = 1,
 
 
 SCOPES = ("push_wrench", "mjx_step", "sensors", "controller", "records", "physics")
-_NO_KERNEL = ("while", "call", "conditional", "tuple", "get-tuple-element", "parameter",
-              "constant", "bitcast")
+NO_KERNEL_OPS = ("while", "call", "conditional", "tuple", "get-tuple-element", "parameter",
+                 "constant", "bitcast")
 
 
 def _instruction_scopes(hlo_text: str) -> dict[str, str]:
@@ -228,7 +228,7 @@ def _instruction_scopes(hlo_text: str) -> dict[str, str]:
     out = {}
     for line in hlo_text.splitlines():
         m = pat.match(line)
-        if not m or m.group(2) in _NO_KERNEL:
+        if not m or m.group(2) in NO_KERNEL_OPS:
             continue
         tokens = set(re.findall(r"[A-Za-z_]+", m.group(3)))
         out[m.group(1)] = next((sc for sc in SCOPES if sc in tokens), "other")

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import json
-import time
 from pathlib import Path
 
 from tkujax.cli.options import model_params_from_options
@@ -70,30 +68,11 @@ def _cmd_converge(args) -> int:
 
 
 def _cmd_islands(args) -> int:
-    from tkujax.studies.calibrate import islands
-    from tkujax.studies.calibrate import params as fit_params
+    from tkujax.studies.calibrate.islands import run_islands
 
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
-    if args.phases:
-        table = islands.phase_expectation(args.phases)
-        (out / "phase_expectation.json").write_text(json.dumps(table, indent=1))
-        (out / "phase_expectation.md").write_text(islands.phase_markdown(table))
-        print(islands.phase_markdown(table), flush=True)
-    names = (fit_params.DEFAULT_FIT if args.params is None
-             else tuple(s.strip() for s in args.params.split(",") if s.strip()))
-    if names:
-        slices = islands.island_slices(names, args.points, args.refine,
-                                       islands.phases_ms(args.slice_phases),
-                                       log=lambda s: print(s, flush=True), window=args.window)
-        (out / "islands.json").write_text(json.dumps(slices, indent=1))
-        md = islands.islands_markdown(slices)
-        if args.slice_phases > 1:
-            md += "\n" + islands.expectation_markdown(slices)
-        (out / "islands.md").write_text(md)
-        print(md)
-    print(f"wall {time.perf_counter() - t0:.0f} s")
+    run_islands(args.out, params=None if args.params is None else args.params.split(","),
+                points=args.points, refine=args.refine, slice_phases=args.slice_phases,
+                phases=args.phases, window=args.window)
     return 0
 
 

@@ -270,6 +270,39 @@ def phase_markdown(pe: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def run_islands(out: str | Path, *, params=None, points: int = 41, refine: int = 4,
+                slice_phases: int = 1, phases: int = 15, window: float = 1.0,
+                log=lambda s: print(s, flush=True)) -> dict:
+    """`tkujax islands`: into `out` (created), the default robot's phase expectation over
+    `phases` hit phases (phase_expectation.json/.md; 0 skips it) and the island slices of
+    `params` (default params.DEFAULT_FIT; names, blanks ignored) at `points` values with
+    `refine` bisections per edge, `slice_phases` hit phases per value and `window` of each
+    parameter's bounds (islands.json/.md, with the expectation table when slice_phases > 1).
+    Each table's Markdown and the wall time go to `log`. Returns {"phase_expectation",
+    "islands"}, each None when skipped."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    result = {"phase_expectation": None, "islands": None}
+    if phases:
+        pe = result["phase_expectation"] = phase_expectation(phases)
+        (out / "phase_expectation.json").write_text(json.dumps(pe, indent=1))
+        (out / "phase_expectation.md").write_text(phase_markdown(pe))
+        log(phase_markdown(pe))
+    names = P.DEFAULT_FIT if params is None else tuple(s.strip() for s in params if s.strip())
+    if names:
+        sl = result["islands"] = island_slices(names, points, refine, phases_ms(slice_phases),
+                                               log=log, window=window)
+        (out / "islands.json").write_text(json.dumps(sl, indent=1))
+        md = islands_markdown(sl)
+        if slice_phases > 1:
+            md += "\n" + expectation_markdown(sl)
+        (out / "islands.md").write_text(md)
+        log(md)
+    log(f"wall {time.perf_counter() - t0:.0f} s")
+    return result
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="tkujax islands", description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", required=True, help="output folder (only islands.* and "
@@ -286,27 +319,9 @@ def main(argv=None) -> int:
     ap.add_argument("--window", type=float, default=1.0, help="fraction of each parameter's "
                     "bounds the slice spans, centred on the default (default 1: all)")
     a = ap.parse_args(argv)
-    out = Path(a.out)
-    out.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
-    if a.phases:
-        pe = phase_expectation(a.phases)
-        (out / "phase_expectation.json").write_text(json.dumps(pe, indent=1))
-        (out / "phase_expectation.md").write_text(phase_markdown(pe))
-        print(phase_markdown(pe), flush=True)
-    names = tuple(s.strip() for s in a.params.split(",") if s.strip())
-    if names:
-        sl = island_slices(names, a.points, a.refine, phases_ms(a.slice_phases),
-                           log=lambda s: print(s, flush=True), window=a.window)
-        (out / "islands.json").write_text(json.dumps(sl, indent=1))
-        md = islands_markdown(sl)
-        if a.slice_phases > 1:
-            md += "\n" + expectation_markdown(sl)
-        (out / "islands.md").write_text(md)
-        print(md)
-    print(f"wall {time.perf_counter() - t0:.0f} s")
+    run_islands(a.out, params=a.params.split(","), points=a.points, refine=a.refine,
+                slice_phases=a.slice_phases, phases=a.phases, window=a.window)
     return 0
-
 
 if __name__ == "__main__":
     raise SystemExit(main())
