@@ -148,12 +148,6 @@ def test_modules_and_functions_are_small(path):
                 f"{rel}:{node.lineno} {node.name}: {n} lines (over {MAX_FUNCTION_LINES})"
 
 
-# Private names imported across modules today, each to be made public by its module's owner;
-# the test fails once one is gone from here, so the list only shrinks.
-PRIVATE_IMPORTS_PENDING = {("sim/tick.py", "tkujax.control.controller"):
-                           {"_NOT_STARTED_S", "_land_time"}}
-
-
 @pytest.mark.parametrize("path", SOURCES, ids=lambda p: str(p.relative_to(ROOT)))
 def test_no_private_name_is_imported_from_another_module(path):
     """No `from tkujax.x import _y` outside x itself."""
@@ -163,6 +157,4 @@ def test_no_private_name_is_imported_from_another_module(path):
                 and node.module.split(".")[0] == "tkujax" and node.module != own:
             private = {a.name for a in node.names
                        if a.name.startswith("_") and not a.name.startswith("__")}
-            pending = PRIVATE_IMPORTS_PENDING.get((rel, node.module), set())
-            assert private == pending or not (private or pending), \
-                f"{rel} imports {sorted(private)} from {node.module} (pending: {sorted(pending)})"
+            assert not private, f"{rel} imports {sorted(private)} from {node.module}"

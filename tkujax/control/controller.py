@@ -61,7 +61,7 @@ from tkujax.control.solve import solve_legs
 
 # Before a step starts its start time is "far in the future": finite so that sin() of the
 # (unselected) CPG branch stays finite and gradients through `where` are never NaN.
-_NOT_STARTED_S = 1.0e4
+NOT_STARTED_S = 1.0e4
 
 
 class Sensors(NamedTuple):
@@ -178,7 +178,7 @@ def controller_init(params: ControllerParams, dtype=jnp.float32) -> ControllerSt
     zero = jnp.zeros((), dtype)
     return ControllerState(
         kalman=kalman_init(jnp.stack([jnp.asarray(params.standing_lean, dtype), zero]), params),
-        time_s=zero, step_weight=zero, step_start_s=jnp.asarray(_NOT_STARTED_S, dtype),
+        time_s=zero, step_weight=zero, step_start_s=jnp.asarray(NOT_STARTED_S, dtype),
         x_sup_m=zero, y_sup_m=zero, phi_at_detect=zero, steps=StepsState.init(dtype),
         detect_prev=jnp.asarray(-1.0, dtype) if has_timing_gradient(params) else None)
 
@@ -258,7 +258,7 @@ def controller_step(state: ControllerState, sensors: Sensors, params: Controller
     later = later_step_feet(t_step, steps, params)
     p_right = jnp.where(steps.count > 1.5, later[0], p_right)
     p_left = jnp.where(steps.count > 1.5, later[1], p_left)
-    touchdown = step_start + _land_time(params.step_period, params)
+    touchdown = step_start + land_time(params.step_period, params)
     if override is not None:
         p_right, p_left, touchdown = override_feet(override, state.time_s, step_start, p_right,
                                                     p_left, touchdown, params)
@@ -422,7 +422,7 @@ def later_step_feet(t_step, steps: StepsState, params: ControllerParams):
     return p_right, p_left
 
 
-def _land_time(period, params: ControllerParams):
+def land_time(period, params: ControllerParams):
     """Step start -> touchdown: T - gamma T / 2 (end of the swing, `cpg.unit_oscillators`)."""
     return period * (1.0 - 0.5 * params.double_support_ratio)
 
@@ -432,12 +432,12 @@ def override_feet(ov: StepOverride, time_s, detect_s, p_right, p_left, touchdown
     """Feet of the commanded step, selected by `where` on ov.active (see StepOverride)."""
     dtype = p_right.dtype
     ov = jax.tree_util.tree_map(lambda v: jnp.asarray(v, dtype), ov)
-    # Not detected: detect_s is _NOT_STARTED_S, so t < 0 and the CPG holds the stand pose.
+    # Not detected: detect_s is NOT_STARTED_S, so t < 0 and the CPG holds the stand pose.
     start = jnp.where(ov.from_detection > 0.5, detect_s, ov.onset_s) + ov.start_delay_s
     period = jnp.where(ov.period_s > 0.0, ov.period_s, params.step_period)
     p_ov = dataclasses.replace(params, step_period=period)
     feet = cpg_feet_lateral(time_s - start, ov.x_m, ov.y_m, p_ov)
-    land1 = start + _land_time(period, params)
+    land1 = start + land_time(period, params)
     # A second step (steps = 2): the first step's support foot swings by (x2, y2), starting
     # delay2_s after the first touchdown, added to where the first step left the feet.
     start2 = land1 + ov.delay2_s
@@ -447,7 +447,7 @@ def override_feet(ov: StepOverride, time_s, detect_s, p_right, p_left, touchdown
     two = ov.steps > 1.5
     feet = (jnp.where(two, feet[0] + (feet2[0] - stand[0]), feet[0]),
             jnp.where(two, feet[1] + (feet2[1] - stand[1]), feet[1]))
-    land = jnp.where(two, start2 + _land_time(period, params), land1)
+    land = jnp.where(two, start2 + land_time(period, params), land1)
     on = ov.active > 0.5
     return (jnp.where(on, feet[0], p_right), jnp.where(on, feet[1], p_left),
             jnp.where(on, land, touchdown))

@@ -21,8 +21,8 @@ import math
 import jax
 import jax.numpy as jnp
 
-from tkujax.control.controller import (_NOT_STARTED_S, ControllerOutput, ControllerState, Sensors,
-                                      StepOverride, _land_time, controller_step)
+from tkujax.control.controller import (NOT_STARTED_S, ControllerOutput, ControllerState, Sensors,
+                                      StepOverride, land_time, controller_step)
 from tkujax.control.fixed import FixedControllerState, FixedPointConfig, controller_step_fx
 from tkujax.control.params import ControllerParams
 
@@ -65,8 +65,8 @@ def control_tick_fx(ctrl_state: FixedControllerState, gyro: jax.Array, accel: ja
     # whole-tick latency of the command (the fraction shifts it by less than a physics step
     # resolution of the touchdown detection anyway: included for consistency).
     start = jnp.where(ctrl_state.stepping, ctrl_state.step_start_tick.astype(dtype) * dt,
-                      jnp.asarray(_NOT_STARTED_S, dtype))
-    touchdown = start + _land_time(params.step_period, params) + fixed.latency_periods * dt
+                      jnp.asarray(NOT_STARTED_S, dtype))
+    touchdown = start + land_time(params.step_period, params) + fixed.latency_periods * dt
     out_f = ControllerOutput(out.leg_targets, out.phi, out.roll, out.gate, out.reachable,
                              touchdown)
     return ctrl_state, q(out.leg_targets), q(out.leg_targets_prev), out_f

@@ -42,7 +42,7 @@ from tkujax.control.params import ControllerParams
 
 STANDARD_GRAVITY = 9.80665      # m/s^2 per g: the accelerometer's output scale
 NOT_STARTED_TICK = 1 << 30      # step start before any step: n = tick - start is very negative
-_NOT_STARTED_S = 1.0e4          # the float controller's equivalent (controller._NOT_STARTED_S)
+_NOT_STARTED_S = 1.0e4          # the float controller's equivalent (controller.NOT_STARTED_S)
 
 
 @jax.tree_util.register_dataclass
