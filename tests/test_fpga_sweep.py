@@ -18,6 +18,7 @@ from tkujax.sim.rollout_mjx import RolloutConfig
 from tkujax.sim.rollout_mujoco import simulate_mujoco
 from tkujax.sim.tick import control_tick, control_tick_fx
 from tkujax.studies.fpga import analyse, float_reference_spec
+from tkujax.studies.record_schema import manifest_spec
 from tkujax.studies.spec import SpecError, fixed_point_config, parse_spec
 from tkujax.studies.sweep_hash import spec_hash
 from tkujax.studies.sweep import load, run_sweep, shares_robot_draws
@@ -158,7 +159,7 @@ def test_old_sweeps_keep_their_hash():
     assert manifests, "no committed sweep manifest to check against"
     for path in manifests:
         m = json.loads(path.read_text())
-        spec = parse_spec(m["spec"])
+        spec = manifest_spec(m)
         if spec.arithmetic == "fixed":
             continue
         fields = set(ControllerParams.__dataclass_fields__)

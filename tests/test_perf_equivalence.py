@@ -25,7 +25,8 @@ RECORDS = dict(impulse_ns=[0.4, 2.5, 1.6, 2.5], azimuth_deg=[0.0, 0.0, 180.0, 90
                servo_kp_scale=[1.0, 1.0, 1.0, 0.9], gyro_noise_std=[0.0, 0.02, 0.0, 0.02],
                accel_noise_std=[0.0, 0.1, 0.0, 0.0])
 nan = math.nan
-# make_chunk_fn((), 1.5) at commit 694af53 on the CPU (keys: PRNGKey(3) split 4 ways);
+# make_chunk_fn((), 1.5) with MJX's tree passes (the sweeps' before "compact") at commit 694af53
+# on the CPU (keys: PRNGKey(3) split 4 ways);
 # re-stored when the default robot gained its IMU low-pass (7.5 Hz accelerometer,
 # ModelParams.accel_lowpass_hz):
 # only the third push (backward, control on) changed, as the filtered IMU moves its step.
@@ -70,6 +71,13 @@ def _assert_outcomes(out, expected, exact: bool):
 def test_sweep_chunk_outcomes_unchanged():
     """Float tolerance rather than bits, so that another CPU or jax release passes; on this
     project's CPU the outcomes were bit-identical when the work landed."""
+    _assert_outcomes(make_chunk_fn((), 1.5, tree_passes="mjx")(*_inputs()), STORED, exact=False)
+
+
+@pytest.mark.slow
+def test_compact_sweep_chunk_keeps_the_outcomes():
+    """The sweeps' compact tree passes (a fixed summation order) give the stored outcomes too:
+    the same falls, the readings to float tolerance."""
     _assert_outcomes(make_chunk_fn((), 1.5)(*_inputs()), STORED, exact=False)
 
 

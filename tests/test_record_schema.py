@@ -13,7 +13,7 @@ from tkujax.model import ModelParams
 from tkujax.studies.record_schema import (ADDED_FIELDS, FIRST_FIELDS, GROUPS, SCHEMA_KEY,
                                           SCHEMA_VERSION, UNVERSIONED, fields_missing, fields_of,
                                           filled_fields, hashed_fields, manifest_version)
-from tkujax.studies.spec import parse_spec
+from tkujax.studies.record_schema import manifest_spec
 from tkujax.studies.sweep_hash import spec_hash
 
 RESULTS = Path(__file__).resolve().parents[1] / "results"
@@ -43,6 +43,25 @@ def test_an_added_field_enters_the_hash_only_when_set():
     assert hashed_fields("model_params", m).keys() == m.keys() - {"gyro_lowpass_hz"}
     f = {"ik_guard_bits": 4}                   # the fixed-point defaults enter in full
     assert hashed_fields("fixed_point_defaults", f) == f
+
+
+def test_tree_passes_of_a_spec_enter_the_hash_and_an_older_manifest_ran_mjx():
+    from tkujax.studies.spec import SpecError, parse_spec
+
+    raw = {"sweep": {"name": "t"}, "push": {"grid": {"impulse_ns": [1.0]}}}
+    compact = parse_spec(raw)
+    assert compact.tree_passes == "compact"
+    mjx = parse_spec({**raw, "sweep": {"name": "t", "tree_passes": "mjx"}})
+    args = (ControllerParams.paper(), ModelParams())
+    assert spec_hash(compact, *args) != spec_hash(mjx, *args)
+    # "mjx" adds nothing to the hash but the raw key: the same as a manifest without the key.
+    assert spec_hash(manifest_spec({"spec": raw}), *args) == spec_hash(
+        dataclasses.replace(compact, tree_passes="mjx"), *args)
+    assert manifest_spec({"spec": raw}).tree_passes == "mjx"
+    assert manifest_spec({"spec": raw, "tree_passes": "compact"}).tree_passes == "compact"
+    with pytest.raises(SpecError, match=r"sweep.tree_passes: expected one of \['compact', "
+                                        r"'mjx'\], got 'fast'"):
+        parse_spec({**raw, "sweep": {"tree_passes": "fast"}})
 
 
 def test_manifest_versions():
@@ -79,7 +98,7 @@ def test_committed_sweeps_are_unversioned_and_keep_their_hash_through_the_table(
     for path in manifests:
         m = json.loads(path.read_text())
         assert manifest_version(m) == UNVERSIONED, path
-        spec = parse_spec(m["spec"])
+        spec = manifest_spec(m)
         if spec.arithmetic == "fixed" or (shares_robot_draws(spec)
                                           and "accel_lowpass_hz" not in m["model_params"]):
             continue

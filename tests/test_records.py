@@ -312,6 +312,7 @@ def test_a_new_sweep_records_the_schema_version(reference):
 
     manifest = chunks.read_manifest(reference[1])
     assert manifest[SCHEMA_KEY] == SCHEMA_VERSION and fields_missing(manifest) == {}
+    assert manifest["tree_passes"] == "compact"          # the sweeps' default, recorded
     for group in ("controller_params", "model_params"):
         assert set(manifest[group]) == set(fields_of(SCHEMA_VERSION, group))
 

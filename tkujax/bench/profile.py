@@ -115,12 +115,14 @@ def loop_fn(duration_s: float, config_fields: dict | None = None, shared_model: 
     from tkujax.sim.push import Push
     from tkujax.sim.randomize import randomize_model
     from tkujax.sim.setup import init
+    from tkujax.studies.spec import SWEEP_TREE_PASSES
     from tkujax.studies.sweep import OUTCOME_KEYS, SWEEP_COMPILER_OPTIONS, SWEEP_LOOP
 
     host, model, index, state = init()
     if raw:
         return _raw_loop_fn(model, index, state, duration_s)
-    fields = {"loop": SWEEP_LOOP} | (config_fields or {})   # the sweeps' loop unless overridden
+    # The sweeps' loop and tree passes unless overridden.
+    fields = {"loop": SWEEP_LOOP, "tree_passes": SWEEP_TREE_PASSES[0]} | (config_fields or {})
     ablate = tuple(fields.pop("ablate", ()))
     config = RolloutConfig(duration_s=duration_s, program=ProgramOptions(**fields))
     # With noise, controller and wrench all stood in for, nothing depends on the record:

@@ -25,8 +25,8 @@ from tkujax.sim.push import Push
 from tkujax.sim.randomize import randomize_model
 from tkujax.sim.rollout_mjx import Episode, ProgramOptions, RolloutConfig, rollout
 from tkujax.sim.setup import init
-from tkujax.studies.spec import (FPGA_COLUMN, RANDOMIZE_DEFAULTS, ROBOT_ID_COLUMN, EnsembleRef,
-                                 SpecError, SweepSpec)
+from tkujax.studies.spec import (FPGA_COLUMN, RANDOMIZE_DEFAULTS, ROBOT_ID_COLUMN,
+                                 SWEEP_TREE_PASSES, EnsembleRef, SpecError, SweepSpec)
 
 # lax.scan unrolling of each control tick's physics substeps in the sweeps' program
 # (RolloutConfig.unroll_substeps; 1: a rolled loop). Same arithmetic, another loop structure.
@@ -72,7 +72,8 @@ def traced_params(params: ControllerParams) -> ControllerParams:
 def make_chunk_fn(varied: tuple[str, ...], duration_s: float,
                   model_params: ModelParams | None = None, with_qpos: bool = False,
                   steps: bool = False, fixed: FixedPointConfig | None = None,
-                  ensemble: EnsembleRef | None = None, unroll_substeps: int | None = None):
+                  ensemble: EnsembleRef | None = None, unroll_substeps: int | None = None,
+                  tree_passes: str = SWEEP_TREE_PASSES[0]):
     """jit(vmap) of push records -> outcomes: f(batch, keys, params) with `params` a
     ControllerParams shared by the batch (pass it through `traced_params`), and `varied` the
     controller fields given per record instead (a [controller.grid]).
@@ -92,7 +93,9 @@ def make_chunk_fn(varied: tuple[str, ...], duration_s: float,
     shared by the batch (a scheduled policy, `tkujax sweep --params POLICY.json`): its numbers
     are traced inputs; None (the default) is the plain controller's program.
     unroll_substeps: the loop structure (RolloutConfig.unroll_substeps); None: the sweeps'
-    SWEEP_UNROLL_SUBSTEPS. The outcomes do not depend on it (tests/test_perf_equivalence)."""
+    SWEEP_UNROLL_SUBSTEPS. The outcomes do not depend on it (tests/test_perf_equivalence).
+    tree_passes: ProgramOptions.tree_passes (SweepSpec.tree_passes; the sweeps' default sums
+    the tree in a fixed order, repeatable on a GPU)."""
     if ensemble is not None and model_params is not None:
         raise SpecError("[randomize] ensemble gives the robots: pass no model_params with it")
     unroll = SWEEP_UNROLL_SUBSTEPS if unroll_substeps is None else int(unroll_substeps)
@@ -101,7 +104,7 @@ def make_chunk_fn(varied: tuple[str, ...], duration_s: float,
     # Positional call into the cache: lru_cache keys f(a, b) and f(a, b, steps=False) apart,
     # which would compile the same program twice.
     return _make_chunk_fn(tuple(varied), duration_s, model_params, with_qpos, steps, fixed,
-                          ensemble, unroll)
+                          ensemble, unroll, tree_passes)
 
 
 @functools.lru_cache(maxsize=4)
@@ -116,7 +119,8 @@ def ensemble_robots(ensemble: EnsembleRef):
 
 
 @functools.lru_cache(maxsize=16)
-def _make_chunk_fn(varied, duration_s, model_params, with_qpos, steps, fixed, ensemble, unroll):
+def _make_chunk_fn(varied, duration_s, model_params, with_qpos, steps, fixed, ensemble, unroll,
+                   tree_passes):
     from tkujax.sim.robots import put_leaves
 
     if ensemble is None:
@@ -125,7 +129,8 @@ def _make_chunk_fn(varied, duration_s, model_params, with_qpos, steps, fixed, en
         robots = ensemble_robots(ensemble)
         model, index, state = robots.base_model, robots.index, robots.base_state
     config = RolloutConfig(duration_s=duration_s, record_qpos=with_qpos, fixed=fixed,
-                           program=ProgramOptions(unroll_substeps=unroll, loop=SWEEP_LOOP))
+                           program=ProgramOptions(unroll_substeps=unroll, loop=SWEEP_LOOP,
+                                                  tree_passes=tree_passes))
 
     def one(rec, key, base_params, schedule, robot_values=None):
         push = Push(rec["impulse_ns"], jnp.radians(rec["azimuth_deg"]), rec["height_m"],

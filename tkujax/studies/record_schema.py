@@ -17,6 +17,8 @@ Versions:
   1  manifests without "schema_version": tkujax wrote them while the fields of ADDED_FIELDS came
      in one by one, so a version-1 manifest records FIRST_FIELDS and any subset of the rest.
   2  "schema_version": 2; records every field of FIRST_FIELDS and ADDED_FIELDS.
+  3  also records "tree_passes" (SweepSpec.tree_passes); a manifest before it ran MJX's passes
+     (`manifest_spec`).
 
 Adding a field to one of the three dataclasses: append an AddedField with `since` =
 SCHEMA_VERSION + 1 and the value that reproduces the code without it, and bump SCHEMA_VERSION
@@ -32,10 +34,14 @@ from tkujax.control.io import controller_params_from_dict
 from tkujax.control.params import ControllerParams
 from tkujax.model import ModelParams
 from tkujax.model.io import model_params_from_dict
+from tkujax.studies.spec import SweepSpec, parse_spec
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 UNVERSIONED = 1               # the version of a manifest that records none
 SCHEMA_KEY = "schema_version"
+# The sweep's passes over the body tree, recorded from version 3 on, and what ran before.
+TREE_PASSES_KEY = "tree_passes"
+TREE_PASSES_BEFORE = "mjx"
 
 # The manifest keys of the parameter groups and the dataclass each records.
 GROUPS: dict[str, type] = {"controller_params": ControllerParams, "model_params": ModelParams,
@@ -198,3 +204,11 @@ def manifest_controller_params(manifest: dict, where: str) -> ControllerParams:
     recorded = manifest["controller_params"]
     filled = dict(recorded, **filled_fields(manifest, "controller_params"))
     return controller_params_from_dict(filled, where, base=ControllerParams())
+
+
+def manifest_spec(manifest: dict) -> SweepSpec:
+    """The manifest's SweepSpec, with the tree passes the sweep ran (TREE_PASSES_BEFORE for a
+    manifest that predates the key, whatever today's default)."""
+    spec = parse_spec(manifest["spec"])
+    return dataclasses.replace(spec, tree_passes=manifest.get(TREE_PASSES_KEY,
+                                                              TREE_PASSES_BEFORE))

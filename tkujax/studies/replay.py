@@ -33,8 +33,7 @@ from tkujax.studies.chunk_program import (OUTCOME_KEYS, chunk_keys, make_chunk_f
                                           traced_params)
 from tkujax.studies.mujoco_chunk import mujoco_chunk
 from tkujax.studies.record_schema import (fields_missing, manifest_controller_params,
-                                          manifest_model_params)
-from tkujax.studies.spec import parse_spec
+                                          manifest_model_params, manifest_spec)
 
 RTOL, ATOL = 1e-4, 1e-5     # "identical" numbers; fell and diverged must be equal exactly
 
@@ -64,7 +63,7 @@ def replay(run_dir: str | Path, index: int) -> dict:
     n = int(manifest["n_pushes"])
     if not 0 <= index < n:
         raise ValueError(f"--index must be in [0, {n - 1}] (the sweep's push_id), got {index}")
-    spec = parse_spec(manifest["spec"])   # a [randomize] ensemble is read again from its path
+    spec = manifest_spec(manifest)   # a [randomize] ensemble is read again from its path
     recorded = manifest.get("ensemble", {}).get("sha256")
     if spec.ensemble is not None and recorded and recorded != spec.ensemble.sha256:
         raise ValueError(f"the ensemble file {spec.ensemble.resolved} has changed since the sweep "
@@ -103,7 +102,7 @@ def replay(run_dir: str | Path, index: int) -> dict:
         fn = make_chunk_fn(tuple(sorted(spec.controller_grid)), spec.duration_s,
                            model_params, with_qpos=True, steps=bool(spec.step_grid),
                            fixed=spec.fixed_point_config({k: v[pos] for k, v in inputs.items()}),
-                           ensemble=spec.ensemble)
+                           ensemble=spec.ensemble, tree_passes=spec.tree_passes)
         one = {k: np.asarray(v[pos:pos + 1], np.float32) for k, v in inputs.items()}
         key = chunk_keys(spec.seed, chunk, padded)[pos:pos + 1]
         res = jax.tree_util.tree_map(lambda x: np.asarray(x)[0],

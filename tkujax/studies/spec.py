@@ -146,7 +146,12 @@ SECOND_STEP_FIELDS = ("x2_m", "y2_m", "delay2_s")
 ENSEMBLE_KEY = "ensemble"
 ROBOT_ID_COLUMN = "robot_id"
 SWEEP_FIELDS = {"name": str, "seed": int, "chunk_size": int, "duration_s": (int, float),
-                "control": list, "description": str}
+                "control": list, "description": str, "tree_passes": str}
+# The sweeps' passes over the body tree (ProgramOptions.tree_passes): "compact" sums the tree
+# in a fixed order, so a GPU gives the same records from run to run (results/scale/README.md:
+# MJX's own passes sum subtrees with scatter-adds, which a GPU runs with atomics), with the
+# same outcomes (tests/test_perf_equivalence.py, test_compact_sweep_chunk_keeps_the_outcomes).
+SWEEP_TREE_PASSES = ("compact", "mjx")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -211,6 +216,7 @@ class SweepSpec:
     fpga: dict[str, Any] = dataclasses.field(default_factory=dict)
     fpga_grid: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
     ensemble: EnsembleRef | None = None   # [randomize] ensemble
+    tree_passes: str = SWEEP_TREE_PASSES[0]   # [sweep] tree_passes (SWEEP_TREE_PASSES)
 
     def fixed_point_config(self, rec: dict | None = None) -> FixedPointConfig | None:
         """The FixedPointConfig of a record (its fpga_* columns over [fpga]); None for float."""
@@ -270,6 +276,14 @@ def parse_randomize(data: dict) -> dict[str, Any]:
     return randomize
 
 
+def _tree_passes(sweep: dict) -> str:
+    value = sweep.get("tree_passes", SWEEP_TREE_PASSES[0])
+    if value not in SWEEP_TREE_PASSES:
+        raise SpecError(f"sweep.tree_passes: expected one of {list(SWEEP_TREE_PASSES)}, "
+                        f"got {value!r}")
+    return value
+
+
 def parse_spec(data: dict) -> SweepSpec:
     """Validate a parsed TOML document."""
     table("top level", data, {"sweep", "push", "controller", "randomize", "step", "fpga"})
@@ -278,6 +292,7 @@ def parse_spec(data: dict) -> SweepSpec:
         if k in sweep and (isinstance(sweep[k], bool) or not isinstance(sweep[k], types)):
             raise SpecError(f"sweep.{k}: expected {getattr(types, '__name__', 'a number')}, "
                             f"got {sweep[k]!r}")
+    tree_passes = _tree_passes(sweep)
     chunk = sweep.get("chunk_size", 1024)
     if not 1 <= chunk <= 1_048_576:
         raise SpecError(f"sweep.chunk_size: {chunk} is out of range [1, 1048576]")
@@ -346,7 +361,7 @@ def parse_spec(data: dict) -> SweepSpec:
                      randomize=randomize, raw=data, phase_default=phase_default,
                      step_grid=step_grid,
                      step_reference=step_reference, arithmetic=arithmetic, fpga=fpga,
-                     fpga_grid=fpga_grid, ensemble=ensemble)
+                     fpga_grid=fpga_grid, ensemble=ensemble, tree_passes=tree_passes)
 
 
 def _parse_step(data: dict) -> tuple[dict[str, np.ndarray], bool]:

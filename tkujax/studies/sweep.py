@@ -38,7 +38,7 @@ from tkujax.studies.chunk_program import (chunk_keys, fpga_groups, make_chunk_fn
 from tkujax.studies.mujoco_chunk import mujoco_chunk
 from tkujax.studies.progress import Progress
 from tkujax.studies.provenance import git_commit, versions
-from tkujax.studies.record_schema import SCHEMA_KEY, SCHEMA_VERSION
+from tkujax.studies.record_schema import SCHEMA_KEY, SCHEMA_VERSION, TREE_PASSES_KEY
 from tkujax.studies.spec import SpecError, SweepSpec, load_spec
 from tkujax.studies.sweep_hash import spec_hash
 
@@ -126,7 +126,7 @@ class _ChunkJob:
             batch = {k: jax.device_put(recs[k][lo:hi][rows].astype(np.float32), self.sharding)
                      for k in self.input_keys}
             fn = make_chunk_fn(varied, spec.duration_s, self.model_params, steps=steps,
-                               fixed=fixed, ensemble=spec.ensemble)
+                               fixed=fixed, ensemble=spec.ensemble, tree_passes=spec.tree_passes)
             part = fn(batch, jax.device_put(keys[rows], self.sharding), traced_params(self.base),
                       self.schedule)
             for k, v in part.items():
@@ -183,7 +183,8 @@ def _describe(spec: SweepSpec, digest: str, n: int, n_chunks: int, padded: int,
         model_params=dataclasses.asdict(model_params or ModelParams()),
         versions=versions(), git_commit=git_commit(),
         devices=[str(d) for d in jax.devices()], num_processes=num_processes,
-        backend=backend, format="npz chunks, one record per push")
+        backend=backend, format="npz chunks, one record per push",
+        **{TREE_PASSES_KEY: spec.tree_passes})
     if spec.arithmetic == "fixed":
         manifest["fixed_point_defaults"] = dataclasses.asdict(FixedPointConfig())
     if spec.ensemble is not None:

@@ -16,7 +16,7 @@ from tkujax.control.fixed import FixedPointConfig
 from tkujax.control.params import ControllerParams
 from tkujax.control.policy import Schedule, schedule_to_dict
 from tkujax.model import ModelParams
-from tkujax.studies.record_schema import hashed_fields
+from tkujax.studies.record_schema import TREE_PASSES_BEFORE, hashed_fields
 from tkujax.studies.spec import SweepSpec
 
 
@@ -45,6 +45,8 @@ def spec_hash(spec: SweepSpec, params: ControllerParams, model_params: ModelPara
         parts.append({"randomize.ensemble sha256": spec.ensemble.sha256})
     if schedule is not None:        # a scheduled policy: its layout and numbers
         parts.append({"schedule": schedule_to_dict(schedule)})
+    if spec.tree_passes != TREE_PASSES_BEFORE:   # another program: other rounding
+        parts.append(f"tree passes: {spec.tree_passes}")
     if shares_robot_draws(spec):
         # The robot draws became shared by the settings of a push (records of older sweeps
         # differ): such a sweep is a new one.
