@@ -11,7 +11,7 @@ import pytest
 
 from tkujax.model import ModelParams
 from tkujax.sim import push as push_lib
-from tkujax.sim.rollout_mjx import RolloutConfig
+from tkujax.sim.rollout_mjx import ProgramOptions, RolloutConfig
 from tkujax.studies.calibrate import refine as R
 
 BACK_VOLLEYBALL_ON = 3
@@ -19,7 +19,7 @@ BACK_VOLLEYBALL_ON = 3
 
 @pytest.fixture(scope="module")
 def refiner():
-    return R.Refiner(config=RolloutConfig(duration_s=1.5, remat=True), cases=[BACK_VOLLEYBALL_ON])
+    return R.Refiner(config=RolloutConfig(duration_s=1.5, program=ProgramOptions(remat=True)), cases=[BACK_VOLLEYBALL_ON])
 
 
 @pytest.fixture(scope="module")
