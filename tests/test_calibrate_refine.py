@@ -19,7 +19,8 @@ BACK_VOLLEYBALL_ON = 3
 
 @pytest.fixture(scope="module")
 def refiner():
-    return R.Refiner(config=RolloutConfig(duration_s=1.5, program=ProgramOptions(remat=True)), cases=[BACK_VOLLEYBALL_ON])
+    config = RolloutConfig(duration_s=1.5, program=ProgramOptions(remat=True))
+    return R.Refiner(config=config, cases=[BACK_VOLLEYBALL_ON])
 
 
 @pytest.fixture(scope="module")
