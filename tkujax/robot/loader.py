@@ -1,0 +1,303 @@
+"""A robot file's model, checked and completed: `load_robot(path_or_description)` -> RobotModel.
+
+Checks (each a RobotFileError naming the key): the model compiles and has a floating base (a
+free joint on a child of the world); every named joint and body exists (close matches listed);
+each leg's six joints are hinges forming the chain from the floating base to the foot, in role
+order, with no other joint on it; each leg joint is driven by a position actuator.
+
+Completes (added through mujoco.MjSpec, never written back to the file): a floor when the model
+has no plane in its world body; an IMU site at the named body's origin (unless `imu` names a
+site) with a gyro and an accelerometer on it; a site at each ankle centre (where the ankle axes
+meet); four touch sensors per sole, one per quadrant of the foot's collision geoms' footprint.
+Leg arrays are in tkujax's order: right then left, roles in LEG_ROLES order.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from tkujax.robot.description import (LEG_ROLES, RobotDescription, RobotFileError,
+                                      load_description)
+
+LEG_ORDER = ("right", "left")
+# The axis of each role in the base frame at the zero pose, up to sign (x forward, z up).
+ROLE_AXES = np.array([[0, 0, 1], [1, 0, 0], [0, 1, 0], [0, 1, 0], [0, 1, 0], [1, 0, 0]], float)
+GYRO, ACCEL, IMU_SITE = "tkujax_gyro", "tkujax_accel", "tkujax_imu"
+TOUCH_MARGIN_M = 0.01          # the touch sites reach this far below and above the sole
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class RobotModel:
+    """The compiled, completed model of a robot file and its indices (legs: right, left)."""
+
+    description: RobotDescription
+    model: mujoco.MjModel
+    root_body: int                 # the floating base's body
+    leg_joints: np.ndarray         # (2, 6) joint ids
+    leg_qpos: np.ndarray           # (2, 6) qpos addresses
+    leg_dofs: np.ndarray           # (2, 6) dof addresses
+    leg_actuators: np.ndarray      # (2, 6) actuator ids
+    axis_signs: np.ndarray         # (2, 6) +1/-1: the joint axis against ROLE_AXES at zero
+    foot_bodies: np.ndarray        # (2,)
+    foot_geoms: tuple[frozenset, frozenset]   # collision geoms of each foot body
+    floor_geom: int
+    imu_site: int
+    ankle_sites: tuple[int, int]
+    fsr_sites: np.ndarray          # (8,) right 1-4, left 1-4
+    fsr_sensors: tuple[str, ...]
+
+    @property
+    def name(self) -> str:
+        return self.description.name
+
+
+def _compile(spec: mujoco.MjSpec, where: str) -> mujoco.MjModel:
+    try:
+        return spec.compile()
+    except ValueError as err:
+        raise RobotFileError(f"mjcf: {where} does not compile: {err}") from err
+
+
+def _names(model: mujoco.MjModel, obj: mujoco.mjtObj, count: int) -> list[str]:
+    return [mujoco.mj_id2name(model, obj, i) or "" for i in range(count)]
+
+
+def _find(model, obj, count: int, name: str, key: str, kind: str) -> int:
+    i = mujoco.mj_name2id(model, obj, name)
+    if i < 0:
+        close = difflib.get_close_matches(name, _names(model, obj, count), n=4, cutoff=0.5)
+        hint = f"; close matches: {close}" if close else ""
+        raise RobotFileError(f"{key}: no {kind} named {name!r} in the model{hint}")
+    return i
+
+
+def _root_body(model: mujoco.MjModel) -> int:
+    for j in range(model.njnt):
+        body = int(model.jnt_bodyid[j])
+        if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE and model.body_parentid[body] == 0:
+            return body
+    raise RobotFileError("mjcf: the model has no floating base (a free joint on a body whose "
+                         "parent is the world); tkujax simulates a free-standing robot")
+
+
+def _path_joints(model: mujoco.MjModel, root: int, foot: int) -> list[int] | None:
+    """Joints on the body path from `root` (excluded) down to `foot`, base first; None when
+    `foot` is not below `root`."""
+    bodies = []
+    b = foot
+    while b != root:
+        if b == 0:
+            return None
+        bodies.append(b)
+        b = int(model.body_parentid[b])
+    joints = []
+    for b in reversed(bodies):
+        adr, n = int(model.body_jntadr[b]), int(model.body_jntnum[b])
+        joints.extend(range(adr, adr + n))
+    return joints
+
+
+def _check_chain(model, root: int, side: str, joints: list[int], foot: int) -> None:
+    desc = lambda j: mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j)  # noqa: E731
+    for role, j in zip(LEG_ROLES, joints):
+        if model.jnt_type[j] != mujoco.mjtJoint.mjJNT_HINGE:
+            raise RobotFileError(f"legs.{side}.{role}: joint {desc(j)!r} is not a hinge")
+    path = _path_joints(model, root, foot)
+    if path is None:
+        raise RobotFileError(f"legs.{side}.foot: body {model.body(foot).name!r} is not below the "
+                             "floating base")
+    if path != list(joints):
+        names = [desc(j) for j in path]
+        raise RobotFileError(
+            f"legs.{side}: the joints are not the chain from the floating base to the foot "
+            f"{model.body(foot).name!r}: that chain is {names}, the file gives "
+            f"{[desc(j) for j in joints]} (roles {list(LEG_ROLES)})")
+
+
+def _position_actuator(model, joint: int, key: str) -> int:
+    for a in range(model.nu):
+        if model.actuator_trntype[a] != mujoco.mjtTrn.mjTRN_JOINT or model.actuator_trnid[a, 0] != joint:
+            continue
+        kp, bias = model.actuator_gainprm[a, 0], model.actuator_biasprm[a, :3]
+        if (model.actuator_gaintype[a] == mujoco.mjtGain.mjGAIN_FIXED
+                and model.actuator_biastype[a] == mujoco.mjtBias.mjBIAS_AFFINE
+                and kp > 0 and bias[0] == 0 and np.isclose(bias[1], -kp)
+                and model.actuator_gear[a, 0] == 1.0):
+            return a
+    name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, joint)
+    raise RobotFileError(f"{key}: joint {name!r} has no position actuator (a <position> with "
+                         "gear 1 on that joint); tkujax drives the legs as position servos")
+
+
+def axis_point(anchors: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    """The point nearest, in least squares, to the lines through `anchors` along `axes`."""
+    a = np.zeros((3, 3))
+    b = np.zeros(3)
+    for p, u in zip(anchors, axes):
+        u = u / np.linalg.norm(u)
+        proj = np.eye(3) - np.outer(u, u)
+        a += proj
+        b += proj @ p
+    return np.linalg.lstsq(a, b, rcond=None)[0]
+
+
+def zero_pose_data(model: mujoco.MjModel, root: int) -> mujoco.MjData:
+    """Kinematics at qpos0 with the floating base at the origin, unrotated."""
+    data = mujoco.MjData(model)
+    adr = int(model.jnt_qposadr[model.body_jntadr[root]])
+    data.qpos[adr:adr + 7] = (0, 0, 0, 1, 0, 0, 0)
+    mujoco.mj_kinematics(model, data)
+    return data
+
+
+def _foot_geoms(model: mujoco.MjModel, foot: int) -> list[int]:
+    paired = set(model.pair_geom1.tolist()) | set(model.pair_geom2.tolist())
+    return [g for g in range(model.ngeom) if model.geom_bodyid[g] == foot
+            and (model.geom_contype[g] or model.geom_conaffinity[g] or g in paired)]
+
+
+def geom_points(model: mujoco.MjModel, g: int) -> np.ndarray:
+    """Points bounding geom g in its body's frame (box corners, sphere/capsule extremes, mesh
+    vertices): a footprint and a lowest point good to the geom's shape."""
+    t, size = model.geom_type[g], model.geom_size[g]
+    if t == mujoco.mjtGeom.mjGEOM_MESH:
+        m = model.geom_dataid[g]
+        adr, n = model.mesh_vertadr[m], model.mesh_vertnum[m]
+        local = model.mesh_vert[adr:adr + n]
+    else:
+        if t == mujoco.mjtGeom.mjGEOM_BOX:
+            half = size
+        elif t == mujoco.mjtGeom.mjGEOM_SPHERE:
+            half = np.full(3, size[0])
+        elif t == mujoco.mjtGeom.mjGEOM_CAPSULE or t == mujoco.mjtGeom.mjGEOM_CYLINDER:
+            half = np.array([size[0], size[0], size[1] + size[0]])
+        else:
+            half = size
+        signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+        local = signs * half
+    rot = np.zeros(9)
+    mujoco.mju_quat2Mat(rot, model.geom_quat[g])
+    return local @ rot.reshape(3, 3).T + model.geom_pos[g]
+
+
+def _sole_quadrants(model, foot: int, side: str) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(centre, half size) of the four touch sites of a foot, in its body frame; numbered 1
+    front-right, 2 front-left, 3 back-left, 4 back-right (seen from above), as TKU-X's."""
+    geoms = _foot_geoms(model, foot)
+    if not geoms:
+        raise RobotFileError(f"legs.{side}.foot: body {model.body(foot).name!r} has no collision "
+                             "geom (the sole)")
+    pts = np.concatenate([geom_points(model, g) for g in geoms])
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    mid = 0.5 * (lo + hi)
+    half = np.array([0.25 * (hi[0] - lo[0]), 0.25 * (hi[1] - lo[1]), TOUCH_MARGIN_M])
+    quads = [(1, -1), (1, 1), (-1, 1), (-1, -1)]
+    return [(np.array([mid[0] + sx * half[0], mid[1] + sy * half[1], lo[2]]), half)
+            for sx, sy in quads]
+
+
+def _has_floor(model: mujoco.MjModel) -> int:
+    for g in range(model.ngeom):
+        if model.geom_bodyid[g] == 0 and model.geom_type[g] == mujoco.mjtGeom.mjGEOM_PLANE:
+            return g
+    return -1
+
+
+def _leg_indices(model, root: int, desc: RobotDescription, side: str) -> tuple[list[int], int]:
+    leg = desc.leg(side)
+    joints = [_find(model, mujoco.mjtObj.mjOBJ_JOINT, model.njnt, name, f"legs.{side}.{role}",
+                    "joint") for role, name in zip(LEG_ROLES, leg.joints)]
+    foot = _find(model, mujoco.mjtObj.mjOBJ_BODY, model.nbody, leg.foot, f"legs.{side}.foot",
+                 "body")
+    _check_chain(model, root, side, joints, foot)
+    for role, j in zip(LEG_ROLES, joints):
+        _position_actuator(model, j, f"legs.{side}.{role}")
+    return joints, foot
+
+
+def _imu_body(model, name: str) -> int | None:
+    """None when `imu` names a site; the body id when it names a body."""
+    if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, name) >= 0:
+        return None
+    if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name) >= 0:
+        return model.body(name).id
+    names = _names(model, mujoco.mjtObj.mjOBJ_BODY, model.nbody) + _names(
+        model, mujoco.mjtObj.mjOBJ_SITE, model.nsite)
+    close = difflib.get_close_matches(name, names, n=4, cutoff=0.5)
+    hint = f"; close matches: {close}" if close else ""
+    raise RobotFileError(f"imu: no body or site named {name!r} in the model{hint}")
+
+
+def _ankle_centre_in_foot(model, data, joints: list[int], foot: int) -> np.ndarray:
+    centre = axis_point(data.xanchor[joints[4:6]], data.xaxis[joints[4:6]])
+    rot = data.xmat[foot].reshape(3, 3)
+    return rot.T @ (centre - data.xpos[foot])
+
+
+def _complete(spec: mujoco.MjSpec, raw: mujoco.MjModel, desc: RobotDescription, root: int,
+              legs: dict) -> tuple[str, list[str], list[str]]:
+    """Add the floor, the IMU site and sensors, the ankle sites and the touch sensors to
+    `spec`; returns (imu site name, ankle site names, touch sensor names), right leg first."""
+    if _has_floor(raw) < 0:
+        spec.worldbody.add_geom(name="tkujax_floor", type=mujoco.mjtGeom.mjGEOM_PLANE,
+                                size=[0, 0, 0.05])
+    imu = desc.imu
+    body = _imu_body(raw, imu)
+    if body is not None:
+        imu = IMU_SITE
+        spec.body(desc.imu).add_site(name=imu, pos=[0, 0, 0])
+    for name, kind in ((GYRO, mujoco.mjtSensor.mjSENS_GYRO),
+                       (ACCEL, mujoco.mjtSensor.mjSENS_ACCELEROMETER)):
+        spec.add_sensor(name=name, type=kind, objtype=mujoco.mjtObj.mjOBJ_SITE, objname=imu)
+    data = zero_pose_data(raw, root)
+    ankles, touch = [], []
+    for side in LEG_ORDER:
+        joints, foot = legs[side]
+        fbody = spec.body(raw.body(foot).name)
+        ankles.append(f"tkujax_{side[0]}_ankle")
+        fbody.add_site(name=ankles[-1], pos=_ankle_centre_in_foot(raw, data, joints, foot))
+        for i, (centre, half) in enumerate(_sole_quadrants(raw, foot, side), start=1):
+            touch.append(f"tkujax_{side[0]}_fsr_{i}")
+            fbody.add_site(name=touch[-1], type=mujoco.mjtGeom.mjGEOM_BOX, pos=centre, size=half)
+            spec.add_sensor(name=touch[-1], type=mujoco.mjtSensor.mjSENS_TOUCH,
+                            objtype=mujoco.mjtObj.mjOBJ_SITE, objname=touch[-1])
+    return imu, ankles, touch
+
+
+def _axis_signs(model, root: int, joints: np.ndarray) -> np.ndarray:
+    data = zero_pose_data(model, root)
+    rot = data.xmat[root].reshape(3, 3)
+    axes = data.xaxis[joints] @ rot                     # (2, 6, 3) in the base frame
+    dots = np.einsum("sjk,jk->sj", axes, ROLE_AXES)
+    return np.where(dots >= 0, 1, -1).astype(int)
+
+
+def load_robot(robot: RobotDescription | str | Path) -> RobotModel:
+    """The checked and completed model of a robot file (or a parsed description)."""
+    desc = robot if isinstance(robot, RobotDescription) else load_description(robot)
+    try:
+        spec = mujoco.MjSpec.from_file(str(desc.mjcf_path))
+    except ValueError as err:
+        raise RobotFileError(f"mjcf: {desc.mjcf_path} could not be read: {err}") from err
+    raw = _compile(spec, str(desc.mjcf_path))
+    root = _root_body(raw)
+    legs = {side: _leg_indices(raw, root, desc, side) for side in LEG_ORDER}
+    imu, ankles, touch = _complete(spec, raw, desc, root, legs)
+    model = _compile(spec, f"{desc.mjcf_path} with tkujax's sensors")
+    joints = np.array([legs[s][0] for s in LEG_ORDER])
+    feet = np.array([legs[s][1] for s in LEG_ORDER])
+    geoms = tuple(frozenset(_foot_geoms(model, int(f))) for f in feet)
+    actuators = np.array([[_position_actuator(model, int(j), "legs") for j in row]
+                          for row in joints])
+    return RobotModel(
+        description=desc, model=model, root_body=root, leg_joints=joints,
+        leg_qpos=model.jnt_qposadr[joints], leg_dofs=model.jnt_dofadr[joints],
+        leg_actuators=actuators, axis_signs=_axis_signs(model, root, joints), foot_bodies=feet,
+        foot_geoms=geoms, floor_geom=_has_floor(model), imu_site=model.site(imu).id,
+        ankle_sites=(model.site(ankles[0]).id, model.site(ankles[1]).id),
+        fsr_sites=np.array([model.site(n).id for n in touch]), fsr_sensors=tuple(touch))
