@@ -10,6 +10,12 @@ from tkujax.cli.options import RENDER_HELP, model_params_from_options, policy_fr
 
 
 def _cmd_stand(args) -> int:
+    if args.robot is not None:
+        from tkujax.robot.summary import robot_stand_summary
+
+        summary = robot_stand_summary(args.robot, seconds=args.seconds)
+        print(json.dumps(summary, indent=2))
+        return 1 if summary["fell"] else 0
     from tkujax.studies.stand import simulate_stand
 
     result = simulate_stand(seconds=args.seconds, batch=args.batch, engine=args.engine,
@@ -67,6 +73,9 @@ def _add_stand(sub) -> None:
     p.add_argument("--perturb-deg", type=float, default=1.0,
                    help="initial joint perturbation, uniform +- this many degrees")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--robot", default=None, metavar="FILE.toml",
+                   help="a robot file (docs/robots.md): check it, make its stand and hold it "
+                        "--seconds in MuJoCo C (--batch, --engine, --perturb-deg are TKU-X's)")
     p.set_defaults(func=_cmd_stand)
 
 

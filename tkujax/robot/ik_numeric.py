@@ -90,7 +90,8 @@ def solve_leg_ik(robot: RobotModel, side: str, target_pos: np.ndarray, target_ro
     jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
     site = robot.ankle_sites[i]
     err_p = err_r = np.inf
-    for it in range(max_iterations):
+    iterations = 0
+    for iterations in range(1, max_iterations + 1):  # noqa: B007 (the count is returned)
         set_leg(robot, data, side, q)
         pos, rot = foot_pose(robot, data, side)
         e = np.concatenate([target_pos - pos, _rotation_error(target_rot, rot)])
@@ -102,7 +103,7 @@ def solve_leg_ik(robot: RobotModel, side: str, target_pos: np.ndarray, target_ro
         jac = np.concatenate([jacp[:, dofs], jacr[:, dofs]])
         step = jac.T @ np.linalg.solve(jac @ jac.T + damping ** 2 * np.eye(6), e)
         q = np.clip(q + step, lo, hi)
-    return LegIK(q_rad=q, position_error_m=err_p, rotation_error_rad=err_r, iterations=it + 1)
+    return LegIK(q_rad=q, position_error_m=err_p, rotation_error_rad=err_r, iterations=iterations)
 
 
 def analytic_ik_applies(robot: RobotModel, tol: float = 1e-6) -> tuple[bool, str]:

@@ -121,7 +121,8 @@ def _check_chain(model, root: int, side: str, joints: list[int], foot: int) -> N
 
 def _position_actuator(model, joint: int, key: str) -> int:
     for a in range(model.nu):
-        if model.actuator_trntype[a] != mujoco.mjtTrn.mjTRN_JOINT or model.actuator_trnid[a, 0] != joint:
+        if (model.actuator_trntype[a] != mujoco.mjtTrn.mjTRN_JOINT
+                or model.actuator_trnid[a, 0] != joint):
             continue
         kp, bias = model.actuator_gainprm[a, 0], model.actuator_biasprm[a, :3]
         if (model.actuator_gaintype[a] == mujoco.mjtGain.mjGAIN_FIXED

@@ -71,7 +71,8 @@ def hold_targets(robot: RobotModel, qpos: np.ndarray) -> np.ndarray:
     for a in range(model.nu):
         if model.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT:
             j = model.actuator_trnid[a, 0]
-            if int(model.jnt_type[j]) in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
+            kind = int(model.jnt_type[j])
+            if kind in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
                 ctrl[a] = qpos[model.jnt_qposadr[j]]
     limited = model.actuator_ctrllimited.astype(bool)
     rng = model.actuator_ctrlrange

@@ -1,0 +1,39 @@
+"""`tkujax stand --robot FILE`: what tkujax reads and measures on a robot file's model."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+from tkujax.robot.geometry import controller_params_for, measure_geometry
+from tkujax.robot.ik_numeric import analytic_ik_applies
+from tkujax.robot.loader import load_robot
+from tkujax.robot.stand import check_stand, stand_pose
+
+SCALED_FIELDS = ("step_period", "lift_height", "standing_lean", "eps_forward", "eps_backward",
+                 "cp_trigger_forward_m", "cp_trigger_backward_m", "cp_trigger_lateral_m")
+
+
+def robot_stand_summary(path: str | Path, seconds: float = 5.0) -> dict:
+    """Load and check a robot file, make its stand, hold it `seconds` in MuJoCo C; the
+    geometry, the controller's scaled defaults, which IK applies, and the stand's measurements."""
+    if not (0 < seconds <= 60):
+        raise ValueError(f"seconds must be in (0, 60], got {seconds!r}")
+    robot = load_robot(path)
+    pose = stand_pose(robot)
+    geo = measure_geometry(robot, pose.qpos)
+    params = controller_params_for(geo)
+    analytic, why = analytic_ik_applies(robot)
+    result = check_stand(robot, pose, seconds)
+    rounded = lambda v: round(v, 6) if isinstance(v, float) else v  # noqa: E731
+    return dict(
+        robot=robot.name, mjcf=str(robot.description.mjcf_path), engine="mujoco",
+        stand_source=pose.source,
+        geometry={k: (tuple(map(rounded, v)) if isinstance(v, tuple) else rounded(v))
+                  for k, v in dataclasses.asdict(geo).items()},
+        stand_lean_deg=round(math.degrees(geo.stand_lean_rad), 3),
+        controller_defaults={k: round(float(getattr(params, k)), 6) for k in SCALED_FIELDS},
+        ik="analytic" if analytic else "numeric", ik_reason=why,
+        stand={k: rounded(v) for k, v in result.as_dict().items()},
+        fell=not result.stood)
