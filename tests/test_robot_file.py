@@ -222,3 +222,21 @@ def test_op3_stands_5s(op3):
     result = check_stand(op3, stand_pose(op3), 5.0)
     assert result.stood, result.why
     assert result.com_drift_m < 0.02 and abs(result.pitch_end_deg) < 5
+
+
+def test_init_robot_index_matches_tkux(tkux):
+    from tkujax.robot.simsetup import init_robot
+    from tkujax.sim.setup import model_index
+
+    host, device, index, state = init_robot(tkux, settle_s=0.2)
+    ref = model_index()
+    ref_host = load_robot(tkux.description).model
+    assert np.array_equal(index.leg_actuators, ref.leg_actuators)
+    assert np.array_equal(index.stand_ctrl, ref.stand_ctrl)
+    names = lambda m, ids: sorted(m.geom(int(g)).name for g in ids)  # noqa: E731
+    assert names(host, index.sphere_geoms) == names(ref_host, ref.sphere_geoms)
+    assert names(host, index.box_geoms) == names(ref_host, ref.box_geoms)
+    for mine, theirs in zip(index.ankle_sites, ("r_ankle", "l_ankle")):
+        assert np.allclose(host.site_pos[mine], host.site(theirs).pos)
+    assert state.qpos.shape == (host.nq,) and float(state.time) == 0.0
+    assert device.nu == host.nu

@@ -1,0 +1,92 @@
+"""A robot file as the simulation's starting point: `init_robot(path)` -> SimSetup, the same
+(host model, MJX model, ModelIndex, settled stand state) tuple as `tkujax.sim.setup.init()`.
+
+It lives here, not in tkujax/sim/, because robot files are a layer above the simulator.
+The index is the robot's: its leg actuators (right then left, in role order), its floating
+base as the pushed body, tkujax's IMU and touch sensors, the ankle sites, the stand's targets,
+and as the fall test's bodies the non-foot collision spheres and boxes that can touch the floor
+(mesh geoms are not in it). The IMU has no low-pass (TKU-X's is a model of TKU-X's sensor).
+
+Phase 1: the closed loop's controller writes TKU-X's joint conventions; it is meaningful on a
+robot for which `analytic_ik_applies` holds and whose leg actuators are one block, right leg
+first (tkujax-generated robots). See docs/robots.md.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import jax
+import mujoco
+import numpy as np
+
+from tkujax.robot.description import RobotDescription
+from tkujax.robot.loader import ACCEL, GYRO, RobotModel, load_robot
+from tkujax.robot.stand import StandPose, stand_pose
+from tkujax.sim.mjx_import import mjx
+from tkujax.sim.setup import ModelIndex, SimSetup, imu_indices
+
+
+def _floor_geoms(robot: RobotModel) -> list[int]:
+    """Collision geoms not on a foot that can touch the floor (a pair, or contype/conaffinity)."""
+    model, floor = robot.model, robot.floor_geom
+    feet = set(robot.foot_bodies.tolist())
+    paired = {int(b) for a, b in zip(model.pair_geom1, model.pair_geom2) if a == floor} | {
+        int(a) for a, b in zip(model.pair_geom1, model.pair_geom2) if b == floor}
+    out = []
+    for g in range(model.ngeom):
+        if g == floor or model.geom_bodyid[g] in feet or model.geom_bodyid[g] == 0:
+            continue
+        collides = (model.geom_contype[g] & model.geom_conaffinity[floor]
+                    or model.geom_conaffinity[g] & model.geom_contype[floor])
+        if collides or g in paired:
+            out.append(g)
+    return out
+
+
+def robot_index(robot: RobotModel, pose: StandPose) -> ModelIndex:
+    """The ModelIndex of a robot standing at `pose`."""
+    model = robot.model
+    data = mujoco.MjData(model)
+    data.qpos[:] = pose.qpos
+    mujoco.mj_forward(model, data)
+    geoms = _floor_geoms(robot)
+    spheres = [g for g in geoms if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_SPHERE]
+    boxes = [g for g in geoms if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_BOX]
+    adr = lambda n: int(model.sensor_adr[model.sensor(n).id])  # noqa: E731
+    base = robot.root_body
+    return ModelIndex(
+        leg_actuators=robot.leg_actuators.reshape(-1), chest_body=base,
+        chest_stand_z=float(data.xpos[base][2]), chest_stand_cos=float(data.xmat[base][8]),
+        gyro_adr=adr(GYRO), accel_adr=adr(ACCEL),
+        fsr_adr=np.array([adr(n) for n in robot.fsr_sensors]), fsr_sites=robot.fsr_sites,
+        sphere_geoms=np.array(spheres, dtype=int), sphere_radii=model.geom_size[spheres, 0],
+        box_geoms=np.array(boxes, dtype=int), box_half_sizes=model.geom_size[boxes],
+        ankle_sites=tuple(int(s) for s in robot.ankle_sites), stand_ctrl=pose.ctrl.copy(),
+        timestep_s=float(model.opt.timestep), **imu_indices(model, GYRO, ACCEL))
+
+
+def settled_data(robot: RobotModel, pose: StandPose, settle_s: float) -> mujoco.MjData:
+    """MuJoCo C state at `pose` after `settle_s` holding its targets, clock reset to 0."""
+    model = robot.model
+    data = mujoco.MjData(model)
+    data.qpos[:] = pose.qpos
+    data.ctrl[:] = pose.ctrl
+    mujoco.mj_forward(model, data)
+    for _ in range(int(round(settle_s / model.opt.timestep))):
+        mujoco.mj_step(model, data)
+    data.time = 0.0
+    mujoco.mj_forward(model, data)
+    return data
+
+
+def init_robot(robot: RobotDescription | RobotModel | str | Path,
+               settle_s: float = 1.0) -> SimSetup:
+    """SimSetup of a robot file (or a parsed description or a loaded robot), as `init()`."""
+    if not isinstance(robot, RobotModel):
+        robot = load_robot(robot)
+    pose = stand_pose(robot)
+    device = jax.local_devices()[0]
+    data = settled_data(robot, pose, settle_s)
+    return SimSetup(robot.model, mjx.put_model(robot.model, device=device),
+                    robot_index(robot, pose), mjx.put_data(robot.model, data, device=device))
