@@ -27,7 +27,7 @@ from tkujax.sim.mjx_import import mjx
 from tkujax.sim.setup import ModelIndex, SimSetup, imu_indices
 
 
-def _floor_geoms(robot: RobotModel) -> list[int]:
+def floor_geoms(robot: RobotModel) -> list[int]:
     """Collision geoms not on a foot that can touch the floor (a pair, or contype/conaffinity)."""
     model, floor = robot.model, robot.floor_geom
     feet = set(robot.foot_bodies.tolist())
@@ -50,7 +50,7 @@ def robot_index(robot: RobotModel, pose: StandPose) -> ModelIndex:
     data = mujoco.MjData(model)
     data.qpos[:] = pose.qpos
     mujoco.mj_forward(model, data)
-    geoms = _floor_geoms(robot)
+    geoms = floor_geoms(robot)
     spheres = [g for g in geoms if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_SPHERE]
     boxes = [g for g in geoms if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_BOX]
     adr = lambda n: int(model.sensor_adr[model.sensor(n).id])  # noqa: E731

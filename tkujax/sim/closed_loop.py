@@ -136,10 +136,33 @@ def controller_tick(idx: ModelIndex, episode: Episode, params: ControllerParams,
                                                           episode.enabled,
                                                           config.quantise_targets, config.fixed)
     stand_ctrl = jnp.asarray(idx.stand_ctrl, gyro.dtype)
-    legs_at = legs_slice(idx)
-    command = stand_ctrl.at[legs_at].set(legs.astype(gyro.dtype))
-    earlier = stand_ctrl.at[legs_at].set(prev.astype(gyro.dtype)) if switch > 0 else command
+    command = set_legs(idx, stand_ctrl, legs.astype(gyro.dtype))
+    earlier = set_legs(idx, stand_ctrl, prev.astype(gyro.dtype)) if switch > 0 else command
     return ctrl_state, command, earlier, out
+
+
+def map_legs(idx: ModelIndex, legs: jax.Array) -> jax.Array:
+    """The controller's leg targets (TKU-X's joint conventions) as the robot's: each slot's
+    sign and offset (ModelIndex.leg_signs, leg_offsets); TKU-X's model: unchanged."""
+    if idx.leg_signs is None:
+        return legs
+    dtype = legs.dtype
+    return legs * jnp.asarray(idx.leg_signs, dtype) + jnp.asarray(idx.leg_offsets, dtype)
+
+
+def set_legs(idx: ModelIndex, ctrl: jax.Array, legs: jax.Array) -> jax.Array:
+    """`ctrl` with the leg actuators set to `legs` (controller slot order, mapped by
+    `map_legs`). TKU-X's leg actuators are one block; a robot file's may be in any order (OP3
+    lists its left leg first): one static slice per run of consecutive actuator ids."""
+    legs = map_legs(idx, legs)
+    if idx.leg_signs is None:
+        return ctrl.at[legs_slice(idx)].set(legs)
+    ids = [int(i) for i in idx.leg_actuators]
+    k = 0
+    for a, b in _runs(ids):
+        ctrl = ctrl.at[a:b].set(legs[k:k + b - a])
+        k += b - a
+    return ctrl
 
 
 def _runs(ids) -> list[tuple[int, int]]:
@@ -163,7 +186,8 @@ def _rows(x: jax.Array, ids) -> jax.Array:
 
 
 def _lowest_body_point(idx: ModelIndex, d: mjx.Data) -> jax.Array:
-    """Height of the lowest point of any non-foot collision geom, m."""
+    """Height of the lowest point of any non-foot collision geom, m (spheres, boxes and, for a
+    robot file's model, meshes: their lowest vertex)."""
     # Model constants cast to the state's dtype explicitly (never left to the x64 mode).
     dtype = d.geom_xpos.dtype
     boxes = {}
@@ -171,8 +195,15 @@ def _lowest_body_point(idx: ModelIndex, d: mjx.Data) -> jax.Array:
         boxes = dict(box_z=_rows(d.geom_xpos, idx.box_geoms)[:, 2],
                      box_zrow=_rows(d.geom_xmat, idx.box_geoms)[:, 2, :],  # world z row
                      box_half_sizes=jnp.asarray(idx.box_half_sizes, dtype))
-    return recording.lowest_point(jnp, _rows(d.geom_xpos, idx.sphere_geoms)[:, 2],
-                                  jnp.asarray(idx.sphere_radii, dtype), **boxes)
+    if not idx.mesh_geoms:
+        return recording.lowest_point(jnp, _rows(d.geom_xpos, idx.sphere_geoms)[:, 2],
+                                      jnp.asarray(idx.sphere_radii, dtype), **boxes)
+    sphere_z = (_rows(d.geom_xpos, idx.sphere_geoms)[:, 2] if idx.sphere_geoms.size
+                else jnp.zeros((0,), dtype))
+    mesh_z = jnp.stack([jnp.min(d.geom_xpos[g, 2] + jnp.asarray(pts, dtype) @ d.geom_xmat[g, 2])
+                        for g, pts in zip(idx.mesh_geoms, idx.mesh_points)])
+    return recording.lowest_point(jnp, sphere_z, jnp.asarray(idx.sphere_radii, dtype),
+                                  point_z=mesh_z, **boxes)
 
 
 def _zmp(idx: ModelIndex, d: mjx.Data) -> tuple[jax.Array, jax.Array]:

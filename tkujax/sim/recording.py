@@ -25,15 +25,19 @@ def zmp(xp, fsr, site_xy):
     return xp.where(contact[..., None], weighted, xp.mean(site_xy, -2)), total
 
 
-def lowest_point(xp, sphere_z, sphere_radii, box_z=None, box_zrow=None, box_half_sizes=None):
+def lowest_point(xp, sphere_z, sphere_radii, box_z=None, box_zrow=None, box_half_sizes=None,
+                 point_z=None):
     """Height of the lowest point of the non-foot collision geoms (m).
 
     sphere_z (..., S) centre heights, sphere_radii (S,); box_z (..., B) centre heights,
     box_zrow (..., B, 3) the world z row of each box's rotation (its vertical half-extent is
-    |zrow| . half sizes), box_half_sizes (B, 3); boxes None where the model has none."""
+    |zrow| . half sizes), box_half_sizes (B, 3); boxes None where the model has none.
+    point_z (..., P): heights of further lowest points (a mesh's lowest vertex), or None."""
     lows = [sphere_z - sphere_radii]
     if box_z is not None:
         lows.append(box_z - xp.sum(xp.abs(box_zrow) * box_half_sizes, -1))
+    if point_z is not None:
+        lows.append(point_z)
     return xp.min(xp.concatenate(lows, -1), -1)
 
 

@@ -141,10 +141,15 @@ def batched_rollout(model_params: ModelParams | None = None,
 def simulate(pushes: Push, enabled, params: ControllerParams, seed: int = 0,
              gyro_noise_std: float = 0.0, accel_noise_std: float = 0.0,
              model_params: ModelParams | None = None,
-             config: RolloutConfig = RolloutConfig(), schedule=None) -> tuple[Series, Outcomes]:
+             config: RolloutConfig = RolloutConfig(), schedule=None,
+             robot=None) -> tuple[Series, Outcomes]:
     """Run a batch of pushes (stacked Push, leading axis) and return numpy (series, outcomes).
     schedule: a scheduled policy's Schedule (`tkujax.recommended_policy()` gives one with its
-    params); None: the plain controller."""
+    params); None: the plain controller. robot: a robot file's `RobotSetup`
+    (`tkujax.robot.closed_loop.robot_setup`; its `params` are the controller's for it) in place
+    of model_params."""
+    if robot is not None:   # a robot file's RobotSetup (tkujax.robot.closed_loop)
+        model_params = robot
     if config.fixed is not None:   # options the fixed-point twin lacks: refused, not ignored
         check_supported(params)
     n = int(np.shape(pushes.impulse_ns)[0])

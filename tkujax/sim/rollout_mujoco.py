@@ -76,7 +76,7 @@ from tkujax.sim.metrics import outcomes as _outcomes
 from tkujax.sim.push import Push
 from tkujax.sim.records import SERIES_FIELDS, Outcomes, Series
 from tkujax.sim.rollout_mjx import RolloutConfig
-from tkujax.sim.setup import SETTLE_S, ModelIndex, model_index
+from tkujax.sim.setup import SETTLE_S, ModelIndex, RobotSetup, model_index
 from tkujax.sim.tick import control_tick, control_tick_fx
 
 PUSH_WRENCH_MODES = ("exact", "period_start")
@@ -98,8 +98,12 @@ class _Setup:
 
 
 @functools.lru_cache(maxsize=8)
-def _setup(model_params: ModelParams | None) -> _Setup:
-    model = physics.host_model(model_params)
+def _setup(model_params: ModelParams | RobotSetup | None) -> _Setup:
+    if isinstance(model_params, RobotSetup):
+        model, data = model_params.setup.host_model, model_params.settled
+    else:
+        model = physics.host_model(model_params)
+        data = None
     # FULLPHYSICS layout: time, qpos, qvel, act, history, plugin (state bits in ascending order).
     nt = mujoco.mj_stateSize(model, int(mujoco.mjtState.mjSTATE_TIME))
     nq = mujoco.mj_stateSize(model, int(mujoco.mjtState.mjSTATE_QPOS))
@@ -110,7 +114,8 @@ def _setup(model_params: ModelParams | None) -> _Setup:
     if not model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_EULERDAMP:
         raise ValueError("tkujax.sim.rollout_mujoco recovers the warm start assuming eulerdamp "
                          "is disabled")
-    data = physics.settled_stand_data(model, SETTLE_S)   # the state setup.init starts MJX from
+    if data is None:   # the state setup.init starts MJX from
+        data = physics.settled_stand_data(model, SETTLE_S)
     state0 = np.empty(mujoco.mj_stateSize(model, _FULL))
     mujoco.mj_getState(model, data, state0, _FULL)
     state0.setflags(write=False)
@@ -185,7 +190,8 @@ class _Kinematics:
                    fsr_xy=np.empty((n, len(idx.fsr_sites), 2)),
                    sphere_z=np.empty((n, len(idx.sphere_geoms))),
                    box_z=np.empty((n, len(idx.box_geoms))),
-                   box_zrow=np.empty((n, len(idx.box_geoms), 3)))
+                   box_zrow=np.empty((n, len(idx.box_geoms), 3)),
+                   mesh_z=np.empty((n, len(idx.mesh_geoms))))
         for i in range(n):
             mujoco.mj_setState(m, d, states[i], _FULL)
             mujoco.mj_kinematics(m, d)
@@ -194,6 +200,9 @@ class _Kinematics:
             out["r_ankle"][i], out["l_ankle"][i] = d.site_xpos[right], d.site_xpos[left]
             out["fsr_xy"][i] = d.site_xpos[idx.fsr_sites, :2]
             out["sphere_z"][i] = d.geom_xpos[idx.sphere_geoms, 2]
+            if idx.mesh_geoms:
+                out["mesh_z"][i] = [np.min(d.geom_xpos[g, 2] + pts @ d.geom_xmat[g][6:9])
+                                    for g, pts in zip(idx.mesh_geoms, idx.mesh_points)]
             if idx.box_geoms.size:
                 out["box_z"][i] = d.geom_xpos[idx.box_geoms, 2]
                 out["box_zrow"][i] = d.geom_xmat[idx.box_geoms].reshape(-1, 3, 3)[:, 2, :]
@@ -303,12 +312,22 @@ class _Physics:
         zmp_xy, total = recording.zmp(np, sensordata[:, idx.fsr_adr], k["fsr_xy"])
         boxes = (dict(box_z=k["box_z"], box_zrow=k["box_zrow"],
                       box_half_sizes=idx.box_half_sizes) if idx.box_geoms.size else {})
+        if idx.mesh_geoms:
+            boxes["point_z"] = k["mesh_z"]
         lowest = recording.lowest_point(np, k["sphere_z"], idx.sphere_radii, **boxes)
         return recording.tick_series(
             t=state[:, 0], pitch=pitch, roll=roll, zmp_xy=zmp_xy, fsr_total=total, com=k["com"],
             r_ankle=k["r_ankle"], l_ankle=k["l_ankle"], pelvis_z=qpos[:, 2],
             lowest_body_z=lowest, out=out, ctrl_state=ctrl_state,
             qpos=qpos if record_qpos else None)
+
+
+def _mapped(idx: ModelIndex, legs) -> np.ndarray:
+    """(n, 12) actuator targets of the controller's leg targets (closed_loop.map_legs)."""
+    legs = np.asarray(legs, np.float64)
+    if idx.leg_signs is None:
+        return legs
+    return legs * idx.leg_signs + idx.leg_offsets
 
 
 def _stack_ticks(rows: list[Series]) -> Series:
@@ -341,7 +360,7 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
                     model_params: ModelParams | None = None,
                     config: RolloutConfig = RolloutConfig(), n_threads: int | None = None,
                     push_wrench: str = "exact", overrides: StepOverride | None = None,
-                    schedule=None) -> tuple[Series, Outcomes]:
+                    schedule=None, robot=None) -> tuple[Series, Outcomes]:
     """Run a batch of pushes with MuJoCo C physics; returns numpy (series, outcomes).
 
     Same arguments, keys and shapes as `tkujax.sim.rollout_mjx.simulate`, plus n_threads (physics
@@ -350,6 +369,8 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
     their onset_s is taken from the pushes) and schedule (a scheduled policy's
     `tkujax.control.policy.Schedule`, shared by the batch; not with a fixed-point controller).
     """
+    if robot is not None:   # a robot file's RobotSetup (tkujax.robot.closed_loop)
+        model_params = robot
     if push_wrench not in PUSH_WRENCH_MODES:
         raise ValueError(f"push_wrench must be one of {PUSH_WRENCH_MODES}, got {push_wrench!r}")
     setup = _setup(model_params)
@@ -396,12 +417,12 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
                                                            enabled_j, config.quantise_targets,
                                                            fixed)
         ctrl = np.tile(stand_ctrl, (n, 1))
-        ctrl[:, idx.leg_actuators] = np.asarray(legs, np.float64)
+        ctrl[:, idx.leg_actuators] = _mapped(idx, legs)
         # Per physics substep (n, substeps, nu): the previous command until the switch substep
         # (fractional latency of the fixed-point controller), then the new one.
         ctrl_steps = np.repeat(ctrl[:, None, :], substeps, 1)
         if switch > 0:
-            ctrl_steps[:, :switch, idx.leg_actuators] = np.asarray(prev, np.float64)[:, None, :]
+            ctrl_steps[:, :switch, idx.leg_actuators] = _mapped(idx, prev)[:, None, :]
         force = _force(p, state[:, :1] + phys.dt * np.arange(substeps)[None, :])
         state, pose_state, sens_steps, warm = phys.period(
             state, pose_state, warm, ctrl_steps, switch == 0, force, p["height_m"], push_wrench)

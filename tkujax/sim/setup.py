@@ -55,6 +55,15 @@ class ModelIndex:
     accel_root: int = -1
     accel_parent: int = -1          # the accelerometer body's parent (0: a root body)
     accel_dofs: tuple[int, int] = (0, 0)   # its (first dof, number of dofs)
+    # A robot file's leg map (tkujax.robot): the actuator target of controller slot k is
+    # leg_signs[k] * q_k + leg_offsets[k] (q in TKU-X's joint conventions); None: TKU-X's
+    # own model, the controller's targets as they are.
+    leg_signs: np.ndarray | None = None
+    leg_offsets: np.ndarray | None = None
+    # Non-foot collision meshes for the fall test: geom ids and each one's vertices in its
+    # geom frame (the lowest vertex is the geom's lowest point).
+    mesh_geoms: tuple[int, ...] = ()
+    mesh_points: tuple[np.ndarray, ...] = ()
 
     @property
     def imu_filtered(self) -> bool:
@@ -104,6 +113,8 @@ def imu_indices(model: mujoco.MjModel, gyro: str = "gyro", accel: str = "accel")
 
 @functools.lru_cache(maxsize=8)
 def model_index(params: ModelParams | None = None) -> ModelIndex:
+    if isinstance(params, RobotSetup):
+        return params.setup.index
     return index_of(physics.host_model(params), params)
 
 
@@ -124,6 +135,21 @@ class SimSetup(NamedTuple):
     stand_state: mjx.Data          # the stand keyframe, settled for settle_s, clock at 0
 
 
+@dataclasses.dataclass(frozen=True, eq=False)
+class RobotSetup:
+    """A robot file's simulation (`tkujax.robot.simsetup.robot_setup`): its SimSetup, the
+    settled stand as MuJoCo C data (the C rollout's start), the controller's parameters for
+    it, and the robot file's name and content hash. Given where a `ModelParams` goes
+    (`model_params=`), the rollouts simulate this robot; compared and hashed by identity."""
+
+    setup: SimSetup
+    settled: mujoco.MjData
+    params: object                 # tkujax.control.params.ControllerParams
+    name: str
+    digest: str                    # sha256 of the robot file and its model file
+    source: str                    # the robot file's path
+
+
 def init(model_params: ModelParams | None = None, settle_s: float = SETTLE_S,
          float64: bool = False) -> SimSetup:
     """The SimSetup of a model (None: the default robot), cached.
@@ -131,6 +157,10 @@ def init(model_params: ModelParams | None = None, settle_s: float = SETTLE_S,
     float64: the MJX model and state put in float64 (built under jax.enable_x64; callers run
     their programs under it too), for derivative checks; the state's integer fields take the
     types `mjx.step` returns under x64, so it can be a lax.scan carry."""
+    if isinstance(model_params, RobotSetup):
+        if float64 or float(settle_s) != SETTLE_S:
+            raise ValueError("a robot file's setup is float32, settled SETTLE_S")
+        return model_params.setup
     # One cache key however the arguments are spelled (lru_cache keys f(a) and f(a, 1.0) apart).
     return _init(model_params, float(settle_s), bool(float64))
 

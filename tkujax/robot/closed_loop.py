@@ -1,0 +1,117 @@
+"""A robot file ready for the closed loop: `robot_setup(path)` -> tkujax.sim.setup.RobotSetup.
+
+What it adds to `init_robot`'s SimSetup:
+
+- the leg map: the controller writes TKU-X's joint conventions (axes z, x, y, y, y, x with the
+  right-hand rule, zero = the straight leg, right leg first); each robot actuator gets
+  sign x q + offset, the sign the joint's axis against TKU-X's (`RobotModel.axis_signs`), the
+  offset making the controller's stand (feet at (0, -+d_y, -d_z) from the waist P_W) the
+  robot's stand exactly. The actuators are addressed by id, in the controller's slot order, so
+  any actuator order works (OP3 lists its left leg first). The offsets absorb what differs
+  from TKU-X at the stand (the hip centre 28.5 mm below OP3's base origin does not enter: the
+  IK works from the hip centre; the computed stand's fore-aft foot shift and lean do): exact
+  at the stand, to first order around it (`tests/test_robot_loop.py` measures the round trip);
+- the fall test's mesh geoms: every non-foot collision mesh that can touch the floor, with its
+  vertices (the lowest vertex is the geom's lowest point);
+- MuJoCo's eulerdamp off (the C rollout chains the solver's warm start through
+  qvel' = qvel + dt qacc, which holds only without it; MJX and C then step the same Euler);
+- the controller's parameters, `controller_params_for` the geometry at the stand, with the
+  standing lean read from the stand settled `SETTLE_S` in MuJoCo C (OP3: -2.3 deg).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+from pathlib import Path
+
+import jax
+import mujoco
+import numpy as np
+
+from tkujax.control.controller import stand_leg_targets
+from tkujax.control.params import ControllerParams
+from tkujax.robot.description import RobotFileError, load_description
+from tkujax.robot.geometry import base_pitch_roll, controller_params_for, measure_geometry
+from tkujax.robot.loader import RobotModel, load_robot
+from tkujax.robot.simsetup import floor_geoms, robot_index, settled_data
+from tkujax.robot.stand import stand_pose
+from tkujax.sim.mjx_import import mjx
+from tkujax.sim.setup import SETTLE_S, ModelIndex, RobotSetup, SimSetup
+
+
+def file_digest(path: str | Path) -> str:
+    """sha256 of a robot file and of the model file it names (hex)."""
+    desc = load_description(path)
+    h = hashlib.sha256(Path(path).read_bytes())
+    h.update(desc.mjcf_path.read_bytes())
+    return h.hexdigest()
+
+
+def leg_map(robot: RobotModel, stand_ctrl: np.ndarray,
+            params: ControllerParams) -> tuple[np.ndarray, np.ndarray]:
+    """(signs (12,), offsets (12,)) taking the controller's targets (slot order: right then
+    left, roles in order) to the robot's leg actuators, the controller's stand to `stand_ctrl`."""
+    signs = robot.axis_signs.reshape(-1).astype(float)
+    q_stand = np.asarray(stand_leg_targets(params), np.float64)
+    stand = stand_ctrl[robot.leg_actuators.reshape(-1)]
+    return signs, stand - signs * q_stand
+
+
+def mesh_fall_geoms(robot: RobotModel) -> tuple[tuple[int, ...], tuple[np.ndarray, ...]]:
+    """The non-foot collision meshes that can touch the floor and their vertices (geom frame)."""
+    model = robot.model
+    geoms = [g for g in floor_geoms(robot) if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH]
+    points = []
+    for g in geoms:
+        m = model.geom_dataid[g]
+        adr, n = model.mesh_vertadr[m], model.mesh_vertnum[m]
+        points.append(np.array(model.mesh_vert[adr:adr + n], np.float64))
+    return tuple(int(g) for g in geoms), tuple(points)
+
+
+def _check_layout(robot: RobotModel) -> None:
+    """The loop reads the base's pose from qpos[0:7] and the CoM from body 1's subtree."""
+    model = robot.model
+    if robot.root_body != 1 or model.jnt_qposadr[model.body_jntadr[1]] != 0:
+        raise RobotFileError("mjcf: the closed loop needs the floating base as the model's "
+                             "first body, its free joint first in qpos")
+
+
+def closed_loop_index(robot: RobotModel, pose, params: ControllerParams) -> ModelIndex:
+    """robot_index with the leg map and the mesh geoms of the fall test."""
+    signs, offsets = leg_map(robot, pose.ctrl, params)
+    meshes, points = mesh_fall_geoms(robot)
+    return dataclasses.replace(robot_index(robot, pose), leg_signs=signs, leg_offsets=offsets,
+                               mesh_geoms=meshes, mesh_points=points)
+
+
+def _params(robot: RobotModel, pose, data: mujoco.MjData) -> ControllerParams:
+    """controller_params_for the stand's geometry, its lean read from the settled stand."""
+    geo = measure_geometry(robot, pose.qpos)
+    adr = int(robot.model.jnt_qposadr[robot.model.body_jntadr[robot.root_body]])
+    lean = base_pitch_roll(np.asarray(data.qpos[adr + 3:adr + 7]))[0]
+    return controller_params_for(dataclasses.replace(geo, stand_lean_rad=lean))
+
+
+@functools.lru_cache(maxsize=8)
+def _robot_setup(path: str, digest: str) -> RobotSetup:
+    robot = load_robot(path)
+    _check_layout(robot)
+    robot.model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP)
+    pose = stand_pose(robot)
+    data = settled_data(robot, pose, SETTLE_S)
+    params = _params(robot, pose, data)
+    device = jax.local_devices()[0]
+    setup = SimSetup(robot.model, mjx.put_model(robot.model, device=device),
+                     closed_loop_index(robot, pose, params),
+                     mjx.put_data(robot.model, data, device=device))
+    return RobotSetup(setup=setup, settled=data, params=params, name=robot.name, digest=digest,
+                      source=path)
+
+
+def robot_setup(path: str | Path) -> RobotSetup:
+    """The RobotSetup of a robot file (cached per file path and content)."""
+    path = str(Path(path).resolve())
+    return _robot_setup(path, file_digest(path))
