@@ -13,15 +13,29 @@ def _cmd_sweep(args) -> int:
     from tkujax.studies.sweep import run_sweep
 
     params, schedule = policy_from_option(args.params)
+    robot = _robot_option(args)
+    model = robot or model_params_from_options([args.model] if args.model else [])
     manifest = run_sweep(args.spec, args.out, params=params, schedule=schedule,
-                         model_params=model_params_from_options([args.model] if args.model
-                                                                else []),
-                         max_chunks=args.max_chunks, **parallel_kwargs(args))
+                         model_params=model, max_chunks=args.max_chunks,
+                         **parallel_kwargs(args))
     state = "complete" if manifest["complete"] else "incomplete (rerun the same command to resume)"
     print(f"{manifest['n_pushes']} pushes in {args.out} ({manifest['backend']} backend): "
           f"{state}; {manifest['n_diverged']} diverged (numerical blow-up: counted neither as "
           f"fell nor as survived); wall {manifest['wall_s']} s")
     return 0
+
+
+def _robot_option(args):
+    """The RobotSetup of --robot FILE, else of the spec's [robot] file, else None."""
+    from tkujax.robot.closed_loop import robot_setup
+    from tkujax.studies.spec import load_spec
+
+    path = args.robot or load_spec(args.spec).robot_file
+    if path is None:
+        return None
+    if args.model:
+        raise SystemExit("give --robot (or a spec's [robot] file) or --model, not both")
+    return robot_setup(path)
 
 
 def _numbers(d: dict) -> str:
@@ -120,6 +134,9 @@ def _add_sweep(sub) -> None:
                         "its [study]), or 'recommended': the recommended recovery policy")
     p.add_argument("--model", default=None, metavar="FILE.json",
                    help="model parameters JSON (tkujax calibrate's model_params.json)")
+    p.add_argument("--robot", default=None, metavar="FILE.toml",
+                   help="a robot file (docs/robots.md): the sweep runs on that robot with "
+                        "the controller scaled to it (default: the spec's [robot] file)")
     p.add_argument("--max-chunks", type=int, default=None, help="stop after this many new chunks")
     add_parallel_options(p)
     p.set_defaults(func=_cmd_sweep)

@@ -114,7 +114,8 @@ def controller_params_for(geo: RobotGeometry,
     - lift height H_Sup and the capture-point trigger distances x reach / reach_ref;
     - the standing lean and the capture point's angle offset = the robot's stand lean, and the
       thresholds at the same angles from it as TKU-X's (12 deg = lean + 5 deg forward, -2 deg =
-      lean - 9 deg backward; the backward threshold cannot pass 0, where it is held).
+      lean - 9 deg backward; neither threshold can pass 0, where it is held: a robot leaning
+      more than 5 deg backward keeps the forward threshold at 0).
     For TKU-X's own geometry this is the reference itself."""
     ref = reference or ControllerParams.paper()
     scale_t = math.sqrt(geo.com_height_m / ref.com_height)
@@ -126,7 +127,7 @@ def controller_params_for(geo: RobotGeometry,
         cp_trigger_backward_m=ref.cp_trigger_backward_m * scale_l,
         cp_trigger_lateral_m=ref.cp_trigger_lateral_m * scale_l,
         standing_lean=lean, cp_angle_offset=lean,
-        eps_forward=lean + (ref.eps_forward - ref.standing_lean),
+        eps_forward=max(0.0, lean + (ref.eps_forward - ref.standing_lean)),
         eps_backward=max(0.0, ref.eps_backward + ref.standing_lean - lean),
         hip_offset_y=geo.hip_offset_y_m, hip_to_ankle_z=geo.hip_to_ankle_z_m,
         thigh_length=geo.thigh_length_m, calf_length=geo.calf_length_m,

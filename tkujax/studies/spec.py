@@ -217,6 +217,7 @@ class SweepSpec:
     fpga_grid: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
     ensemble: EnsembleRef | None = None   # [randomize] ensemble
     tree_passes: str = SWEEP_TREE_PASSES[0]   # [sweep] tree_passes (SWEEP_TREE_PASSES)
+    robot_file: str | None = None   # [robot] file: a robot file (tkujax.robot), absolute
 
     def fixed_point_config(self, rec: dict | None = None) -> FixedPointConfig | None:
         """The FixedPointConfig of a record (its fpga_* columns over [fpga]); None for float."""
@@ -286,7 +287,8 @@ def _tree_passes(sweep: dict) -> str:
 
 def parse_spec(data: dict) -> SweepSpec:
     """Validate a parsed TOML document."""
-    table("top level", data, {"sweep", "push", "controller", "randomize", "step", "fpga"})
+    table("top level", data, {"sweep", "push", "controller", "randomize", "step", "fpga",
+                              "robot"})
     sweep = table("sweep", data.get("sweep", {}), SWEEP_FIELDS)
     for k, types in SWEEP_FIELDS.items():
         if k in sweep and (isinstance(sweep[k], bool) or not isinstance(sweep[k], types)):
@@ -361,7 +363,22 @@ def parse_spec(data: dict) -> SweepSpec:
                      randomize=randomize, raw=data, phase_default=phase_default,
                      step_grid=step_grid,
                      step_reference=step_reference, arithmetic=arithmetic, fpga=fpga,
-                     fpga_grid=fpga_grid, ensemble=ensemble, tree_passes=tree_passes)
+                     fpga_grid=fpga_grid, ensemble=ensemble, tree_passes=tree_passes,
+                     robot_file=_robot_file(data))
+
+
+def _robot_file(data: dict) -> str | None:
+    """[robot] file = "PATH" (relative to the current directory, or absolute): the robot file
+    the sweep runs on (docs/robots.md); the sweep's runner loads it (`tkujax sweep` does)."""
+    robot = table("robot", data.get("robot", {}), {"file"})
+    if not robot:
+        return None
+    path = robot.get("file")
+    if not isinstance(path, str) or not path:
+        raise SpecError(f"robot.file: expected the path of a robot file, got {path!r}")
+    if not Path(path).is_file():
+        raise SpecError(f"robot.file: robot file not found: {path}")
+    return str(Path(path).resolve())
 
 
 def _parse_step(data: dict) -> tuple[dict[str, np.ndarray], bool]:

@@ -32,6 +32,7 @@ from tkujax.control.io import controller_params_from
 from tkujax.control.params import ControllerParams
 from tkujax.control.policy import Schedule, schedule_to_dict
 from tkujax.model import ModelParams
+from tkujax.sim.setup import RobotSetup
 from tkujax.studies import chunks
 from tkujax.studies.chunk_program import (chunk_keys, fpga_groups, make_chunk_fn, record_inputs,
                                           traced_params)
@@ -180,7 +181,7 @@ def _describe(spec: SweepSpec, digest: str, n: int, n_chunks: int, padded: int,
         name=spec.name, spec=spec.raw, spec_hash=digest, n_pushes=n,
         chunk_size=spec.chunk_size, n_chunks=n_chunks, padded_chunk=padded,
         controller_params=dataclasses.asdict(params),
-        model_params=dataclasses.asdict(model_params or ModelParams()),
+        model_params=model_record(model_params),
         versions=versions(), git_commit=git_commit(),
         devices=[str(d) for d in jax.devices()], num_processes=num_processes,
         backend=backend, format="npz chunks, one record per push",
@@ -209,7 +210,39 @@ def _checked_inputs(spec: SweepSpec | str | Path, params: ControllerParams | Non
     if schedule is not None and spec.arithmetic == "fixed":
         raise SpecError("a scheduled policy (--params with a 'schedule') has no fixed-point "
                         "controller twin: use a plain parameter file with arithmetic = 'fixed'")
+    if isinstance(model_params, RobotSetup):
+        check_robot_sweep(spec, model_params)
+        return spec, params or model_params.params
+    if spec.robot_file is not None:
+        raise SpecError(f"robot.file: the sweep runs on {spec.robot_file}: run it with `tkujax "
+                        "sweep` or pass model_params=tkujax.robot.closed_loop.robot_setup(file)")
     return spec, params or ControllerParams.paper()
+
+
+def model_record(model_params: ModelParams | RobotSetup | None) -> dict:
+    """The manifest's model: ModelParams' fields, or a robot file's name, path and sha256."""
+    if isinstance(model_params, RobotSetup):
+        return dict(robot=model_params.name, robot_file=model_params.source,
+                    robot_sha256=model_params.digest)
+    return dataclasses.asdict(model_params or ModelParams())
+
+
+def check_robot_sweep(spec: SweepSpec, robot: RobotSetup) -> None:
+    """Refuse a sweep a robot file cannot run: another [robot] file, an ensemble, the
+    fixed-point twin, or push heights off the robot (outside 0.3-1.6 x its CoM height)."""
+    if spec.robot_file is not None and spec.robot_file != robot.source:
+        raise SpecError(f"robot.file: the spec names {spec.robot_file}, the sweep was given "
+                        f"{robot.source}")
+    if spec.ensemble is not None or spec.arithmetic == "fixed":
+        raise SpecError("a robot file's sweep takes no [randomize] ensemble and no fixed-point "
+                        "controller")
+    heights = record_inputs(spec)["height_m"]
+    h = float(robot.params.com_height)
+    lo, hi = 0.3 * h, 1.6 * h
+    bad = heights[(heights < lo) | (heights > hi)]
+    if bad.size:
+        raise SpecError(f"push.height_m: {float(bad[0]):g} m is off {robot.name} (its CoM is "
+                        f"{h:.3f} m high; allowed {lo:.3f}-{hi:.3f} m)")
 
 
 def _finish(out: Path, n_chunks: int, wall: float, computed: int):

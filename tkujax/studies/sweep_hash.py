@@ -16,6 +16,7 @@ from tkujax.control.fixed import FixedPointConfig
 from tkujax.control.params import ControllerParams
 from tkujax.control.policy import Schedule, schedule_to_dict
 from tkujax.model import ModelParams
+from tkujax.sim.setup import RobotSetup
 from tkujax.studies.record_schema import TREE_PASSES_BEFORE, hashed_fields
 from tkujax.studies.spec import SweepSpec
 
@@ -35,7 +36,10 @@ def spec_hash(spec: SweepSpec, params: ControllerParams, model_params: ModelPara
     # Fields added later enter the hash only when set, so older sweeps still resume. The model
     # enters in full otherwise: a changed default robot (e.g. the calibration) is another sweep.
     p = hashed_fields("controller_params", dataclasses.asdict(params))
-    m = hashed_fields("model_params", dataclasses.asdict(model_params))
+    if isinstance(model_params, RobotSetup):   # a robot file: by its content and its model's
+        m = {"robot sha256": model_params.digest}
+    else:
+        m = hashed_fields("model_params", dataclasses.asdict(model_params))
     parts = [spec.raw, p, m]
     if spec.arithmetic == "fixed":   # the FixedPointConfig defaults fill every unset [fpga] key
         parts.append({"fixed_point_defaults": dataclasses.asdict(FixedPointConfig())})
