@@ -7,9 +7,9 @@ base as the pushed body, tkujax's IMU and touch sensors, the ankle sites, the st
 and as the fall test's bodies the non-foot collision spheres and boxes that can touch the floor
 (mesh geoms are not in it). The IMU has no low-pass (TKU-X's is a model of TKU-X's sensor).
 
-Phase 1: the closed loop's controller writes TKU-X's joint conventions; it is meaningful on a
-robot for which `analytic_ik_applies` holds and whose leg actuators are one block, right leg
-first (tkujax-generated robots). See docs/robots.md.
+For the closed loop use `tkujax.robot.closed_loop.robot_setup`: it adds the leg map (the
+controller's joint conventions to the robot's), the mesh fall test and the controller's
+parameters. See docs/robots.md.
 """
 
 from __future__ import annotations

@@ -368,17 +368,11 @@ def parse_spec(data: dict) -> SweepSpec:
 
 
 def _robot_file(data: dict) -> str | None:
-    """[robot] file = "PATH" (relative to the current directory, or absolute): the robot file
-    the sweep runs on (docs/robots.md); the sweep's runner loads it (`tkujax sweep` does)."""
-    robot = table("robot", data.get("robot", {}), {"file"})
-    if not robot:
-        return None
-    path = robot.get("file")
-    if not isinstance(path, str) or not path:
+    """[robot] file = "PATH" (from the current directory): the robot file (docs/robots.md)."""
+    path = table("robot", data.get("robot", {}), {"file"}).get("file")
+    if path is not None and not (isinstance(path, str) and Path(path).is_file()):
         raise SpecError(f"robot.file: expected the path of a robot file, got {path!r}")
-    if not Path(path).is_file():
-        raise SpecError(f"robot.file: robot file not found: {path}")
-    return str(Path(path).resolve())
+    return None if path is None else str(Path(path).resolve())
 
 
 def _parse_step(data: dict) -> tuple[dict[str, np.ndarray], bool]:
