@@ -22,6 +22,7 @@ import jax.numpy as jnp
 from tkujax.sim.metrics import FALL_BODY_CLEARANCE_M, FALL_PELVIS_HEIGHT_M
 from tkujax.studies.gradient.margin import MarginConfig, clearance_m, margin_loss
 from tkujax.studies.tune.reparam import DEG
+from tkujax.studies.validation import SpecError, number, table
 
 
 @dataclasses.dataclass(frozen=True)
@@ -133,3 +134,17 @@ def harm_weighted_mean(per_push, kept, off_survived=None, w_harm: float = 0.0):
         return jnp.sum(jnp.where(kept, per_push, 0.0)) / jnp.maximum(jnp.sum(kept), 1)
     weight = 1.0 + w_harm * off_survived
     return jnp.sum(jnp.where(kept, weight * per_push, 0.0)) / jnp.maximum(jnp.sum(kept), 1)
+
+
+def parse_loss(raw) -> LossConfig:
+    """[tune.loss]: kind ("soft" | "margin") and the numbers of LOSS_FIELDS."""
+    loss_raw = table("tune.loss", raw, set(LOSS_FIELDS) | {"kind"})
+    kind = loss_raw.pop("kind", "soft")
+    if kind not in LOSS_KINDS:
+        raise SpecError(f"tune.loss.kind: expected one of {list(LOSS_KINDS)}, got {kind!r}")
+    margin_keys = {"window_s", "offset_m", "scale_m", "softmax_m"} & set(loss_raw)
+    if margin_keys and kind != "margin":
+        raise SpecError(f"tune.loss.{sorted(margin_keys)[0]}: a setting of the margin loss; "
+                        "set tune.loss.kind = \"margin\" or remove it")
+    return LossConfig(kind=kind, **{k: number(f"tune.loss.{k}", v, *LOSS_FIELDS[k])
+                                    for k, v in loss_raw.items()})

@@ -28,7 +28,7 @@ from tkujax.studies.tune.evaluate import evaluate, harmed_directions, params_jso
 from tkujax.studies.tune.problem import x64
 from tkujax.studies.tune.policy import PolicyReparam, save_policy
 from tkujax.studies.tune.report import plot_outputs, summary_markdown
-from tkujax.studies.tune.search import SearchConfig, run_search
+from tkujax.studies.tune.search import GradientOptions, SearchConfig, run_search
 from tkujax.studies.validation import integer
 from tkujax.studies.tune.spec import (TuneSpec, ensembles_record, grid_pushes,
                                       load_tune_spec, make_problem, parse_tune_spec,
@@ -123,7 +123,8 @@ def _run_tune(spec: TuneSpec, out: Path, quiet: bool, compiler_options: dict | N
         f"up to {spec.iterations} iterations, tuning {', '.join(run.reparam.fields)}. Compiling "
         "(minutes on a CPU) ...")
     found = run_search(run.method, problem, run.z0, train, keys, run.search, seed=spec.seed,
-                       log=log)
+                       log=log, options=GradientOptions(spec.diagnose_every,
+                                                        spec.bundle_antithetic))
     cands = {"before": run.z0, "after": np.asarray(found["z_best"])}
     evals, evals_shifted, heldout = ({}, None, None) if not evaluation else _evaluate(
         run, problem, cands, compiler_options, log)
