@@ -294,14 +294,14 @@ class TuneProblem:
 
     def grouped_value_and_grad(self, z, temperature, batch, keys, groups: int, noise=None):
         """(losses (G,), grads (G, k)) over `groups` equal groups of the batch (numpy).
-        noise (n, k): bundled gradients, push i at z + bundle_sigma * noise_i (only with
-        bundle_sigma > 0; None there is an error, as noise without it)."""
+        noise (n, k): bundled gradients, push i at z + bundle_sigma * noise_i (bundle_sigma >
+        0 only: noise with bundle_sigma = 0 is an error); None: every push at z."""
         n = len(keys)
         if n % groups:
             raise ValueError(f"batch {n} must be a multiple of the gradient groups {groups}")
-        if (noise is None) != (self.bundle_sigma == 0):
-            raise ValueError("TuneProblem.grouped_value_and_grad: pass noise (n, k) exactly "
-                             f"when bundle_sigma > 0 (bundle_sigma = {self.bundle_sigma})")
+        if noise is not None and not self.bundle_sigma:
+            raise ValueError("TuneProblem.grouped_value_and_grad: noise given, but "
+                             "bundle_sigma = 0")
         batch = self.with_off_survived(batch, keys)
         with x64(self.float64):
             z, t, b, k = self.cast_args(z, temperature, batch, keys)
