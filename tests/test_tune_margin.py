@@ -120,6 +120,27 @@ def test_spec_keys_are_refused_with_key_range_and_value(tune, words):
         assert w in str(err.value), (w, str(err.value))
 
 
+def test_spec_options_reach_the_problem_and_saved_params_stay_plain():
+    from tkujax.control.controller import has_timing_gradient
+    from tkujax.studies.tune.evaluate import params_json
+    from tkujax.studies.tune.spec import make_problem
+
+    spec = _spec(loss=dict(kind="margin", window_s=0.3), gradient_window_ticks=5,
+                 timing_gradient=True, bundle_sigma=0.05)
+    p = make_problem(spec)
+    assert p.config.program.gradient_window_ticks == 5
+    assert p.loss_cfg.kind == "margin" and p.loss_cfg.window_s == 0.3
+    assert p.timing_gradient and p.bundle_sigma == 0.05
+    z = p.reparam.latent_of(p.base)
+    assert has_timing_gradient(p._params(jnp.asarray(z), 0.0)[0])     # in the loss
+    saved = p.reparam.params_np(p.base, z)                             # what is written
+    assert type(saved) is ControllerParams and type(p.base) is ControllerParams
+    assert params_json(saved.validate()) == pytest.approx(params_json(spec.base_params()))
+    off = make_problem(_spec())
+    assert off.config.program.gradient_window_ticks is None
+    assert not has_timing_gradient(off._params(jnp.asarray(z), 0.0)[0])
+
+
 def test_bundle_noise_antithetic_pairs_and_seeded():
     a = bundle_noise(np.random.default_rng(3), 6, 4, antithetic=True)
     np.testing.assert_array_equal(a[3:], -a[:3])
