@@ -11,6 +11,7 @@ from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 
 @jax.tree_util.register_dataclass
@@ -41,3 +42,15 @@ def bundled_value_and_grad(per_push: Callable, z: jax.Array, pushes, key: jax.Ar
     losses, grads = jax.vmap(per_push)(z + sigma * eps, pushes)
     return Bundled(loss=jnp.mean(losses), grad=jnp.mean(grads, 0), losses=losses, grads=grads,
                    noise=eps)
+
+
+def bundle_noise(rng, n: int, d: int, antithetic: bool = False):
+    """(n, d) standard normal noise eps_i from a numpy Generator (the tuner's bundled
+    gradients, TuneProblem.grouped_value_and_grad): antithetic, eps_{i + n/2} = -eps_i (n
+    even), as in `bundled_value_and_grad`."""
+    if not antithetic:
+        return rng.standard_normal((n, d))
+    if n % 2:
+        raise ValueError("antithetic noise needs an even number of pushes")
+    half = rng.standard_normal((n // 2, d))
+    return np.concatenate([half, -half], 0)

@@ -14,6 +14,16 @@ off survives it. That does not depend on the tuned parameters, so it is computed
 by a forward pass with control disabled (`with_off_survived`) and enters the loss as a column
 (OFF_SURVIVED) of the batch: the loss stays one compiled function of (z, temperature, batch,
 keys).
+
+Gradient options (each off by default, the program then unchanged):
+  timing_gradient   the controller runs with `with_timing_gradient` (a straight-through
+                    interpolated step start: step timing gets a gradient; forward values equal).
+                    Only inside the loss: `reparam.params_np` stays a plain ControllerParams.
+  bundle_sigma > 0  bundled (randomised-smoothing) gradients in `grouped_value_and_grad`: push
+                    i runs at z + bundle_sigma * noise_i (noise (n, k) given by the caller,
+                    `tkujax.studies.gradient.bundled.bundle_noise`), so the gradient is that of
+                    the loss smoothed by a Gaussian of width bundle_sigma.
+  rollout_options   e.g. {"gradient_window_ticks": K}: truncated backpropagation windows.
 """
 
 from __future__ import annotations
@@ -25,6 +35,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from tkujax.control.controller import with_timing_gradient
 from tkujax.control.params import ControllerParams
 from tkujax.sim.metrics import outcomes
 from tkujax.sim.push import Push
@@ -84,9 +95,13 @@ class TuneProblem:
                  duration_s: float = 1.2, remat: bool = True, float64: bool = False,
                  model_params=None, compiler_options: dict | None = None,
                  quantise_targets: bool = True, rollout_options: dict | None = None,
-                 robots: RobotSet | None = None):
+                 robots: RobotSet | None = None, timing_gradient: bool = False,
+                 bundle_sigma: float = 0.0):
         self.reparam, self.base, self.loss_cfg = reparam, base, loss_cfg
         self.float64 = float64
+        self.timing_gradient, self.bundle_sigma = bool(timing_gradient), float(bundle_sigma)
+        if not (np.isfinite(self.bundle_sigma) and self.bundle_sigma >= 0):
+            raise ValueError(f"TuneProblem: bundle_sigma must be >= 0, got {bundle_sigma!r}")
         # rollout_options: further static RolloutConfig fields (unroll_ticks, unroll_substeps,
         # tree_passes; remat may be a RolloutConfig remat mode): `tkujax bench --grad-variants`.
         # remat=True (tune.remat) checkpoints each physics substep (TUNE_REMAT).
@@ -130,6 +145,10 @@ class TuneProblem:
         self._vg_groups = jax.jit(jax.vmap(jax.value_and_grad(
             lambda z, t, b, k, rv: self._loss(z, t, b, k, rv)[0]),
             in_axes=(None, None, 0, 0, None)), compiler_options=opts)
+        # Bundled: the same with each push's noise (groups, n / groups, k), in_axes 0.
+        self._vg_groups_bundled = jax.jit(jax.vmap(jax.value_and_grad(
+            lambda z, t, b, k, rv, e: self._loss(z, t, b, k, rv, e)[0]),
+            in_axes=(None, None, 0, 0, None, 0)), compiler_options=opts)
         # Control off (w_harm): compiled on first use only.
         self._off = jax.jit(jax.vmap(self._off_one, in_axes=(0, 0, None)),
                             compiler_options=opts)
@@ -166,15 +185,25 @@ class TuneProblem:
         enter as constants here (the jitted methods pass them as arguments)."""
         return self._loss(z, temperature, batch, keys, self._robot_values)
 
-    def _loss(self, z, temperature, batch: dict, keys, robot_values):
+    def _params(self, z, temperature):
+        """(ControllerParams, schedule or None) of latents z: the base moved by the reparam,
+        at the gate temperature, with the timing gradient when asked for."""
         params = dataclasses.replace(self.reparam.apply(self.base, z),
                                      gate_temperature=temperature)
+        if self.timing_gradient:
+            params = with_timing_gradient(params)
         # A PolicyReparam (tune.policy other than "scalars") also schedules some fields on the
         # filtered state; a plain Reparam has no schedule (the default program).
         schedule = self.reparam.schedule(z) if hasattr(self.reparam, "schedule") else None
+        return params, schedule
+
+    def _loss(self, z, temperature, batch: dict, keys, robot_values, noise=None):
+        """noise None: every push at z; noise (n, k): push i at z + bundle_sigma * noise_i
+        (a Python branch at trace time)."""
         idx, cfg = self.index, self.loss_cfg
 
-        def one(rec, key):
+        def one(rec, key, zi):
+            params, schedule = self._params(zi, temperature)
             push = Push(rec["impulse_ns"], rec["azimuth_deg"] * DEG, rec["height_m"],
                         rec["duration_s"], rec["onset_s"])
             model, state = self._model_state(rec, robot_values)
@@ -183,7 +212,10 @@ class TuneProblem:
             out = outcomes(series, push.onset_s)
             return push_loss(series, push.onset_s, cfg), {k: out[k] for k in EVAL_KEYS}
 
-        terms, outs = jax.vmap(one)(batch, keys)
+        if noise is None:     # z closed over: the program it always was
+            terms, outs = jax.vmap(lambda rec, key: one(rec, key, z))(batch, keys)
+        else:
+            terms, outs = jax.vmap(one)(batch, keys, z + self.bundle_sigma * noise)
         # A diverged push (numerical blow-up) is neither fell nor survived: it is left out of
         # the mean (its NaN would poison it) and reported in outcomes["diverged"].
         kept = ~outs["diverged"]
@@ -260,17 +292,25 @@ class TuneProblem:
             out = self._pop(*self.cast_args(zs, temperature, batch, keys), self._robot_values)
             return np.asarray(out, np.float64)
 
-    def grouped_value_and_grad(self, z, temperature, batch, keys, groups: int):
-        """(losses (G,), grads (G, k)) over `groups` equal groups of the batch (numpy)."""
+    def grouped_value_and_grad(self, z, temperature, batch, keys, groups: int, noise=None):
+        """(losses (G,), grads (G, k)) over `groups` equal groups of the batch (numpy).
+        noise (n, k): bundled gradients, push i at z + bundle_sigma * noise_i (bundle_sigma >
+        0 only: noise with bundle_sigma = 0 is an error); None: every push at z."""
         n = len(keys)
         if n % groups:
             raise ValueError(f"batch {n} must be a multiple of the gradient groups {groups}")
+        if noise is not None and not self.bundle_sigma:
+            raise ValueError("TuneProblem.grouped_value_and_grad: noise given, but "
+                             "bundle_sigma = 0")
         batch = self.with_off_survived(batch, keys)
         with x64(self.float64):
             z, t, b, k = self.cast_args(z, temperature, batch, keys)
             split = lambda x: x.reshape((groups, n // groups) + x.shape[1:])  # noqa: E731
-            loss, g = self._vg_groups(z, t, {c: split(v) for c, v in b.items()}, split(k),
-                                      self._robot_values)
+            args = (z, t, {c: split(v) for c, v in b.items()}, split(k), self._robot_values)
+            if noise is None:
+                loss, g = self._vg_groups(*args)
+            else:
+                loss, g = self._vg_groups_bundled(*args, split(jnp.asarray(noise, self.dtype)))
             return np.asarray(loss, np.float64), np.asarray(g, np.float64)
 
     def forward(self, z, temperature, batch, keys):

@@ -119,6 +119,7 @@ def summary_markdown(rec: dict, comparison: dict | None = None) -> str:
                       + (" — significant." if d.mean() < -2 * se else " — not significant.")]
             lines += _by_direction(rec)
     lines += _shifted_section(rec)
+    lines += gradient_section(rec["run"].get("gradient_diagnostics"))
     if comparison is not None:
         from tkujax.studies.tune.compare import compare_markdown
 
@@ -184,6 +185,37 @@ def _shifted_section(rec: dict) -> list[str]:
             se = d.std(ddof=1) / math.sqrt(d.size)
             out += ["", f"Paired fall difference tuned - start: {100 * d.mean():+.2f} +- "
                     f"{100 * se:.2f} pp (s.e., n = {d.size})."]
+    return out
+
+
+def gradient_section(diag: dict | None) -> list[str]:
+    """summary.md's gradient diagnostics (search.OneSeedCalls.record): per-push gradients'
+    half-batch cosine, top-5 share and median norm (first, median and last call), and the
+    checked steps' predicted against measured change of the differentiated loss."""
+    if not diag or not diag["per_call"]:
+        return []
+    calls = diag["per_call"]
+    cos = np.array([c["half_cosine"] for c in calls], float)
+    top = np.array([c["top_share"] for c in calls], float)
+    med = np.array([c["norm_quantiles"]["0.5"] if "0.5" in c["norm_quantiles"]
+                    else c["norm_quantiles"][0.5] for c in calls], float)
+    out = ["", "## Gradient diagnostics (per-push gradients, training batch)", "",
+           f"{len(calls)} gradient calls"
+           + (f", bundled (sigma {diag['bundle_sigma']:g}"
+              f"{', antithetic' if diag['bundle_antithetic'] else ''})"
+              if diag["bundle_sigma"] else "")
+           + f"; diagnostics took {diag['diagnostics_s']} s of the budget.", "",
+           "| | first | median | last |", "|---|---|---|---|"]
+    for name, v in (("half-batch cosine", cos), ("top-5 share of |g|^2", top),
+                    ("median per-push norm", med)):
+        out.append(f"| {name} | {v[0]:.3g} | {np.nanmedian(v):.3g} | {v[-1]:.3g} |")
+    checks = diag["step_checks"]
+    if checks:
+        out += ["", f"Steps checked every {diag['diagnose_every']} gradient calls (soft-gate "
+                "loss, same batch):", "", "| call | step norm | cos(step, -g) | predicted | "
+                "measured |", "|---|---|---|---|---|"]
+        out += [f"| {c['call']} | {c['step_norm']:.3g} | {c['cos_step_neg_grad']:.3f} | "
+                f"{c['predicted']:+.4g} | {c['measured']:+.4g} |" for c in checks]
     return out
 
 

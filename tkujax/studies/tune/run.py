@@ -28,7 +28,7 @@ from tkujax.studies.tune.evaluate import evaluate, harmed_directions, params_jso
 from tkujax.studies.tune.problem import x64
 from tkujax.studies.tune.policy import PolicyReparam, save_policy
 from tkujax.studies.tune.report import plot_outputs, summary_markdown
-from tkujax.studies.tune.search import SearchConfig, run_search
+from tkujax.studies.tune.search import GradientOptions, SearchConfig, calls_used, run_search
 from tkujax.studies.validation import integer
 from tkujax.studies.tune.spec import (TuneSpec, ensembles_record, grid_pushes,
                                       load_tune_spec, make_problem, parse_tune_spec,
@@ -122,8 +122,11 @@ def _run_tune(spec: TuneSpec, out: Path, quiet: bool, compiler_options: dict | N
     log(f"tune {spec.name}: method {run.method}, {spec.batch} pushes x {spec.duration_s} s, "
         f"up to {spec.iterations} iterations, tuning {', '.join(run.reparam.fields)}. Compiling "
         "(minutes on a CPU) ...")
+    # Bundled gradients and diagnostics concern the methods that take gradients only.
+    options = (dict(options=GradientOptions(spec.diagnose_every, spec.bundle_antithetic))
+               if "gradient" in calls_used(run.method) else {})
     found = run_search(run.method, problem, run.z0, train, keys, run.search, seed=spec.seed,
-                       log=log)
+                       log=log, **options)
     cands = {"before": run.z0, "after": np.asarray(found["z_best"])}
     evals, evals_shifted, heldout = ({}, None, None) if not evaluation else _evaluate(
         run, problem, cands, compiler_options, log)

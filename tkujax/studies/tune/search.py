@@ -11,24 +11,45 @@ loop, `drive`, runs any of them for one seed (`run_search`, through `OneSeedCall
 seeds side by side (`tkujax.studies.tune.lockstep`, one compiled call per step for all seeds).
 
 Pushes simulated count a value-and-gradient rollout as one push.
+
+Gradient options of one seed's calls (`GradientOptions`, `OneSeedCalls`; off by default, the
+calls then those they always were):
+  bundled gradients    with a problem whose bundle_sigma > 0, every gradient call draws fresh
+                       per-push noise (a numpy Generator seeded by the run's seed; antithetic
+                       pairs with bundle_antithetic) and asks for per-push gradients at
+                       z + bundle_sigma * noise_i.
+  diagnose_every = N   every gradient call computes per-push gradients (one compiled shape,
+                       groups = n; the group means are then taken here) and records their
+                       diagnostics (`tkujax.studies.gradient.diagnostics.summary`: half-batch
+                       cosine, top-5 share of the squared norm, norm quantiles); every N-th
+                       call also checks the step the searcher actually takes from it: the
+                       predicted change g . (z_next - z) of the differentiated loss (soft gate
+                       at cfg.temperature_deg, the same batch) against the measured one, by a
+                       forward at z and one at z_next (same compiled forward; inside the
+                       budget clock, their time reported as diagnostics_s).
 """
 
 from __future__ import annotations
 
 import concurrent.futures
+import dataclasses
 import time
 from collections.abc import Callable, Sequence
 from typing import Protocol
 
 import numpy as np
 
+from tkujax.studies.gradient.bundled import bundle_noise
+from tkujax.studies.gradient.diagnostics import cosine, summary
 from tkujax.studies.tune.reparam import DEG
+from tkujax.studies.validation import SpecError, boolean, integer, number
 from tkujax.studies.tune.searchers import (METHODS, SearchConfig, adam_update,
                                            alpha_order_mix, finite_loss, searcher_class)
 
 __all__ = ["METHODS", "SearchConfig", "alpha_order_mix", "run_search", "drive", "warm_up",
            "calls_used",
-           "warm_up_calls", "first_order_grads", "clipped_group_means", "OneSeedCalls"]
+           "warm_up_calls", "first_order_grads", "clipped_group_means", "OneSeedCalls",
+           "GradientOptions"]
 
 _adam = adam_update          # the name results/tune_dimension/cpu_gradient_check imports
 
@@ -69,13 +90,50 @@ class SeedCalls(Protocol):
     def gradients(self, zs: np.ndarray) -> np.ndarray: ...        # (S, k) -> (S, groups, k)
 
 
+@dataclasses.dataclass(frozen=True)
+class GradientOptions:
+    """What a seed's gradient calls add (module docstring); the defaults add nothing."""
+
+    diagnose_every: int = 0          # 0: no diagnostics; N: per-push diagnostics, step check
+    bundle_antithetic: bool = False  # antithetic bundle noise (problem.bundle_sigma > 0)
+
+
+def parse_gradient_options(tune: dict, batch: int) -> dict:
+    """tune.gradient_window_ticks, timing_gradient, bundle_sigma, bundle_antithetic,
+    diagnose_every (TuneSpec fields by name)."""
+    window = tune.get("gradient_window_ticks")
+    out = dict(
+        gradient_window_ticks=None if window is None else integer(
+            "tune.gradient_window_ticks", window, 1, 100_000),
+        timing_gradient=boolean("tune.timing_gradient", tune.get("timing_gradient", False)),
+        bundle_sigma=number("tune.bundle_sigma", tune.get("bundle_sigma", 0.0), 0.0, 10.0,
+                            "(latent units)"),
+        bundle_antithetic=boolean("tune.bundle_antithetic",
+                                  tune.get("bundle_antithetic", False)),
+        diagnose_every=integer("tune.diagnose_every", tune.get("diagnose_every", 10), 0,
+                               1_000_000))
+    if out["bundle_antithetic"] and batch % 2:
+        raise SpecError(f"tune.bundle_antithetic: antithetic pairs need an even tune.batch, "
+                        f"got {batch}")
+    return out
+
+
 class OneSeedCalls:
     """SeedCalls for one seed (S = 1) through the problem's own forward, population and
-    grouped value-and-gradient (any object with those methods: the tests' landscapes too)."""
+    grouped value-and-gradient (any object with those methods: the tests' landscapes too).
+    options / seed: bundled gradients and diagnostics (module docstring); `diagnostics` holds
+    one record per gradient call, `step_checks` one per checked step."""
 
-    def __init__(self, problem, batch: dict, keys, cfg: SearchConfig):
+    def __init__(self, problem, batch: dict, keys, cfg: SearchConfig,
+                 options: GradientOptions = GradientOptions(), seed: int = 0):
         self.problem, self.batch, self.keys, self.cfg = problem, batch, keys, cfg
         self.pushes = len(keys)
+        self.options, self.rng = options, np.random.default_rng(seed)
+        self.sigma = float(getattr(problem, "bundle_sigma", 0.0))
+        self.diagnostics: list[dict] = []
+        self.step_checks: list[dict] = []
+        self.diagnostics_s = 0.0
+        self._pending = None           # (call, z, g, soft loss at z) of a step to check
 
     def forward(self, zs) -> np.ndarray:
         return np.array([float(self.problem.forward(zs[0], 0.0, self.batch, self.keys)[0])])
@@ -85,22 +143,78 @@ class OneSeedCalls:
                           np.float64)[None]
 
     def gradients(self, zs) -> np.ndarray:
-        return first_order_grads(self.problem.grouped_value_and_grad, zs[0],
-                                 self.cfg.temperature_deg * DEG, self.batch, self.keys,
-                                 self.cfg, self.pushes)[None]
+        tau = self.cfg.temperature_deg * DEG
+        if not self.sigma and not self.options.diagnose_every:
+            return first_order_grads(self.problem.grouped_value_and_grad, zs[0], tau,
+                                     self.batch, self.keys, self.cfg, self.pushes)[None]
+        z, n = np.asarray(zs[0], float), self.pushes
+        extra = {}
+        if self.sigma:
+            extra["noise"] = bundle_noise(self.rng, n, z.size, self.options.bundle_antithetic)
+        losses, per_push = self.problem.grouped_value_and_grad(z, tau, self.batch, self.keys,
+                                                               n, **extra)
+        per_push = np.asarray(per_push, float)
+        if self.options.diagnose_every:
+            self._diagnose(z, tau, np.asarray(losses, float), per_push)
+        if self.cfg.push_clip > 0:
+            return clipped_group_means(per_push, self.cfg.groups, self.cfg.push_clip)[None]
+        g = np.where(np.isfinite(per_push), per_push, 0.0)
+        return g.reshape(self.cfg.groups, n // self.cfg.groups, -1).mean(1)[None]
+
+    def _soft_loss(self, z, tau) -> float:
+        return float(self.problem.forward(z, tau, self.batch, self.keys)[0])
+
+    def _diagnose(self, z, tau, losses, per_push) -> None:
+        """Record this call's per-push diagnostics; finish the pending step check at z (the
+        point the searcher moved to); start one every diagnose_every calls."""
+        t0 = time.perf_counter()
+        call = len(self.diagnostics)
+        finite = np.all(np.isfinite(per_push), axis=1)
+        g = np.where(finite[:, None], per_push, 0.0)
+        rec = dict(call=call, loss=float(np.nanmean(losses)), nonfinite=int((~finite).sum()),
+                   **summary(g))
+        self.diagnostics.append(rec)
+        if self._pending is not None:
+            c, z0, g0, l0 = self._pending
+            dz = z - z0
+            self.step_checks.append(dict(
+                call=c, step_norm=float(np.linalg.norm(dz)), cos_step_neg_grad=cosine(dz, -g0),
+                predicted=float(g0 @ dz), measured=self._soft_loss(z, tau) - l0))
+            self._pending = None
+        if call % self.options.diagnose_every == 0:
+            self._pending = (call, z, g.mean(0), self._soft_loss(z, tau))
+        self.diagnostics_s += time.perf_counter() - t0
+
+    def reset_diagnostics(self) -> None:
+        """Forget what the warm-up's gradient call recorded (called by `drive` when the clock
+        starts)."""
+        self.diagnostics, self.step_checks, self.diagnostics_s = [], [], 0.0
+        self._pending = None
+
+    def record(self) -> dict:
+        """The run record's gradient_diagnostics."""
+        return dict(diagnose_every=self.options.diagnose_every, bundle_sigma=self.sigma,
+                    bundle_antithetic=self.options.bundle_antithetic,
+                    diagnostics_s=round(self.diagnostics_s, 3), per_call=self.diagnostics,
+                    step_checks=self.step_checks)
 
 
 def run_search(method: str, problem, z0, batch: dict, keys, cfg: SearchConfig,
-               seed: int, log: Callable[[str], None] | None = None) -> dict:
+               seed: int, log: Callable[[str], None] | None = None,
+               options: GradientOptions = GradientOptions()) -> dict:
     """Run one method within cfg.budget_s. Returns dict(method, seed, z_best, best_loss,
-    compile_s, iterations, curve, extra)."""
-    searcher_class(method)
+    compile_s, iterations, curve, extra), and gradient_diagnostics (`OneSeedCalls.record`)
+    when options.diagnose_every > 0 and the method uses gradients."""
+    cls = searcher_class(method)
     # The control-off column of the harm weight (w_harm > 0) is computed here, once for the
     # whole search, before the clock starts.
     if hasattr(problem, "with_off_survived"):
         batch = problem.with_off_survived(batch, keys)
-    return drive(method, OneSeedCalls(problem, batch, keys, cfg), z0, cfg, [seed], method,
-                 log)[0]
+    calls = OneSeedCalls(problem, batch, keys, cfg, options, seed)
+    out = drive(method, calls, z0, cfg, [seed], method, log)[0]
+    if options.diagnose_every and cls.uses_gradient:
+        out["gradient_diagnostics"] = calls.record()
+    return out
 
 
 def warm_up_plan(cls, calls: SeedCalls, Z0: np.ndarray, cfg: SearchConfig) -> dict:
@@ -140,6 +254,8 @@ def drive(method: str, calls: SeedCalls, z0, cfg: SearchConfig, seeds: Sequence[
     t0 = time.perf_counter()
     hard0 = warm_up(warm_up_plan(cls, calls, np.repeat(z0[None], len(seeds), 0), cfg))
     compile_s = time.perf_counter() - t0
+    if isinstance(calls, OneSeedCalls):
+        calls.reset_diagnostics()
     clock = time.perf_counter()                       # one clock for every seed
     tracks = [Tracker(z0, h, calls.pushes, clock) for h in hard0["forward"]]
     searchers = [cls(z0, h, cfg, s) for h, s in zip(hard0["forward"], seeds)]

@@ -34,10 +34,11 @@ from tkujax.model.params import ModelParams
 from tkujax.studies.spec import (CONTROLLER_FIELDS, ENSEMBLE_KEY, PUSH_FIELDS,
                                  RANDOMIZE_DEFAULTS, RANDOMIZE_FIELDS, ROBOT_ID_COLUMN,
                                  EnsembleRef, controller_value, parse_ensemble, parse_randomize)
-from tkujax.studies.tune.loss import LOSS_FIELDS, LossConfig
+from tkujax.studies.tune.loss import LossConfig, parse_loss
 from tkujax.studies.tune.policy import DEFAULT_SCHEDULE, PolicyReparam
 from tkujax.studies.tune.problem import RECORD_KEYS, TuneProblem
 from tkujax.studies.tune.reparam import DEFAULT_TUNED, TUNABLE, Reparam, user_factor
+from tkujax.studies.tune.search import parse_gradient_options
 from tkujax.studies.tune.searchers import METHODS
 from tkujax.studies.tune.spec_tables import parse_compare, parse_study, policy_name
 from tkujax.studies.validation import (SpecError, boolean, integer, number, read_toml, table,
@@ -80,6 +81,13 @@ class TuneSpec:
     policy: str = "scalars"                          # tune.policy (tkujax.studies.tune.policy)
     schedule: tuple[str, ...] = DEFAULT_SCHEDULE     # tune.schedule: the scheduled fields
     sharpness: float = 4.0                           # tune.sharpness: sector softmax
+    # Gradient options (module docstring of tkujax.studies.tune.problem / search); the
+    # defaults leave every program as it was, except diagnose_every (gradient methods only).
+    gradient_window_ticks: int | None = None         # truncated backpropagation windows
+    timing_gradient: bool = False                    # with_timing_gradient in the loss
+    bundle_sigma: float = 0.0                        # bundled gradients' noise (latent units)
+    bundle_antithetic: bool = False
+    diagnose_every: int = 10                         # gradient diagnostics; 0: off
     study: dict | None = None                        # [study]: policies x methods x seeds
     # [randomize] ensemble: the ensemble this spec's pushes draw their robot from (the shift's
     # after `shifted`); robot_table: the ensembles of the problem's robot table, in row order
@@ -123,7 +131,9 @@ TUNE_FIELDS = {"name": str, "description": str, "seed": int, "iterations": int, 
                "clip_norm": (int, float), "params": list, "float64": bool, "remat": bool,
                "quantise_targets": bool,
                "anneal": dict, "loss": dict, "ranges": dict, "method": str,
-               "popsize": int, "policy": str, "schedule": list, "sharpness": (int, float)}
+               "popsize": int, "policy": str, "schedule": list, "sharpness": (int, float),
+               "gradient_window_ticks": int, "timing_gradient": bool,
+               "bundle_sigma": (int, float), "bundle_antithetic": bool, "diagnose_every": int}
 TUNE_PUSH_FIELDS = set(PUSH_FIELDS) | {"azimuth_jitter_deg"}
 
 
@@ -158,9 +168,8 @@ def _parse_tune(data: dict) -> dict:
     if schedule not in ("geometric", "linear"):
         raise SpecError(f"tune.anneal.schedule: expected 'geometric' or 'linear', got {schedule!r}")
     out["anneal"] = (start, end, schedule)
-    loss_raw = table("tune.loss", tune.get("loss", {}), LOSS_FIELDS)
-    out["loss"] = LossConfig(**{k: number(f"tune.loss.{k}", v, *LOSS_FIELDS[k])
-                                for k, v in loss_raw.items()})
+    out["loss"] = parse_loss(tune.get("loss", {}))
+    out.update(parse_gradient_options(tune, out["batch"]))
     out["method"] = tune.get("method", "cma")
     if out["method"] not in METHODS + ("auto",):      # auto: tkujax.studies.tune.advice
         raise SpecError(f"tune.method: expected one of {list(METHODS) + ['auto']}, "
@@ -414,7 +423,10 @@ def make_problem(spec: TuneSpec, reparam=None, duration_s: float | None = None,
                        spec.remat if remat is None else remat, spec.float64,
                        model_params=None if robots is not None else model_params,
                        compiler_options=compiler_options,
-                       quantise_targets=spec.quantise_targets, robots=robots)
+                       quantise_targets=spec.quantise_targets, robots=robots,
+                       rollout_options=None if spec.gradient_window_ticks is None else
+                       {"gradient_window_ticks": spec.gradient_window_ticks},
+                       timing_gradient=spec.timing_gradient, bundle_sigma=spec.bundle_sigma)
 
 
 def ensembles_record(spec: TuneSpec) -> dict:
