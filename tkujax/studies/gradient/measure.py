@@ -15,7 +15,7 @@ import numpy as np
 from tkujax.control.controller import with_timing_gradient
 from tkujax.control.params import ControllerParams
 from tkujax.sim.push import Push
-from tkujax.sim.rollout_mjx import RolloutConfig, rollout
+from tkujax.sim.rollout_mjx import Episode, ProgramOptions, RolloutConfig, rollout
 from tkujax.sim.metrics import outcomes
 from tkujax.sim.setup import init
 from tkujax.studies.gradient.margin import MarginConfig, margin_loss
@@ -75,11 +75,12 @@ def make_per_push(latent: Latent, duration_s: float, margins: tuple[str, ...] = 
     margin_m}) of one push with control on, no sensor noise; the tuner's rollout settings
     (remat per substep, compact tree passes)."""
     setup = init(None)
-    config = RolloutConfig(duration_s=duration_s, remat="substep", tree_passes="compact")
+    config = RolloutConfig(duration_s=duration_s,
+                           program=ProgramOptions(remat="substep", tree_passes="compact"))
 
     def f(z, push, key):
-        series = rollout(setup.device_model, setup.stand_state, push, latent.apply(z), 1.0, key,
-                         0.0, 0.0, config, setup.index)
+        series = rollout(setup.device_model, setup.stand_state, Episode(push, 1.0, key),
+                         latent.apply(z), config, setup.index)
         soft = push_loss(series, push.onset_s, loss_cfg)["total"]
         ms = [margin_loss(series, push.onset_s, MARGINS[name]) for name in margins]
         out = outcomes(series, push.onset_s)
