@@ -101,7 +101,8 @@ def _assert_same(single: list[dict], lock: list[dict], rtol=1e-5, atol=1e-6):
             np.testing.assert_allclose(b["extra"]["alpha"], a["extra"]["alpha"], atol=1e-4)
 
 
-@pytest.mark.parametrize("method", ["cma", "sepcma", "es", "gradient", "hybrid", "linesearch"])
+@pytest.mark.parametrize("method", ["cma", "sepcma", "es", "gradient", "hybrid", "linesearch",
+                                    "guided_sepcma", "guided_cma"])
 def test_lockstep_matches_run_search_per_seed(stand, method):
     batches = [_records(N, 10 + s) for s in SEEDS]
     keys = [_keys(N, s) for s in SEEDS]
