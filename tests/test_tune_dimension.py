@@ -66,7 +66,9 @@ def test_parse_policy_names():
     assert parse_policy("sectors3") == ("sectors", 3)
     assert parse_policy("mlp") == ("mlp", 8)
     assert parse_policy("mlp16") == ("mlp", 16)
-    for bad in ("sectors1", "sectors17", "mlp0", "mlp65", "tables", 4):
+    assert parse_policy("mlp65") == ("mlp", 65)         # wide MLPs: up to 256 hidden units
+    assert parse_policy("mlp256") == ("mlp", 256)
+    for bad in ("sectors1", "sectors17", "mlp0", "mlp257", "tables", 4):
         with pytest.raises(ValueError):
             parse_policy(bad)
 
@@ -105,6 +107,20 @@ def test_sizes_and_latent_round_trip():
             assert np.any(np.asarray(s0.w1))                # a live hidden layer
 
 
+def test_wide_mlp_has_over_a_thousand_parameters():
+    """mlp96 on the 16 scalars and 8 scheduled fields of the dimension study (the gradients
+    spec's large policy): 16 + 5 x 96 + 97 x 8 = 1,272 parameters, starting with every
+    correction exactly 0."""
+    from tkujax.studies.spec import read_toml
+    from tkujax.studies.tune import parse_tune_spec
+
+    spec = parse_tune_spec(read_toml("specs/tune/tune_dimension.toml"))
+    rep = spec.policy_reparam("mlp96")
+    assert (rep.k, len(rep.schedule_fields), rep.size) == (16, 8, 1272)
+    s0 = rep.schedule(jnp.asarray(rep.latent_of(spec.base_params())))
+    assert s0.w1.shape == (4, 96) and not np.any(np.asarray(s0.w2))
+
+
 def test_scheduled_fields_must_be_tuned_and_schedulable():
     with pytest.raises(ValueError, match="must be tuned too"):
         PolicyReparam.make(Reparam.make(FIELDS, RANGES), "sectors4", ("lift_height",))
@@ -112,7 +128,7 @@ def test_scheduled_fields_must_be_tuned_and_schedulable():
         PolicyReparam.make(Reparam.make(FIELDS, RANGES), "sectors4", ("accel_gate",))
 
 
-@pytest.mark.parametrize("policy", POLICIES[1:])
+@pytest.mark.parametrize("policy", POLICIES[1:] + ("mlp96",))
 def test_start_reproduces_the_unscheduled_controller(policy):
     """At the start latent the scheduled controller is the plain one: within float32 rounding
     (the two programs fuse differently; measured <= 1 ulp, 7.5e-9 rad), and after a change of
