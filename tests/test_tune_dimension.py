@@ -279,6 +279,15 @@ def test_study_resumes_and_summarises(tmp_path):
     third = _FakeRunner()
     run_study(spec, tmp_path, runner=third, quiet=True)
     assert third.calls == []
+    # The comparison's format: one entry per run, wall clock with the compile.
+    runs = json.loads((tmp_path / "summary_runs.json").read_text())
+    assert len(runs) == n_runs
+    assert set(runs[0]) == {"method", "kind", "policy", "n_params", "seed", "wall_s",
+                            "heldout_fall", "device"}
+    kinds = {r["method"]: r["kind"] for r in runs}
+    assert kinds["cma"] == kinds["es"] == "zeroth" and kinds["gradient"] == "gradient"
+    assert {r["wall_s"] for r in runs} == {3.1}               # compile 0.1 + search 3.0
+    assert (tmp_path / "heldout_vs_wall.png").exists()
 
 
 def test_study_deadline_starts_no_run_that_would_overrun(tmp_path):
