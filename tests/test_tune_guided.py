@@ -108,3 +108,22 @@ def test_guided_steps_must_leave_own_samples():
     with pytest.raises(ValueError, match="guided_steps"):
         GuidedSepCMASearcher(np.zeros(3), 0.0, dataclasses.replace(CFG, popsize=3), seed=0)
     SepCMASearcher(np.zeros(3), 0.0, dataclasses.replace(CFG, popsize=3), seed=0)
+
+
+def test_gradients_specs_parse():
+    """The comparison's specs: sectors8 (80) and mlp96 (1,272 parameters), the three methods,
+    three seeds side by side, compile included, starting at the recommended controller on the
+    default robot."""
+    from tkujax.control.params import ControllerParams
+    from tkujax.studies.spec import read_toml
+    from tkujax.studies.tune import parse_tune_spec
+
+    for path, batch in (("specs/tune/gradients.toml", 1024), ("specs/tune/gradients_cpu.toml", 16)):
+        spec = parse_tune_spec(read_toml(path))
+        st = spec.study
+        assert [spec.policy_reparam(p).size for p in st["policies"]] == [80, 1272]
+        assert st["methods"] == ["sepcma", "guided_sepcma", "gradient"]
+        assert st["seeds"] == [0, 1, 2] and st["seeds_side_by_side"]
+        assert st["budget_includes_compile"] and st["guided_steps"] == (0.5, 1.0, 2.0)
+        assert spec.batch == batch and not spec.model
+        assert spec.base_params() == ControllerParams.recommended()

@@ -60,6 +60,7 @@ import numpy as np
 
 from tkujax.studies.tune.compare import json_default
 from tkujax.studies.tune.search import calls_used
+from tkujax.studies.tune.searchers import searcher_class
 from tkujax.studies.tune.study_report import (comparison_runs, plot_heldout_vs_wall, plot_study,
                                               study_markdown)
 
@@ -332,8 +333,7 @@ class StudyRunner:
         search_s = r["curve"][-1]["wall_s"]
         row = dict(method=method, policy=policy, n_params=rep.size, seed=seed,
                    cma_variant=variant, budget_s=st["budget_s"],
-                   push_clip=(st["push_clip"] if method in ("gradient", "hybrid", "linesearch")
-                              else None),
+                   push_clip=st["push_clip"] if searcher_class(method).uses_gradient else None,
                    wall_s=search_s if clock is None else round(clock["charge"] + search_s, 3),
                    search_s=search_s, budget_includes_compile=clock is not None,
                    best_loss=r["best_loss"],
