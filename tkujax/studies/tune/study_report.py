@@ -193,6 +193,8 @@ def plot_heldout_vs_wall(out: Path, runs: list[dict]) -> None:
                     drawstyle="steps-post", color=colors[r["method"]], alpha=0.8,
                     label=None if r["method"] in seen else r["method"])
             seen.add(r["method"])
+        for b in {r.get("budget_s") for r in runs if r["policy"] == pol} - {None}:
+            ax.axvline(b, color="0.5", ls=":", lw=1)                    # the budget
         ax.set_title(f"{pol} ({next(r['n_params'] for r in runs if r['policy'] == pol)} "
                      "params)", fontsize=9)
         _label(ax, "wall clock (s, compile included)", "held-out fall rate (%)")
