@@ -469,3 +469,26 @@ def test_recommended_method_follows_the_study_evidence():
     data["tune"]["method"] = "adam"
     with pytest.raises(SpecError, match="tune.method"):
         parse_tune_spec(data)
+
+
+def test_heldout_curve_reuses_the_start_and_best_evaluations():
+    """study.heldout_curves: a checkpoint whose latents are the start's or the best's takes
+    their fall rates; any other is evaluated (once, all seeds together)."""
+    from tkujax.studies.tune.study import heldout_curves
+
+    start, best, mid = np.zeros((2, 3)), np.ones((2, 3)), np.full((2, 3), 0.5)
+    latents = {"start": start, "best": best}
+    fell = {"start": [np.array([1.0, 1.0]), np.array([1.0, 0.0])],
+            "best": [np.array([0.0, 0.0]), np.array([0.0, np.nan])]}
+    asked = []
+
+    def evaluate(zs):
+        asked.append(sorted(zs))
+        return {"heldout": {n: [np.array([0.5, 0.0]), np.array([0.25, 0.25])] for n in zs}}
+
+    clock = dict(snapshots=[(1.0, start), (2.0, mid), (3.0, best)])
+    curves = heldout_curves(clock, latents, fell, evaluate)
+    assert asked == [["t1"]]
+    assert [[p["heldout_fall"] for p in c] for c in curves] == [[1.0, 0.25, 0.0],
+                                                                 [0.5, 0.25, 0.0]]
+    assert [p["wall_s"] for p in curves[0]] == [1.0, 2.0, 3.0]
