@@ -66,7 +66,9 @@ def test_parse_policy_names():
     assert parse_policy("sectors3") == ("sectors", 3)
     assert parse_policy("mlp") == ("mlp", 8)
     assert parse_policy("mlp16") == ("mlp", 16)
-    for bad in ("sectors1", "sectors17", "mlp0", "mlp65", "tables", 4):
+    assert parse_policy("mlp65") == ("mlp", 65)         # wide MLPs: up to 256 hidden units
+    assert parse_policy("mlp256") == ("mlp", 256)
+    for bad in ("sectors1", "sectors17", "mlp0", "mlp257", "tables", 4):
         with pytest.raises(ValueError):
             parse_policy(bad)
 
@@ -105,6 +107,20 @@ def test_sizes_and_latent_round_trip():
             assert np.any(np.asarray(s0.w1))                # a live hidden layer
 
 
+def test_wide_mlp_has_over_a_thousand_parameters():
+    """mlp96 on the 16 scalars and 8 scheduled fields of the dimension study (the gradients
+    spec's large policy): 16 + 5 x 96 + 97 x 8 = 1,272 parameters, starting with every
+    correction exactly 0."""
+    from tkujax.studies.spec import read_toml
+    from tkujax.studies.tune import parse_tune_spec
+
+    spec = parse_tune_spec(read_toml("specs/tune/tune_dimension.toml"))
+    rep = spec.policy_reparam("mlp96")
+    assert (rep.k, len(rep.schedule_fields), rep.size) == (16, 8, 1272)
+    s0 = rep.schedule(jnp.asarray(rep.latent_of(spec.base_params())))
+    assert s0.w1.shape == (4, 96) and not np.any(np.asarray(s0.w2))
+
+
 def test_scheduled_fields_must_be_tuned_and_schedulable():
     with pytest.raises(ValueError, match="must be tuned too"):
         PolicyReparam.make(Reparam.make(FIELDS, RANGES), "sectors4", ("lift_height",))
@@ -112,7 +128,7 @@ def test_scheduled_fields_must_be_tuned_and_schedulable():
         PolicyReparam.make(Reparam.make(FIELDS, RANGES), "sectors4", ("accel_gate",))
 
 
-@pytest.mark.parametrize("policy", POLICIES[1:])
+@pytest.mark.parametrize("policy", POLICIES[1:] + ("mlp96",))
 def test_start_reproduces_the_unscheduled_controller(policy):
     """At the start latent the scheduled controller is the plain one: within float32 rounding
     (the two programs fuse differently; measured <= 1 ulp, 7.5e-9 rad), and after a change of
@@ -263,6 +279,15 @@ def test_study_resumes_and_summarises(tmp_path):
     third = _FakeRunner()
     run_study(spec, tmp_path, runner=third, quiet=True)
     assert third.calls == []
+    # The comparison's format: one entry per run, wall clock with the compile.
+    runs = json.loads((tmp_path / "summary_runs.json").read_text())
+    assert len(runs) == n_runs
+    assert set(runs[0]) == {"method", "kind", "policy", "n_params", "seed", "wall_s",
+                            "heldout_fall", "device"}
+    kinds = {r["method"]: r["kind"] for r in runs}
+    assert kinds["cma"] == kinds["es"] == "zeroth" and kinds["gradient"] == "gradient"
+    assert {r["wall_s"] for r in runs} == {3.1}               # compile 0.1 + search 3.0
+    assert (tmp_path / "heldout_vs_wall.png").exists()
 
 
 def test_study_deadline_starts_no_run_that_would_overrun(tmp_path):
@@ -444,3 +469,26 @@ def test_recommended_method_follows_the_study_evidence():
     data["tune"]["method"] = "adam"
     with pytest.raises(SpecError, match="tune.method"):
         parse_tune_spec(data)
+
+
+def test_heldout_curve_reuses_the_start_and_best_evaluations():
+    """study.heldout_curves: a checkpoint whose latents are the start's or the best's takes
+    their fall rates; any other is evaluated (once, all seeds together)."""
+    from tkujax.studies.tune.study import heldout_curves
+
+    start, best, mid = np.zeros((2, 3)), np.ones((2, 3)), np.full((2, 3), 0.5)
+    latents = {"start": start, "best": best}
+    fell = {"start": [np.array([1.0, 1.0]), np.array([1.0, 0.0])],
+            "best": [np.array([0.0, 0.0]), np.array([0.0, np.nan])]}
+    asked = []
+
+    def evaluate(zs):
+        asked.append(sorted(zs))
+        return {"heldout": {n: [np.array([0.5, 0.0]), np.array([0.25, 0.25])] for n in zs}}
+
+    clock = dict(snapshots=[(1.0, start), (2.0, mid), (3.0, best)])
+    curves = heldout_curves(clock, latents, fell, evaluate)
+    assert asked == [["t1"]]
+    assert [[p["heldout_fall"] for p in c] for c in curves] == [[1.0, 0.25, 0.0],
+                                                                 [0.5, 0.25, 0.0]]
+    assert [p["wall_s"] for p in curves[0]] == [1.0, 2.0, 3.0]

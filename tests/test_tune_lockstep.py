@@ -101,7 +101,8 @@ def _assert_same(single: list[dict], lock: list[dict], rtol=1e-5, atol=1e-6):
             np.testing.assert_allclose(b["extra"]["alpha"], a["extra"]["alpha"], atol=1e-4)
 
 
-@pytest.mark.parametrize("method", ["cma", "sepcma", "es", "gradient", "hybrid", "linesearch"])
+@pytest.mark.parametrize("method", ["cma", "sepcma", "es", "gradient", "hybrid", "linesearch",
+                                    "guided_sepcma", "guided_cma"])
 def test_lockstep_matches_run_search_per_seed(stand, method):
     batches = [_records(N, 10 + s) for s in SEEDS]
     keys = [_keys(N, s) for s in SEEDS]
@@ -206,3 +207,48 @@ def test_lockstep_matches_run_search_through_mjx():
     lock = run_search_lockstep("es", prob, z0, batches, keys, cfg, SEEDS)
     _assert_same(single, lock, rtol=1e-5, atol=1e-6)
     assert lock[0]["best_loss"] != lock[1]["best_loss"]
+
+
+def test_compile_included_clock_runs_the_same_search(stand):
+    """study_clock.clocked_search (budget counting the compiles) runs the same loop: with a
+    budget that never binds, the same records as run_search_lockstep; its best-so-far
+    snapshots end at the best latents; the compile charged is the longest first call of the
+    method's functions."""
+    from tkujax.studies.tune.lockstep import lockstep_calls
+    from tkujax.studies.tune.study_clock import clocked_search
+
+    batches = [_records(N, 10 + s) for s in SEEDS]
+    keys = [_keys(N, s) for s in SEEDS]
+    for method in ("guided_sepcma", "es", "gradient"):
+        want = run_search_lockstep(method, stand, Z0, batches, keys, CFG, SEEDS)
+        times = {}
+        got, charge, snaps = clocked_search(method, lockstep_calls(stand, batches, keys, CFG,
+                                                                   2), Z0, CFG, SEEDS, method,
+                                            times, [0.5])
+        _assert_same(want, got, rtol=0, atol=0)
+        assert charge == max(times.values()) > 0
+        assert [t for t, _ in snaps] == [0.5 * CFG.budget_s]      # never reached: the end
+        np.testing.assert_array_equal(snaps[0][1], [r["z_best"] for r in got])
+
+
+def test_compile_included_clock_charges_and_snapshots(stand):
+    """A charge recorded earlier in the process is charged again (as in a fresh process): a
+    charge over the budget leaves no search, every checkpoint at the start; a charge of most of
+    the budget leaves the rest of it, and the early checkpoint holds the start."""
+    from tkujax.studies.tune.lockstep import lockstep_calls
+    from tkujax.studies.tune.study_clock import clocked_search
+
+    batches = [_records(N, 10 + s) for s in SEEDS]
+    keys = [_keys(N, s) for s in SEEDS]
+    calls = lockstep_calls(stand, batches, keys, CFG, 2)
+    cfg = SearchConfig(budget_s=2.0, max_iterations=100_000, popsize=5, groups=2)
+    times = dict(forward=5.0, population=1.0)
+    rs, charge, snaps = clocked_search("cma", calls, Z0, cfg, SEEDS, "cma", times, [0.25, 0.5])
+    assert charge == 5.0 and rs[0]["iterations"] == 0
+    assert all(np.array_equal(z, [Z0, Z0]) for _, z in snaps)
+    times = dict(forward=1.7, population=0.1)
+    rs, charge, snaps = clocked_search("cma", calls, Z0, cfg, SEEDS, "cma", times, [0.25, 0.9])
+    assert charge == 1.7 and 0 < rs[0]["iterations"] < 100_000
+    assert rs[0]["curve"][-1]["wall_s"] == pytest.approx(0.3, abs=0.1)
+    np.testing.assert_array_equal(snaps[0][1], [Z0, Z0])            # 0.5 s: still compiling
+    assert snaps[1][0] == pytest.approx(1.8)

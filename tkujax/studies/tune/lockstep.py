@@ -172,9 +172,16 @@ def run_search_lockstep(method: str, problem, z0, batches, keys, cfg: SearchConf
     S = len(seeds)
     if S == 0:
         raise ValueError("run_search_lockstep needs at least one seed")
-    calls = LockstepCalls(lockstep_functions(problem, compiler_options),
-                          _stack_batches(batches, S), _stack_keys(keys, S), cfg)
-    return drive(method, calls, z0, cfg, seeds, f"{method} x{S}", log)
+    return drive(method, lockstep_calls(problem, batches, keys, cfg, S, compiler_options), z0,
+                 cfg, seeds, f"{method} x{S}", log)
+
+
+def lockstep_calls(problem, batches, keys, cfg: SearchConfig, S: int,
+                   compiler_options: dict | None = None) -> LockstepCalls:
+    """The LockstepCalls of run_search_lockstep for S seeds (batches and keys as it takes
+    them)."""
+    return LockstepCalls(lockstep_functions(problem, compiler_options),
+                         _stack_batches(batches, S), _stack_keys(keys, S), cfg)
 
 
 class LockstepCalls:

@@ -5,7 +5,7 @@
                2..16) for each of `tune.schedule` (F fields), blended by softmax weights of the
                controller's own estimate of the direction (`tkujax.control.policy`):
                n = k + N F.
-  mlpH         the scalars, plus a one-hidden-layer tanh MLP (H units, 1..64; "mlp" = 8) from
+  mlpH         the scalars, plus a one-hidden-layer tanh MLP (H units, 1..256; "mlp" = 8) from
                [pitch deviation, pitch rate, roll, roll rate] to the F latent corrections:
                n = k + 5 H + (H + 1) F.
 
@@ -34,6 +34,7 @@ DEFAULT_SCHEDULE = ("step_period", "cp_gain", "cp_trigger_forward_m", "cp_trigge
                     "cp_trigger_lateral_m", "stance_ankle_kp", "stance_hip_kp",
                     "stance_roll_kp")
 POLICY_PATTERN = re.compile(r"^(scalars|sectors(\d+)|mlp(\d*))$")
+MLP_MAX_WIDTH = 256        # mlp96: 16 scalars + 8 fields -> 1,272 parameters
 MLP_INIT_SEED = 0          # the hidden layer's fixed draw (the same start for every method)
 
 
@@ -43,7 +44,7 @@ def parse_policy(name: str) -> tuple[str, int]:
     m = POLICY_PATTERN.match(name) if isinstance(name, str) else None
     if m is None:
         raise ValueError(f"expected 'scalars', 'sectorsN' (N in 2..16) or 'mlp[H]' (H in "
-                         f"1..64), got {name!r}")
+                         f"1..{MLP_MAX_WIDTH}), got {name!r}")
     if m.group(1) == "scalars":
         return "scalars", 0
     if m.group(2) is not None:
@@ -52,8 +53,8 @@ def parse_policy(name: str) -> tuple[str, int]:
             raise ValueError(f"sectorsN: N must be in 2..16, got {n}")
         return "sectors", n
     h = int(m.group(3)) if m.group(3) else 8
-    if not 1 <= h <= 64:
-        raise ValueError(f"mlpH: H must be in 1..64, got {h}")
+    if not 1 <= h <= MLP_MAX_WIDTH:
+        raise ValueError(f"mlpH: H must be in 1..{MLP_MAX_WIDTH}, got {h}")
     return "mlp", h
 
 

@@ -74,7 +74,8 @@ def parse_compare(raw, batch: int) -> dict:
 
 STUDY_FIELDS = {"policies", "methods", "seeds", "budget_s", "popsize", "sigma0", "zo_sigma",
                 "push_clip", "ray_radius", "groups", "learning_rate", "temperature_deg", "eval_n",
-                "above_impulse_ns", "sep_cma_from", "margin_s", "compile_s", "seeds_side_by_side"}
+                "above_impulse_ns", "sep_cma_from", "margin_s", "compile_s", "seeds_side_by_side",
+                "guided_steps", "budget_includes_compile", "heldout_checkpoints"}
 
 
 def parse_study(raw, batch: int) -> dict:
@@ -102,13 +103,33 @@ def parse_study(raw, batch: int) -> dict:
         if not a < b:
             raise SpecError(f"study.above_impulse_ns: lower bound {a} must be below {b}")
         above = (a, b)
+    settings = search_settings("study", c, batch, 15, 120.0, 0.1)
     return dict(
         policies=list(policies), methods=methods, seeds=list(seeds), above_impulse_ns=above,
-        **search_settings("study", c, batch, 15, 120.0, 0.1),
+        **settings,
         sep_cma_from=integer("study.sep_cma_from", c.get("sep_cma_from", 64), 1, 1_000_000),
         margin_s=number("study.margin_s", c.get("margin_s", 60.0), 0.0, 86400.0, "s"),
         compile_s=number("study.compile_s", c.get("compile_s", 180.0), 0.0, 86400.0, "s"),
         # The seeds of one (policy, method) in lockstep, sharing every compiled call
         # (tkujax.studies.tune.lockstep); false: one run after another, each alone.
         seeds_side_by_side=boolean("study.seeds_side_by_side",
-                                 c.get("seeds_side_by_side", False)))
+                                 c.get("seeds_side_by_side", False)),
+        # guided_sepcma / guided_cma: the step multipliers a of the injected candidates
+        # m - sigma sqrt(k) a g/|g| (searchers.GuidedCMASearcher), fewer than popsize
+        # (default 0.5, 1, 2, as many as popsize - 1 allows)
+        guided_steps=guided_steps(c.get("guided_steps", [0.5, 1.0, 2.0][:settings["popsize"] - 1]),
+                                  settings["popsize"]),
+        # Each run's budget_s counts its own compiles (tkujax.studies.tune.study_clock)
+        budget_includes_compile=boolean("study.budget_includes_compile",
+                                      c.get("budget_includes_compile", False)),
+        # With compile included: held-out fall of the best-so-far at i/N of the budget
+        heldout_checkpoints=integer("study.heldout_checkpoints",
+                                    c.get("heldout_checkpoints", 4), 1, 20))
+
+
+def guided_steps(v, popsize: int) -> tuple[float, ...]:
+    if not isinstance(v, list) or not 1 <= len(v) < popsize:
+        raise SpecError(f"study.guided_steps: expected 1..{popsize - 1} step multipliers "
+                        f"(fewer than study.popsize), got {v!r}")
+    return tuple(number(f"study.guided_steps[{i}]", a, 1e-3, 100.0, "(x sigma sqrt(k))")
+                 for i, a in enumerate(v))

@@ -34,6 +34,13 @@ evaluate.seed + 1000 + s, above the training range evaluate.seed + 2000 + s. Eac
 reports the start (the hand-designed controller, which every parameterisation reproduces at
 its start latent) on the same pushes, so differences are paired.
 
+Compile included (`study.budget_includes_compile = true`): each run's budget_s counts its own
+compiles (tkujax.studies.tune.study_clock): wall_s is then compile + search, and the run
+records `heldout_curve`, the held-out fall rate of its best-so-far latent at
+`study.heldout_checkpoints` even times of its clock and at its end. `summary_runs.json` (one
+entry per run: method, kind "gradient" or "zeroth", n_params, seed, wall_s compile included,
+heldout_fall, device) and `heldout_vs_wall.png` are written with the summary.
+
 `method = "cma"` runs separable CMA-ES (`sepcma`) from `study.sep_cma_from` parameters on; the
 row keeps method "cma" and says which in `cma_variant`.
 """
@@ -53,7 +60,9 @@ import numpy as np
 
 from tkujax.studies.tune.compare import json_default
 from tkujax.studies.tune.search import calls_used
-from tkujax.studies.tune.study_report import plot_study, study_markdown
+from tkujax.studies.tune.searchers import searcher_class
+from tkujax.studies.tune.study_report import (comparison_runs, plot_heldout_vs_wall, plot_study,
+                                              study_markdown)
 
 RUN_KEYS = ("policy", "method", "seed")
 
@@ -145,7 +154,10 @@ def run_study(spec, out_dir, only: list[str] | None = None, deadline_s: float | 
             continue
         name = group_name(policy, method, missing)
         ready = compiled(policy, method, len(missing)) if side else compiled(policy, method)
-        est = study["budget_s"] + study["margin_s"] + (0.0 if ready else study["compile_s"])
+        compile_s = 0.0 if ready else study["compile_s"]
+        est = study["margin_s"] + (max(study["budget_s"], compile_s)
+                                   if study.get("budget_includes_compile")
+                                   else study["budget_s"] + compile_s)
         if deadline_s is not None and time.perf_counter() - t0 + est > deadline_s:
             stopped = name
             log(f"study: stopping before {name}: {time.perf_counter() - t0:.0f} s + ~{est:.0f} "
@@ -177,7 +189,8 @@ def run_study(spec, out_dir, only: list[str] | None = None, deadline_s: float | 
 ROW_KEYS = ("method", "policy", "n_params", "seed", "heldout_fall", "shifted_fall",
             "above_fall", "start_heldout_fall", "start_shifted_fall", "start_above_fall",
             "wall_s", "budget_s", "best_loss", "start_loss", "iterations", "compile_s",
-            "cma_variant", "push_clip", "device", "side_by_side")
+            "cma_variant", "push_clip", "device", "side_by_side", "budget_includes_compile",
+            "search_s")
 
 
 def load_runs(out: Path) -> list[dict]:
@@ -197,9 +210,11 @@ def write_summary(out: Path, spec=None) -> list[dict]:
     rows = sorted(({k: r.get(k) for k in ROW_KEYS} for r in runs),
                   key=lambda r: (r["n_params"], r["method"], r["seed"]))
     _write_json(out / "summary.json", rows)
+    _write_json(out / "summary_runs.json", comparison_runs(runs))
     (out / "study.md").write_text(study_markdown(rows, spec))
     if runs:
         plot_study(out, rows, runs)
+        plot_heldout_vs_wall(out, runs)
         if spec is not None:
             write_best_policy(out, spec, runs)
     return rows
@@ -238,6 +253,8 @@ class StudyRunner:
         # {(policy, S): functions compiled}; S = 0: run_search's, S >= 1: the lockstep ones
         # for S seeds side by side (another shape, another compile).
         self.done: dict[tuple[str, int], set[str]] = {}
+        # {(policy, S): {call: seconds of its first, compiling, call}} (compile included)
+        self.compile_times: dict[tuple[str, int], dict[str, float]] = {}
         self.base = spec.base_params()
 
     def compiled(self, policy: str, method: str, side_by_side: int = 0) -> bool:
@@ -289,7 +306,8 @@ class StudyRunner:
                            sigma0=st["sigma0"], zo_sigma=st["zo_sigma"],
                            groups=st["groups"], learning_rate=st["learning_rate"],
                            clip_norm=spec.clip_norm, temperature_deg=st["temperature_deg"],
-                           push_clip=st["push_clip"], ray_radius=st["ray_radius"])
+                           push_clip=st["push_clip"], ray_radius=st["ray_radius"],
+                           guided_steps=st["guided_steps"])
         return problem, rep, z0, variant, m, cfg
 
     def _train(self, seed: int):
@@ -302,25 +320,33 @@ class StudyRunner:
         return (sample_pushes(spec, spec.batch, spec.seed + seed),
                 jax.random.split(jax.random.PRNGKey(spec.seed + seed), spec.batch))
 
-    def _record(self, policy, method, seed, rep, variant, r, fell: dict) -> dict:
+    def _record(self, policy, method, seed, rep, variant, r, fell: dict,
+                clock: dict | None = None) -> dict:
         """The run record: the summary row's keys, the curve, the best latent.
-        fell: {label: (start fell (n,), best fell (n,))}."""
+        fell: {label: (start fell (n,), best fell (n,))}. clock (compile included): the
+        charged compile seconds ("charge") and the held-out curve before the end ("curve")."""
         import jax
 
         from tkujax.studies.tune.spec import ensembles_record
 
         st = self.spec.study
+        search_s = r["curve"][-1]["wall_s"]
         row = dict(method=method, policy=policy, n_params=rep.size, seed=seed,
                    cma_variant=variant, budget_s=st["budget_s"],
-                   push_clip=(st["push_clip"] if method in ("gradient", "hybrid", "linesearch")
-                              else None),
-                   wall_s=r["curve"][-1]["wall_s"], best_loss=r["best_loss"],
+                   push_clip=st["push_clip"] if searcher_class(method).uses_gradient else None,
+                   wall_s=search_s if clock is None else round(clock["charge"] + search_s, 3),
+                   search_s=search_s, budget_includes_compile=clock is not None,
+                   best_loss=r["best_loss"],
                    start_loss=r["curve"][0]["best_loss"], iterations=r["iterations"],
-                   compile_s=r["compile_s"], device=str(jax.devices()[0].device_kind))
+                   compile_s=r["compile_s"] if clock is None else round(clock["charge"], 2),
+                   device=str(jax.devices()[0].device_kind))
         for label, (start, best) in fell.items():
             row[f"{label}_fall"] = float(np.nanmean(best))
             row[f"start_{label}_fall"] = float(np.nanmean(start))
             row[f"{label}_diverged"] = int(np.sum(~np.isfinite(best)))
+        if clock is not None:
+            row["heldout_curve"] = clock["curve"] + [dict(wall_s=row["wall_s"],
+                                                          heldout_fall=row["heldout_fall"])]
         self.log(f"  {run_name(policy, method, seed)}: held-out {row['heldout_fall']:.3f} "
                  f"(start {row['start_heldout_fall']:.3f}), {r['iterations']} iterations")
         return dict(row, curve=r["curve"], z_best=r["z_best"], extra=r["extra"],
@@ -329,47 +355,95 @@ class StudyRunner:
                     devices=[str(d) for d in jax.devices()])
 
     def __call__(self, policy: str, method: str, seed: int) -> dict:
+        """One seed alone: `run_group` of one seed without the lockstep functions."""
+        return self.run_group(policy, method, [seed], side_by_side=False)[0]
+
+    def _search(self, policy, method, m, problem, z0, trains, seeds, cfg, side_by_side):
+        """(run records, clock or None): run_search / run_search_lockstep, or with
+        study.budget_includes_compile the same loop under a clock counting the compiles."""
+        from tkujax.studies.tune.lockstep import lockstep_calls, run_search_lockstep
+        from tkujax.studies.tune.search import OneSeedCalls, run_search
+        from tkujax.studies.tune.study_clock import clocked_search
+
+        st = self.spec.study
+        batches, keys = [t[0] for t in trains], [t[1] for t in trains]
+        if not st["budget_includes_compile"]:
+            if not side_by_side:
+                return [run_search(m, problem, z0, batches[0], keys[0], cfg, seed=seeds[0],
+                                   log=self.log)], None
+            return run_search_lockstep(m, problem, z0, batches, keys, cfg, seeds,
+                                       log=self.log, compiler_options=self.opts), None
+        if side_by_side:
+            calls = lockstep_calls(problem, batches, keys, cfg, len(seeds), self.opts)
+        else:
+            calls = OneSeedCalls(problem, problem.with_off_survived(batches[0], keys[0]),
+                                 keys[0], cfg)
+        times = self.compile_times.setdefault((policy, len(seeds) if side_by_side else 0), {})
+        n = st["heldout_checkpoints"]
+        rs, charge, snaps = clocked_search(m, calls, z0, cfg, seeds, f"{m} x{len(seeds)}",
+                                           times, [i / n for i in range(1, n)], self.log)
+        return rs, dict(charge=charge, snapshots=snaps)
+
+    def _fell(self, problem, latents: dict, sets: list[dict], side_by_side: bool) -> dict:
+        """{label: {name: [per seed fell (n,)]}} of latents {name: (S, k)} on each seed's
+        evaluation sets."""
         from tkujax.studies.tune.compare import fell_rates
-        from tkujax.studies.tune.problem import x64
-        from tkujax.studies.tune.search import run_search
+        from tkujax.studies.tune.lockstep import fell_rates_lockstep
 
-        spec = self.spec
-        with x64(spec.float64):
-            problem, rep, z0, variant, m, cfg = self._setup(policy, method)
-            train, keys = self._train(seed)
-            r = run_search(m, problem, z0, train, keys, cfg, seed=seed, log=self.log)
-            self.done.setdefault((policy, 0), set()).update(calls_used(method))
-            fell = {}
-            for label, (recs, ekeys) in self.eval_sets(seed).items():
-                f = fell_rates(problem, {"start": z0, "best": np.asarray(r["z_best"])},
-                                recs, ekeys, spec.batch)
-                fell[label] = (f["start"], f["best"])
-        return self._record(policy, method, seed, rep, variant, r, fell)
+        if side_by_side:
+            return {label: fell_rates_lockstep(problem, latents, [e[label][0] for e in sets],
+                                               [e[label][1] for e in sets], self.spec.batch,
+                                               self.opts)
+                    for label in sets[0]}
+        return {label: {name: [fell_rates(problem, {name: zs[0]}, *sets[0][label],
+                                          self.spec.batch)[name]]
+                        for name, zs in latents.items()}
+                for label in sets[0]}
 
-    def run_group(self, policy: str, method: str, seeds: list[int]) -> list[dict]:
+    def run_group(self, policy: str, method: str, seeds: list[int],
+                  side_by_side: bool = True) -> list[dict]:
         """The seeds side by side: run_search_lockstep, then each seed's evaluation, all seeds
         in one call per chunk (the lockstep forward at the training batch's shape, compiled
-        for the search already). One record per seed, as __call__'s."""
-        from tkujax.studies.tune.lockstep import fell_rates_lockstep, run_search_lockstep
+        for the search already). One record per seed. side_by_side=False: one seed alone,
+        run_search and compare.fell_rates."""
         from tkujax.studies.tune.problem import x64
 
-        spec = self.spec
-        seeds = list(seeds)
+        spec, seeds = self.spec, list(seeds)
+        S = len(seeds) if side_by_side else 0
         with x64(spec.float64):
             problem, rep, z0, variant, m, cfg = self._setup(policy, method)
             trains = [self._train(s) for s in seeds]
-            rs = run_search_lockstep(m, problem, z0, [t[0] for t in trains],
-                                     [t[1] for t in trains], cfg, seeds, log=self.log,
-                                     compiler_options=self.opts)
-            self.done.setdefault((policy, len(seeds)), set()).update(calls_used(method))
+            rs, clock = self._search(policy, method, m, problem, z0, trains, seeds, cfg,
+                                     side_by_side)
+            self.done.setdefault((policy, S), set()).update(calls_used(method))
             sets = [self.eval_sets(s) for s in seeds]
             latents = {"start": np.repeat(np.asarray(z0, float)[None], len(seeds), 0),
                        "best": np.stack([np.asarray(r["z_best"], float) for r in rs])}
-            fell = {label: fell_rates_lockstep(problem, latents, [e[label][0] for e in sets],
-                                               [e[label][1] for e in sets], spec.batch,
-                                               self.opts)
-                    for label in sets[0]}
+            fell = self._fell(problem, latents, sets, side_by_side)
+            curves = [[] for _ in seeds]
+            if clock is not None:
+                curves = heldout_curves(clock, latents, fell["heldout"], lambda zs: self._fell(
+                    problem, zs, [{"heldout": e["heldout"]} for e in sets], side_by_side))
         return [self._record(policy, method, s, rep, variant, r,
                              {label: (f["start"][i], f["best"][i])
-                              for label, f in fell.items()})
+                              for label, f in fell.items()},
+                             None if clock is None else dict(charge=clock["charge"],
+                                                             curve=curves[i]))
                 for i, (s, r) in enumerate(zip(seeds, rs))]
+
+
+def heldout_curves(clock: dict, latents: dict, fell: dict, evaluate) -> list[list[dict]]:
+    """Per seed [{wall_s, heldout_fall}] at the clock's checkpoints: the start's and the
+    best's fall rates where a checkpoint's latents are theirs (no new evaluation), else
+    evaluate({name: (S, k)})["heldout"]."""
+    known = {name: (np.asarray(zs), fell[name]) for name, zs in latents.items()}
+    todo = {f"t{i}": zs for i, (_, zs) in enumerate(clock["snapshots"])
+            if not any(np.array_equal(zs, z) for z, _ in known.values())}
+    got = evaluate(todo)["heldout"] if todo else {}
+    out = [[] for _ in range(len(latents["start"]))]
+    for i, (t, zs) in enumerate(clock["snapshots"]):
+        per_seed = got.get(f"t{i}") or next(f for z, f in known.values()
+                                            if np.array_equal(zs, z))
+        for s, f in enumerate(per_seed):
+            out[s].append(dict(wall_s=round(t, 3), heldout_fall=float(np.nanmean(f))))
+    return out

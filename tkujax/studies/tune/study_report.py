@@ -146,3 +146,56 @@ def _save(fig, path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
+
+
+def comparison_runs(runs: list[dict]) -> list[dict]:
+    """summary_runs.json: per run method, kind ("gradient": the method uses the first-order
+    gradient, else "zeroth"), policy, n_params, seed, wall_s (compile included: the charged
+    compile with study.budget_includes_compile, else the measured warm-up, plus the search),
+    heldout_fall, device."""
+    from tkujax.studies.tune.searchers import SEARCHERS
+
+    out = []
+    for r in sorted(runs, key=lambda r: (r["n_params"], r["method"], r["seed"])):
+        cls = SEARCHERS.get(r["method"])
+        wall = r["wall_s"] if r.get("budget_includes_compile") else (
+            (r.get("compile_s") or 0.0) + (r.get("wall_s") or 0.0))
+        out.append(dict(method=r["method"],
+                        kind="gradient" if cls is not None and cls.uses_gradient else "zeroth",
+                        policy=r.get("policy"), n_params=r["n_params"], seed=r["seed"],
+                        wall_s=round(float(wall), 3), heldout_fall=r.get("heldout_fall"),
+                        device=r.get("device")))
+    return out
+
+
+def plot_heldout_vs_wall(out: Path, runs: list[dict]) -> None:
+    """heldout_vs_wall.png: held-out fall rate of the best-so-far against wall clock (compile
+    included), one panel per policy (size), one colour per method, one line per seed (runs
+    without a held-out curve: their final point only)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    methods = sorted({r["method"] for r in runs})
+    colors = {m: f"C{i}" for i, m in enumerate(methods)}
+    policies = list(dict.fromkeys(r["policy"] for r in sorted(runs, key=lambda r: r["n_params"])))
+    fig, axes = plt.subplots(1, len(policies), figsize=(4 * len(policies), 3.6), squeeze=False)
+    finals = {(e["policy"], e["method"], e["seed"]): e for e in comparison_runs(runs)}
+    for ax, pol in zip(axes[0], policies):
+        seen = set()
+        for r in (r for r in runs if r["policy"] == pol):
+            pts = r.get("heldout_curve") or [dict(
+                wall_s=finals[(pol, r["method"], r["seed"])]["wall_s"],
+                heldout_fall=r.get("heldout_fall"))]
+            t = [0.0] + [p["wall_s"] for p in pts]
+            y = [r.get("start_heldout_fall")] + [p["heldout_fall"] for p in pts]
+            ax.plot(t, [100 * v if v is not None else np.nan for v in y], "-o", ms=3,
+                    drawstyle="steps-post", color=colors[r["method"]], alpha=0.8,
+                    label=None if r["method"] in seen else r["method"])
+            seen.add(r["method"])
+        for b in {r.get("budget_s") for r in runs if r["policy"] == pol} - {None}:
+            ax.axvline(b, color="0.5", ls=":", lw=1)                    # the budget
+        ax.set_title(f"{pol} ({next(r['n_params'] for r in runs if r['policy'] == pol)} "
+                     "params)", fontsize=9)
+        _label(ax, "wall clock (s, compile included)", "held-out fall rate (%)")
+    _save(fig, out / "heldout_vs_wall.png")
