@@ -278,22 +278,18 @@ def _profile_stages(run: Stages, config: BenchConfig, result: dict) -> None:
 def _other_stages(run: Stages, config: BenchConfig, groups, result: dict) -> None:
     """Multi-device scaling, the CPU peer, the gradient step and the gradient's compile."""
     c = config
-    if "multi_device" in groups and c.scaling_batch:
-        def stage_multi():
-            result["multi_device"] = stages.multi_device(c.scaling_batch, c.duration_s,
-                                                         c.repeats)
-        run.run("multi_device", stage_multi)
-    if "cpu_peer" in groups and c.cpu_batch:
-        def stage_cpu():
-            result["cpu_peer"] = stages.cpu_peer(c.cpu_batch, c.duration_s, c.repeats)
-        run.run("cpu_peer", stage_cpu)
+
+    def timed_stage(name: str, batch: int, measure) -> None:
+        """A stage that times `measure(batch, duration, repeats)` into result[name]."""
+        if name in groups and batch:
+            run.run(name, lambda: result.__setitem__(name, measure(batch, c.duration_s,
+                                                                   c.repeats)))
+
+    timed_stage("multi_device", c.scaling_batch, stages.multi_device)
+    timed_stage("cpu_peer", c.cpu_batch, stages.cpu_peer)
     if "profile" in groups:
         _profile_stages(run, c, result)
-    if "gradient_step" in groups and c.grad_batch:
-        def stage_grad():
-            result["gradient_step"] = stages.gradient_step(c.grad_batch, c.duration_s,
-                                                           c.repeats)
-        run.run("gradient_step", stage_grad)
+    timed_stage("gradient_step", c.grad_batch, stages.gradient_step)
     if "gradient_compile" in groups and c.grad_compile_batch:
         result.setdefault("gradient_compile", [])
         gpu = jax.default_backend() == "gpu"
