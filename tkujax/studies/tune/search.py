@@ -43,15 +43,13 @@ from tkujax.studies.gradient.bundled import bundle_noise
 from tkujax.studies.gradient.diagnostics import cosine, summary
 from tkujax.studies.tune.reparam import DEG
 from tkujax.studies.validation import SpecError, boolean, integer, number
-from tkujax.studies.tune.searchers import (METHODS, SearchConfig, adam_update,
-                                           alpha_order_mix, finite_loss, searcher_class)
+from tkujax.studies.tune.searchers import (METHODS, SearchConfig, alpha_order_mix, finite_loss, searcher_class)
 
 __all__ = ["METHODS", "SearchConfig", "alpha_order_mix", "run_search", "drive", "warm_up",
            "calls_used",
            "warm_up_calls", "first_order_grads", "clipped_group_means", "OneSeedCalls",
            "GradientOptions"]
 
-_adam = adam_update          # the name results/tune_dimension/cpu_gradient_check imports
 
 
 class Tracker:
