@@ -43,7 +43,8 @@ from tkujax.studies.gradient.bundled import bundle_noise
 from tkujax.studies.gradient.diagnostics import cosine, summary
 from tkujax.studies.tune.reparam import DEG
 from tkujax.studies.validation import SpecError, boolean, integer, number
-from tkujax.studies.tune.searchers import (METHODS, SearchConfig, alpha_order_mix, finite_loss, searcher_class)
+from tkujax.studies.tune.searchers import (METHODS, SearchConfig, alpha_order_mix, finite_loss,
+                                           searcher_class)
 
 __all__ = ["METHODS", "SearchConfig", "alpha_order_mix", "run_search", "drive", "warm_up",
            "calls_used",
