@@ -487,7 +487,8 @@ def test_searcher_registry_and_injected_cma_candidates():
     the generation's last samples, and its tell accepts them."""
     from tkujax.studies.tune.searchers import METHODS, SEARCHERS, SearchConfig, searcher_class
 
-    assert METHODS == ("cma", "sepcma", "gradient", "hybrid", "linesearch", "es")
+    assert METHODS == ("cma", "sepcma", "gradient", "hybrid", "linesearch", "es",
+                       "guided_sepcma", "guided_cma")
     assert all(searcher_class(m) is SEARCHERS[m] for m in METHODS)
     with pytest.raises(ValueError, match="method must be one of"):
         searcher_class("adam")
