@@ -24,14 +24,26 @@ Speeds are reported, never asserted.
 
 from __future__ import annotations
 
-from tkujax.bench.common import push_batch, timed, traced_paper_params
-from tkujax.bench.profile import loop_fn, per_robot, variant_loop_fn
-from tkujax.bench.report import profile_markdown, summary_markdown
-from tkujax.bench.runner import MODES, STAGE_GROUPS, BenchConfig, run_bench
-from tkujax.bench.stages import (closed_loop, compile_times, cpu_peer, gradient_compile,
-                                 parse_grad_variants, raw_program, raw_stepping)
+import importlib
 
-__all__ = ["MODES", "STAGE_GROUPS", "BenchConfig", "closed_loop", "compile_times", "cpu_peer",
-           "gradient_compile", "loop_fn", "parse_grad_variants", "per_robot", "profile_markdown",
-           "push_batch", "raw_program", "raw_stepping", "run_bench", "summary_markdown", "timed",
-           "traced_paper_params", "variant_loop_fn"]
+# Names resolved on first use (as tkujax/__init__.py does): `tkujax.cli` registers the bench
+# command through tkujax.bench.cli, and importing the stages here would import mujoco before
+# the command line has chosen its GL backend (tkujax.cli.runtime.configure_runtime).
+_API = {
+    **dict.fromkeys(("push_batch", "timed", "traced_paper_params"), "tkujax.bench.common"),
+    **dict.fromkeys(("loop_fn", "per_robot", "variant_loop_fn"), "tkujax.bench.profile"),
+    **dict.fromkeys(("profile_markdown", "summary_markdown"), "tkujax.bench.report"),
+    **dict.fromkeys(("MODES", "STAGE_GROUPS", "BenchConfig", "run_bench"),
+                    "tkujax.bench.runner"),
+    **dict.fromkeys(("closed_loop", "compile_times", "cpu_peer", "gradient_compile",
+                     "parse_grad_variants", "raw_program", "raw_stepping"),
+                    "tkujax.bench.stages"),
+}
+
+__all__ = sorted(_API)
+
+
+def __getattr__(name: str):
+    if name in _API:
+        return getattr(importlib.import_module(_API[name]), name)
+    raise AttributeError(f"module 'tkujax.bench' has no attribute {name!r}")
