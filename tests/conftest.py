@@ -1,23 +1,15 @@
 """Test-wide set-up: headless GL, persistent XLA cache (MJX compiles are slow on CPU), and the
 `compiles` fixture: a count of the programs JAX lowers for compilation."""
 
-import ctypes.util
-import os
-from pathlib import Path
-
 import pytest
 
-# Headless rendering through EGL where libEGL exists; elsewhere rendering tests skip (setting
-# MUJOCO_GL=egl without libEGL would make `import mujoco` itself fail).
-if "MUJOCO_GL" not in os.environ and ctypes.util.find_library("EGL"):
-    os.environ["MUJOCO_GL"] = "egl"
+from tkujax.cli.runtime import configure_runtime
 
-import jax
+# The command line's own set-up: headless rendering through EGL where libEGL exists (elsewhere
+# rendering tests skip), and the persistent XLA cache in TKUJAX_CACHE_DIR.
+configure_runtime()
 
-_cache = os.environ.get("TKUJAX_CACHE_DIR", str(Path.home() / ".cache" / "tkujax" / "jax"))
-jax.config.update("jax_compilation_cache_dir", _cache)
-jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
-jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
+import jax  # noqa: E402
 
 # Every program jit lowers for compilation (a jit-cache miss; a persistent-cache hit is lowered
 # too) emits this event; counted by program name from the start of the session.
