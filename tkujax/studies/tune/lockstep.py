@@ -162,35 +162,48 @@ def _stack_keys(keys, S: int):
 
 def run_search_lockstep(method: str, problem, z0, batches, keys, cfg: SearchConfig,
                         seeds: Sequence[int], log: Callable[[str], None] | None = None, *,
-                        compiler_options: dict | None = None) -> list[dict]:
+                        compiler_options: dict | None = None, select=None,
+                        stream=None) -> list[dict]:
     """Run one method for every seed in `seeds` side by side within ONE cfg.budget_s of wall
     clock (compile excluded). batches: S per-seed batch dicts or one dict of (S, n) columns;
     keys: (S, n, ...) (or S arrays). Returns one dict per seed, run_search's form: (method,
-    seed, z_best, best_loss, compile_s, iterations, curve, extra)."""
+    seed, z_best, best_loss, compile_s, iterations, curve, extra). select, stream: the
+    validation selection and the fresh batches of tkujax.studies.tune.selection."""
     searcher_class(method)
     seeds = [int(s) for s in seeds]
     S = len(seeds)
     if S == 0:
         raise ValueError("run_search_lockstep needs at least one seed")
-    return drive(method, lockstep_calls(problem, batches, keys, cfg, S, compiler_options), z0,
-                 cfg, seeds, f"{method} x{S}", log)
+    return drive(method, lockstep_calls(problem, batches, keys, cfg, S, compiler_options,
+                                        stream), z0, cfg, seeds, f"{method} x{S}", log, select)
 
 
 def lockstep_calls(problem, batches, keys, cfg: SearchConfig, S: int,
-                   compiler_options: dict | None = None) -> LockstepCalls:
+                   compiler_options: dict | None = None, stream=None) -> LockstepCalls:
     """The LockstepCalls of run_search_lockstep for S seeds (batches and keys as it takes
-    them)."""
+    them). stream: a selection.BatchStream of fresh training batches (`next_batch`)."""
     return LockstepCalls(lockstep_functions(problem, compiler_options),
-                         _stack_batches(batches, S), _stack_keys(keys, S), cfg)
+                         _stack_batches(batches, S), _stack_keys(keys, S), cfg, stream)
 
 
 class LockstepCalls:
     """search.SeedCalls for S seeds side by side: each a single compiled call for all seeds,
-    seed s's latents on seed s's batch and keys."""
+    seed s's latents on seed s's batch and keys. With a stream, `next_batch` moves every seed
+    to its next fresh batch (the same shapes: nothing compiles again)."""
 
-    def __init__(self, fns: LockstepFunctions, batch: dict, keys, cfg: SearchConfig):
+    def __init__(self, fns: LockstepFunctions, batch: dict, keys, cfg: SearchConfig,
+                 stream=None):
         self.fns, self.batch, self.keys, self.cfg = fns, batch, keys, cfg
         self.pushes = int(keys.shape[1])
+        self.stream, self.draws = stream, 0
+
+    def next_batch(self) -> None:
+        if self.stream is None:
+            return
+        self.draws += 1
+        batches, keys = self.stream.draw(self.draws)
+        S = self.keys.shape[0]
+        self.batch, self.keys = _stack_batches(batches, S), _stack_keys(keys, S)
 
     def forward(self, zs) -> np.ndarray:
         return self.fns.forward(zs, 0.0, self.batch, self.keys)[0]

@@ -42,6 +42,7 @@ import numpy as np
 from tkujax.studies.gradient.bundled import bundle_noise
 from tkujax.studies.gradient.diagnostics import cosine, summary
 from tkujax.studies.tune.reparam import DEG
+from tkujax.studies.tune.selection import ValidationSelector, incumbent
 from tkujax.studies.validation import SpecError, boolean, integer, number
 from tkujax.studies.tune.searchers import (METHODS, SearchConfig, alpha_order_mix, finite_loss,
                                            searcher_class)
@@ -200,7 +201,8 @@ class OneSeedCalls:
 
 def run_search(method: str, problem, z0, batch: dict, keys, cfg: SearchConfig,
                seed: int, log: Callable[[str], None] | None = None,
-               options: GradientOptions = GradientOptions()) -> dict:
+               options: GradientOptions = GradientOptions(),
+               select: ValidationSelector | None = None) -> dict:
     """Run one method within cfg.budget_s. Returns dict(method, seed, z_best, best_loss,
     compile_s, iterations, curve, extra), and gradient_diagnostics (`OneSeedCalls.record`)
     when options.diagnose_every > 0 and the method uses gradients."""
@@ -210,7 +212,7 @@ def run_search(method: str, problem, z0, batch: dict, keys, cfg: SearchConfig,
     if hasattr(problem, "with_off_survived"):
         batch = problem.with_off_survived(batch, keys)
     calls = OneSeedCalls(problem, batch, keys, cfg, options, seed)
-    out = drive(method, calls, z0, cfg, [seed], method, log)[0]
+    out = drive(method, calls, z0, cfg, [seed], method, log, select)[0]
     if options.diagnose_every and cls.uses_gradient:
         out["gradient_diagnostics"] = calls.record()
     return out
@@ -243,11 +245,16 @@ def calls_used(method: str) -> set[str]:
 
 
 def drive(method: str, calls: SeedCalls, z0, cfg: SearchConfig, seeds: Sequence[int],
-          label: str, log: Callable[[str], None] | None = None) -> list[dict]:
+          label: str, log: Callable[[str], None] | None = None,
+          select: ValidationSelector | None = None) -> list[dict]:
     """Run `method`'s searcher for every seed side by side through `calls` within ONE
     cfg.budget_s (compile excluded: the calls are warmed up first). label starts each
     progress line. Returns one dict per seed: (method, seed, z_best, best_loss, compile_s,
-    iterations, curve, extra)."""
+    iterations, curve, extra).
+
+    select: z_best is the selector's best by the validation fall rate (the selection's
+    record added), not the lowest training loss (tkujax.studies.tune.selection). Calls with a
+    `next_batch()` method are moved to a fresh training batch after every iteration."""
     cls = searcher_class(method)
     z0 = np.asarray(z0, float)
     t0 = time.perf_counter()
@@ -258,19 +265,33 @@ def drive(method: str, calls: SeedCalls, z0, cfg: SearchConfig, seeds: Sequence[
     clock = time.perf_counter()                       # one clock for every seed
     tracks = [Tracker(z0, h, calls.pushes, clock) for h in hard0["forward"]]
     searchers = [cls(z0, h, cfg, s) for h, s in zip(hard0["forward"], seeds)]
-    it = 0
+    if select is not None:
+        select.start(np.repeat(z0[None], len(seeds), 0), tracks[0].elapsed())
+    next_batch = getattr(calls, "next_batch", None)
+    it, offered = 0, True
     while it < cfg.max_iterations and tracks[0].elapsed() < cfg.budget_s:
         _iterate(searchers, tracks, calls, cls.population_width(cfg) is None)
         it += 1
+        if next_batch is not None:
+            next_batch()
+        offered = select is None or select.due(tracks[0].elapsed())
+        if select is not None and offered:
+            select.offer(np.stack([incumbent(s) for s in searchers]), tracks[0].elapsed())
         if log and cls.progress_label is not None:
             log(f"{label}  {cls.counter} {it:3d}  best "
                 + " ".join(f"{tr.loss:.4f}" for tr in tracks) + f"  {cls.progress_label}"
                 + cls.progress_join.join(s.progress() for s in searchers)
                 + f"  {tracks[0].elapsed():.0f}/{cfg.budget_s:g} s")
-    return [dict(method=method, seed=s, z_best=tr.z.tolist(), best_loss=tr.loss,
-                 compile_s=round(compile_s, 2), iterations=it, curve=tr.curve,
-                 extra=searcher.extra())
-            for s, tr, searcher in zip(seeds, tracks, searchers)]
+    if not offered:                                   # the last iterate, always looked at
+        select.offer(np.stack([incumbent(s) for s in searchers]), tracks[0].elapsed())
+    out = [dict(method=method, seed=s, z_best=tr.z.tolist(), best_loss=tr.loss,
+                compile_s=round(compile_s, 2), iterations=it, curve=tr.curve,
+                extra=searcher.extra())
+           for s, tr, searcher in zip(seeds, tracks, searchers)]
+    if select is not None:
+        for i, rec in enumerate(out):
+            rec.update(z_best=select.best_z[i].tolist(), **select.record(i))
+    return out
 
 
 def _iterate(searchers: list, tracks: list[Tracker], calls: SeedCalls, one_point: bool) -> None:

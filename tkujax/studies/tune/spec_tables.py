@@ -6,6 +6,7 @@ from __future__ import annotations
 from tkujax.studies.spec import PUSH_FIELDS
 from tkujax.studies.tune.policy import parse_policy
 from tkujax.studies.tune.searchers import METHODS
+from tkujax.studies.tune.selection import SELECT_MODES
 from tkujax.studies.validation import SpecError, boolean, integer, number, table
 
 
@@ -75,7 +76,8 @@ def parse_compare(raw, batch: int) -> dict:
 STUDY_FIELDS = {"policies", "methods", "seeds", "budget_s", "popsize", "sigma0", "zo_sigma",
                 "push_clip", "ray_radius", "groups", "learning_rate", "temperature_deg", "eval_n",
                 "above_impulse_ns", "sep_cma_from", "margin_s", "compile_s", "seeds_side_by_side",
-                "guided_steps", "budget_includes_compile", "heldout_checkpoints"}
+                "guided_steps", "budget_includes_compile", "heldout_checkpoints", "select",
+                "select_n", "select_every_s", "fresh_batches"}
 
 
 def parse_study(raw, batch: int) -> dict:
@@ -124,7 +126,25 @@ def parse_study(raw, batch: int) -> dict:
                                       c.get("budget_includes_compile", False)),
         # With compile included: held-out fall of the best-so-far at i/N of the budget
         heldout_checkpoints=integer("study.heldout_checkpoints",
-                                    c.get("heldout_checkpoints", 4), 1, 20))
+                                    c.get("heldout_checkpoints", 4), 1, 20),
+        **selection_settings(c, batch))
+
+
+def selection_settings(c: dict, batch: int) -> dict:
+    """study.select ("training": the lowest training loss; "validation": the lowest hard fall
+    rate on select_n validation pushes, looked at every select_every_s seconds) and
+    study.fresh_batches (a fresh training batch per iteration; seeds side by side only):
+    tkujax.studies.tune.selection."""
+    select = c.get("select", "training")
+    if select not in SELECT_MODES:
+        raise SpecError(f"study.select: expected one of {list(SELECT_MODES)}, got {select!r}")
+    fresh = boolean("study.fresh_batches", c.get("fresh_batches", False))
+    if fresh and not c.get("seeds_side_by_side", False):
+        raise SpecError("study.fresh_batches: needs study.seeds_side_by_side = true")
+    return dict(select=select, fresh_batches=fresh,
+                select_n=integer("study.select_n", c.get("select_n", 2 * batch), 1, 1_000_000),
+                select_every_s=number("study.select_every_s", c.get("select_every_s", 10.0),
+                                      0.1, 86400.0, "s"))
 
 
 def guided_steps(v, popsize: int) -> tuple[float, ...]:

@@ -190,7 +190,7 @@ ROW_KEYS = ("method", "policy", "n_params", "seed", "heldout_fall", "shifted_fal
             "above_fall", "start_heldout_fall", "start_shifted_fall", "start_above_fall",
             "wall_s", "budget_s", "best_loss", "start_loss", "iterations", "compile_s",
             "cma_variant", "push_clip", "device", "side_by_side", "budget_includes_compile",
-            "search_s")
+            "search_s", "select", "fresh_batches", "validation_fall", "start_validation_fall")
 
 
 def load_runs(out: Path) -> list[dict]:
@@ -312,13 +312,36 @@ class StudyRunner:
 
     def _train(self, seed: int):
         """Seed s's training batch and keys (tune.seed + s)."""
+        return self._draw(self.spec.seed + seed, self.spec.batch)
+
+    def _draw(self, seed: int, n: int):
+        """n pushes of the training distribution and their keys, drawn with `seed`."""
         import jax
 
         from tkujax.studies.tune.spec import sample_pushes
 
-        spec = self.spec
-        return (sample_pushes(spec, spec.batch, spec.seed + seed),
-                jax.random.split(jax.random.PRNGKey(spec.seed + seed), spec.batch))
+        return (sample_pushes(self.spec, n, seed),
+                jax.random.split(jax.random.PRNGKey(seed), n))
+
+    def _selection(self, problem, seeds: list[int], side_by_side: bool):
+        """(ValidationSelector or None, BatchStream or None) of study.select and
+        study.fresh_batches (tkujax.studies.tune.selection)."""
+        from tkujax.studies.tune.selection import (VALIDATION_SEED_OFFSET, BatchStream,
+                                                   ValidationSelector)
+
+        spec, st = self.spec, self.spec.study
+        stream = (BatchStream(lambda sd: self._draw(sd, spec.batch), seeds, spec.seed)
+                  if st["fresh_batches"] else None)
+        if st["select"] != "validation":
+            return None, stream
+        sets = [{"heldout": self._draw(spec.eval_seed + VALIDATION_SEED_OFFSET + s,
+                                       st["select_n"])} for s in seeds]
+
+        def rates(zs):
+            fell = self._fell(problem, {"z": zs}, sets, side_by_side)["heldout"]["z"]
+            return np.array([np.nanmean(f) for f in fell])
+
+        return ValidationSelector(rates, st["select_every_s"]), stream
 
     def _record(self, policy, method, seed, rep, variant, r, fell: dict,
                 clock: dict | None = None) -> dict:
@@ -330,7 +353,8 @@ class StudyRunner:
         from tkujax.studies.tune.spec import ensembles_record
 
         st = self.spec.study
-        search_s = r["curve"][-1]["wall_s"]
+        search_s = max([r["curve"][-1]["wall_s"]]
+                       + [c["wall_s"] for c in r.get("selection_curve", [])[-1:]])
         row = dict(method=method, policy=policy, n_params=rep.size, seed=seed,
                    cma_variant=variant, budget_s=st["budget_s"],
                    push_clip=st["push_clip"] if searcher_class(method).uses_gradient else None,
@@ -339,6 +363,9 @@ class StudyRunner:
                    best_loss=r["best_loss"],
                    start_loss=r["curve"][0]["best_loss"], iterations=r["iterations"],
                    compile_s=r["compile_s"] if clock is None else round(clock["charge"], 2),
+                   select=r.get("select", "training"), fresh_batches=st["fresh_batches"],
+                   validation_fall=r.get("validation_fall"),
+                   start_validation_fall=r.get("start_validation_fall"),
                    device=str(jax.devices()[0].device_kind))
         for label, (start, best) in fell.items():
             row[f"{label}_fall"] = float(np.nanmean(best))
@@ -350,6 +377,7 @@ class StudyRunner:
         self.log(f"  {run_name(policy, method, seed)}: held-out {row['heldout_fall']:.3f} "
                  f"(start {row['start_heldout_fall']:.3f}), {r['iterations']} iterations")
         return dict(row, curve=r["curve"], z_best=r["z_best"], extra=r["extra"],
+                    selection_curve=r.get("selection_curve"),
                     policy_layout=rep.describe(r["z_best"]),
                     ensembles=ensembles_record(self.spec), model=dict(self.spec.model),
                     devices=[str(d) for d in jax.devices()])
@@ -367,21 +395,24 @@ class StudyRunner:
 
         st = self.spec.study
         batches, keys = [t[0] for t in trains], [t[1] for t in trains]
+        select, stream = self._selection(problem, seeds, side_by_side)
         if not st["budget_includes_compile"]:
             if not side_by_side:
                 return [run_search(m, problem, z0, batches[0], keys[0], cfg, seed=seeds[0],
-                                   log=self.log)], None
+                                   log=self.log, select=select)], None
             return run_search_lockstep(m, problem, z0, batches, keys, cfg, seeds,
-                                       log=self.log, compiler_options=self.opts), None
+                                       log=self.log, compiler_options=self.opts,
+                                       select=select, stream=stream), None
         if side_by_side:
-            calls = lockstep_calls(problem, batches, keys, cfg, len(seeds), self.opts)
+            calls = lockstep_calls(problem, batches, keys, cfg, len(seeds), self.opts, stream)
         else:
             calls = OneSeedCalls(problem, problem.with_off_survived(batches[0], keys[0]),
                                  keys[0], cfg)
         times = self.compile_times.setdefault((policy, len(seeds) if side_by_side else 0), {})
         n = st["heldout_checkpoints"]
         rs, charge, snaps = clocked_search(m, calls, z0, cfg, seeds, f"{m} x{len(seeds)}",
-                                           times, [i / n for i in range(1, n)], self.log)
+                                           times, [i / n for i in range(1, n)], self.log,
+                                           select)
         return rs, dict(charge=charge, snapshots=snaps)
 
     def _fell(self, problem, latents: dict, sets: list[dict], side_by_side: bool) -> dict:

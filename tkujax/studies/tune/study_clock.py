@@ -56,6 +56,7 @@ class ClockedCalls:
         self.snapshots: list[tuple[float, np.ndarray]] = []
         self.best_z: np.ndarray | None = None
         self.best_loss: np.ndarray | None = None
+        self.selector = None           # a selection.ValidationSelector: its best is followed
 
     def prewarm(self, inputs: dict[str, np.ndarray]) -> dict[str, float]:
         """Call each function once (side by side); {call: seconds it took}."""
@@ -94,8 +95,13 @@ class ClockedCalls:
         return out
 
     def _snapshot(self, t: float) -> None:
+        best = self.best_z if self.selector is None or self.selector.best_z is None \
+            else self.selector.best_z
         while self.pending and self.pending[0] <= t:
-            self.snapshots.append((self.pending.pop(0), self.best_z.copy()))
+            self.snapshots.append((self.pending.pop(0), best.copy()))
+
+    def next_batch(self) -> None:
+        getattr(self.calls, "next_batch", lambda: None)()
 
     def _offer(self, zs: np.ndarray, losses: np.ndarray) -> None:
         for s in range(len(zs)):
@@ -121,13 +127,15 @@ class ClockedCalls:
 
 def clocked_search(method: str, calls, z0, cfg: SearchConfig, seeds: Sequence[int],
                    label: str, compile_times: dict[str, float], fractions: Sequence[float],
-                   log: Callable[[str], None] | None = None):
+                   log: Callable[[str], None] | None = None, select=None):
     """`search.drive` within ONE cfg.budget_s that counts the run's compiles. compile_times:
     {call: seconds of its first (compiling) call} for this policy and shape, updated here.
     Returns (drive's records, the charged compile seconds, [(t, (S, k) best latents)] at the
-    checkpoints fractions x budget_s of the run's clock)."""
+    checkpoints fractions x budget_s of the run's clock). select: as `search.drive`'s; the
+    checkpoints then hold its best-so-far."""
     cls = searcher_class(method)
     clocked = ClockedCalls(calls)
+    clocked.selector = select
     Z0 = np.repeat(np.asarray(z0, float)[None], len(seeds), 0)
     inputs = warm_up_inputs(cls, Z0, cfg)
     for name, seconds in clocked.prewarm(inputs).items():
@@ -135,5 +143,5 @@ def clocked_search(method: str, calls, z0, cfg: SearchConfig, seeds: Sequence[in
     charge = max(compile_times[n] for n in inputs)
     clocked.start(charge, [f * cfg.budget_s for f in fractions])
     left = dataclasses.replace(cfg, budget_s=max(cfg.budget_s - charge, 0.0))
-    records = drive(method, clocked, z0, left, seeds, label, log)
+    records = drive(method, clocked, z0, left, seeds, label, log, select)
     return records, charge, clocked.finish()
