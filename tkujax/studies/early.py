@@ -46,6 +46,10 @@ from tkujax.studies.chunk_program import (OUTCOME_KEYS, SWEEP_COMPILER_OPTIONS, 
 from tkujax.studies.spec import PHASE_KEY, PUSH_FIELDS, EnsembleRef
 
 DECIDED_COLUMN = "decided_s"   # early records: the time of the last simulated tick
+# The readings an early record takes up to the fall decision when the push fell (the full
+# horizon reads them after the robot has tumbled further); every other reading, and all of a
+# settled push's, mean what they mean at the full horizon.
+TRUNCATED_WHEN_FALLEN = ("peak_incl_deg", "step_length_m", "step_width_m", "zmp_excursion_m")
 
 
 @dataclasses.dataclass(frozen=True)
