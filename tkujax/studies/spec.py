@@ -290,7 +290,6 @@ def parse_spec(data: dict) -> SweepSpec:
     chunk = sweep.get("chunk_size", 1024)
     if not 1 <= chunk <= 1_048_576:
         raise SpecError(f"sweep.chunk_size: {chunk} is out of range [1, 1048576]")
-    decisions = decisions_of(sweep, chunk)
     duration = number("sweep.duration_s", sweep.get("duration_s", 2.4), 0.1, 30.0, "s")
     control = tuple(sweep.get("control", ["off", "on"]))
     if (not control or any(c not in ("on", "off") for c in control)
@@ -357,7 +356,7 @@ def parse_spec(data: dict) -> SweepSpec:
                      step_grid=step_grid,
                      step_reference=step_reference, arithmetic=arithmetic, fpga=fpga,
                      fpga_grid=fpga_grid, ensemble=ensemble, tree_passes=tree_passes,
-                     robot_file=_robot_file(data), decisions=decisions)
+                     robot_file=_robot_file(data), decisions=decisions_of(sweep, chunk))
 
 
 def _robot_file(data: dict) -> str | None:
