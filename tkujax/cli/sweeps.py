@@ -17,7 +17,7 @@ def _cmd_sweep(args) -> int:
     model = robot or model_params_from_options([args.model] if args.model else [])
     manifest = run_sweep(args.spec, args.out, params=params, schedule=schedule,
                          model_params=model, max_chunks=args.max_chunks,
-                         **parallel_kwargs(args))
+                         decisions=args.decisions, **parallel_kwargs(args))
     state = "complete" if manifest["complete"] else "incomplete (rerun the same command to resume)"
     print(f"{manifest['n_pushes']} pushes in {args.out} ({manifest['backend']} backend): "
           f"{state}; {manifest['n_diverged']} diverged (numerical blow-up: counted neither as "
@@ -138,6 +138,10 @@ def _add_sweep(sub) -> None:
                    help="a robot file (docs/robots.md): the sweep runs on that robot with "
                         "the controller scaled to it (default: the spec's [robot] file)")
     p.add_argument("--max-chunks", type=int, default=None, help="stop after this many new chunks")
+    p.add_argument("--decisions", choices=["full", "early"], default=None,
+                   help="full: every push runs the spec's duration_s; early: a push leaves its "
+                        "lane once fallen or settled and the next push takes it (MJX; default: "
+                        "the spec's [sweep] decisions, else full)")
     add_parallel_options(p)
     p.set_defaults(func=_cmd_sweep)
 

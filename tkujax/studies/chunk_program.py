@@ -118,38 +118,57 @@ def ensemble_robots(ensemble: EnsembleRef):
         raise SpecError(f"randomize.ensemble: {ensemble.path}: {err}") from None
 
 
+def sweep_base(model_params: ModelParams | None, ensemble: EnsembleRef | None):
+    """(model, index, stand state, RobotSet or None) of a sweep: its one robot, or an
+    ensemble's base model with its members' RobotSet."""
+    if ensemble is None:
+        _, model, index, state = init(model_params)
+        return model, index, state, None
+    robots = ensemble_robots(ensemble)
+    return robots.base_model, robots.index, robots.base_state, robots
+
+
+def record_episode(base, rec: dict, key, base_params: ControllerParams, varied: tuple[str, ...],
+                   steps: bool, robot_values=None):
+    """One record's (model, stand state, Episode, ControllerParams, StepOverride or None):
+    its push, its controller-grid values over `base_params`, its ensemble member (with
+    `robot_values`, the RobotSet's values) and its [randomize] draws. `base` from
+    `sweep_base`."""
+    from tkujax.sim.robots import put_leaves
+
+    model, index, state, robots = base
+    push = Push(rec["impulse_ns"], jnp.radians(rec["azimuth_deg"]), rec["height_m"],
+                rec["duration_s"], rec["onset_s"])
+    params = controller_params_from(base_params, {k: rec[k] for k in varied})
+    m, s = model, state
+    if robot_values is not None:   # this record's ensemble member
+        rid = rec[ROBOT_ID_COLUMN].astype(jnp.int32)
+        m = put_leaves(model, robots.model_leaf_ids, robot_values[0], rid)
+        s = put_leaves(state, robots.state_leaf_ids, robot_values[1], rid)
+    m = randomize_model(m, index.chest_body, mass_scale=rec["link_mass_scale"],
+                        torso_com_dx_m=rec["torso_com_offset_x_m"],
+                        friction=rec["floor_friction"], kp_scale=rec["servo_kp_scale"])
+    episode = Episode(push, rec["control"], key, rec["gyro_noise_std"], rec["accel_noise_std"])
+    return m, s, episode, params, (step_override(rec) if steps else None)
+
+
 @functools.lru_cache(maxsize=16)
 def _make_chunk_fn(varied, duration_s, model_params, with_qpos, steps, fixed, ensemble, unroll,
                    tree_passes):
-    from tkujax.sim.robots import put_leaves
-
-    if ensemble is None:
-        _, model, index, state = init(model_params)
-    else:
-        robots = ensemble_robots(ensemble)
-        model, index, state = robots.base_model, robots.index, robots.base_state
+    base = sweep_base(model_params, ensemble)
+    index, robots = base[1], base[3]
     config = RolloutConfig(duration_s=duration_s, record_qpos=with_qpos, fixed=fixed,
                            program=ProgramOptions(unroll_substeps=unroll, loop=SWEEP_LOOP,
                                                   tree_passes=tree_passes))
 
     def one(rec, key, base_params, schedule, robot_values=None):
-        push = Push(rec["impulse_ns"], jnp.radians(rec["azimuth_deg"]), rec["height_m"],
-                    rec["duration_s"], rec["onset_s"])
-        params = controller_params_from(base_params, {k: rec[k] for k in varied})
-        m, s = model, state
-        if robot_values is not None:   # this record's ensemble member
-            rid = rec[ROBOT_ID_COLUMN].astype(jnp.int32)
-            m = put_leaves(model, robots.model_leaf_ids, robot_values[0], rid)
-            s = put_leaves(state, robots.state_leaf_ids, robot_values[1], rid)
-        m = randomize_model(m, index.chest_body, mass_scale=rec["link_mass_scale"],
-                            torso_com_dx_m=rec["torso_com_offset_x_m"],
-                            friction=rec["floor_friction"], kp_scale=rec["servo_kp_scale"])
-        series = rollout(m, s, Episode(push, rec["control"], key, rec["gyro_noise_std"],
-                         rec["accel_noise_std"]), params, config, index,
-                         step_override(rec) if steps else None, schedule)
-        out = rollout_outcomes(series, push.onset_s)
+        m, s, episode, params, override = record_episode(base, rec, key, base_params, varied,
+                                                         steps, robot_values)
+        series = rollout(m, s, episode, params, config, index, override, schedule)
+        out = rollout_outcomes(series, episode.push.onset_s)
         res = {k: out[k] for k in OUTCOME_KEYS} | ({"qpos": series.qpos} if with_qpos else {})
-        return res | (capture_outcomes(series, push.onset_s, params.gravity) if steps else {})
+        return res | (capture_outcomes(series, episode.push.onset_s, params.gravity)
+                      if steps else {})
 
     if ensemble is None:
         def chunk(batch, keys, params, schedule=None):

@@ -19,6 +19,9 @@ Versions:
   2  "schema_version": 2; records every field of FIRST_FIELDS and ADDED_FIELDS.
   3  also records "tree_passes" (SweepSpec.tree_passes); a manifest before it ran MJX's passes
      (`manifest_spec`).
+  4  also records "decisions" ("full" or "early"; SweepSpec.decisions, with "lanes" and
+     "segment_ticks" when early); a manifest before it ran the full horizon. Early records
+     carry a decided_s column.
 
 Adding a field to one of the three dataclasses: append an AddedField with `since` =
 SCHEMA_VERSION + 1 and the value that reproduces the code without it, and bump SCHEMA_VERSION
@@ -35,13 +38,17 @@ from tkujax.control.params import ControllerParams
 from tkujax.model import ModelParams
 from tkujax.model.io import model_params_from_dict
 from tkujax.studies.spec import SweepSpec, parse_spec
+from tkujax.studies.spec_program import decisions_of
 
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 UNVERSIONED = 1               # the version of a manifest that records none
 SCHEMA_KEY = "schema_version"
 # The sweep's passes over the body tree, recorded from version 3 on, and what ran before.
 TREE_PASSES_KEY = "tree_passes"
 TREE_PASSES_BEFORE = "mjx"
+# How the sweep decided its pushes, recorded from version 4 on, and what ran before.
+DECISIONS_KEY = "decisions"
+DECISIONS_BEFORE = "full"
 
 # The manifest keys of the parameter groups and the dataclass each records.
 GROUPS: dict[str, type] = {"controller_params": ControllerParams, "model_params": ModelParams,
@@ -207,8 +214,14 @@ def manifest_controller_params(manifest: dict, where: str) -> ControllerParams:
 
 
 def manifest_spec(manifest: dict) -> SweepSpec:
-    """The manifest's SweepSpec, with the tree passes the sweep ran (TREE_PASSES_BEFORE for a
-    manifest that predates the key, whatever today's default)."""
+    """The manifest's SweepSpec, with the tree passes and the decisions the sweep ran
+    (TREE_PASSES_BEFORE, DECISIONS_BEFORE for a manifest that predates the key, whatever
+    today's default)."""
     spec = parse_spec(manifest["spec"])
+    sweep = dict(manifest["spec"].get("sweep", {}))
+    sweep.update({k: manifest[k] for k in ("lanes", "segment_ticks") if k in manifest})
+    decisions = decisions_of(sweep, spec.chunk_size,
+                             manifest.get(DECISIONS_KEY, DECISIONS_BEFORE))
     return dataclasses.replace(spec, tree_passes=manifest.get(TREE_PASSES_KEY,
-                                                              TREE_PASSES_BEFORE))
+                                                              TREE_PASSES_BEFORE),
+                               decisions=decisions)

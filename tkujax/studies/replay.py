@@ -31,6 +31,7 @@ from tkujax.sim.rollout_mjx import RolloutConfig
 from tkujax.studies import chunks
 from tkujax.studies.chunk_program import (OUTCOME_KEYS, chunk_keys, make_chunk_fn, record_inputs,
                                           traced_params)
+from tkujax.studies.early import TRUNCATED_WHEN_FALLEN
 from tkujax.studies.mujoco_chunk import mujoco_chunk
 from tkujax.studies.record_schema import (fields_missing, manifest_controller_params,
                                           manifest_model_params, manifest_spec)
@@ -108,6 +109,9 @@ def replay(run_dir: str | Path, index: int) -> dict:
         res = jax.tree_util.tree_map(lambda x: np.asarray(x)[0],
                                      fn(one, key, traced_params(base), schedule))
     replayed = {k: res[k] for k in OUTCOME_KEYS if k in stored}
+    if spec.decisions.early and bool(stored["fell"]):
+        # The replay runs the full horizon; an early record read these up to its fall decision.
+        replayed = {k: v for k, v in replayed.items() if k not in TRUNCATED_WHEN_FALLEN}
     differences = {}
     for k, v in replayed.items():
         a, b = np.asarray(stored[k]), np.asarray(v)

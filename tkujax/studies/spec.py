@@ -82,12 +82,15 @@ from tkujax.control.io import checked_value
 from tkujax.model.ensemble import load_ensemble
 from tkujax.model.params import ModelParams
 from tkujax.sim.push import onset_from_phase, onset_phase
+from tkujax.studies.spec_program import (SWEEP_TREE_PASSES, Decisions, decisions_of,
+                                         tree_passes_of)
 from tkujax.studies.spec_fpga import (ARITHMETIC, FPGA_COLUMN, FPGA_FIELDS, check_fixed_controller,
                                       fixed_point_config, parse_fpga)
 from tkujax.studies.validation import SpecError, number, read_toml, table, uniform, values
 
 # Re-exported: the names other modules import from here.
-__all__ = ["ARITHMETIC", "FPGA_COLUMN", "FPGA_FIELDS", "SpecError", "read_toml",
+__all__ = ["ARITHMETIC", "SWEEP_TREE_PASSES", "Decisions", "FPGA_COLUMN", "FPGA_FIELDS",
+           "SpecError", "read_toml",
            "fixed_point_config", "parse_spec", "load_spec", "expand", "parse_randomize",
            "parse_ensemble", "controller_value", "controller_values", "EnsembleRef", "SweepSpec"]
 
@@ -146,12 +149,8 @@ SECOND_STEP_FIELDS = ("x2_m", "y2_m", "delay2_s")
 ENSEMBLE_KEY = "ensemble"
 ROBOT_ID_COLUMN = "robot_id"
 SWEEP_FIELDS = {"name": str, "seed": int, "chunk_size": int, "duration_s": (int, float),
-                "control": list, "description": str, "tree_passes": str}
-# The sweeps' passes over the body tree (ProgramOptions.tree_passes): "compact" sums the tree
-# in a fixed order, so a GPU gives the same records from run to run (results/scale/README.md:
-# MJX's own passes sum subtrees with scatter-adds, which a GPU runs with atomics), with the
-# same outcomes (tests/test_perf_equivalence.py, test_compact_sweep_chunk_keeps_the_outcomes).
-SWEEP_TREE_PASSES = ("compact", "mjx")
+                "control": list, "description": str, "tree_passes": str, "decisions": str,
+                "lanes": int, "segment_ticks": int}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -218,6 +217,7 @@ class SweepSpec:
     ensemble: EnsembleRef | None = None   # [randomize] ensemble
     tree_passes: str = SWEEP_TREE_PASSES[0]   # [sweep] tree_passes (SWEEP_TREE_PASSES)
     robot_file: str | None = None   # [robot] file: a robot file (tkujax.robot), absolute
+    decisions: Decisions = Decisions()   # [sweep] decisions, lanes, segment_ticks
 
     def fixed_point_config(self, rec: dict | None = None) -> FixedPointConfig | None:
         """The FixedPointConfig of a record (its fpga_* columns over [fpga]); None for float."""
@@ -277,14 +277,6 @@ def parse_randomize(data: dict) -> dict[str, Any]:
     return randomize
 
 
-def _tree_passes(sweep: dict) -> str:
-    value = sweep.get("tree_passes", SWEEP_TREE_PASSES[0])
-    if value not in SWEEP_TREE_PASSES:
-        raise SpecError(f"sweep.tree_passes: expected one of {list(SWEEP_TREE_PASSES)}, "
-                        f"got {value!r}")
-    return value
-
-
 def parse_spec(data: dict) -> SweepSpec:
     """Validate a parsed TOML document."""
     table("top level", data, {"sweep", "push", "controller", "randomize", "step", "fpga",
@@ -294,7 +286,7 @@ def parse_spec(data: dict) -> SweepSpec:
         if k in sweep and (isinstance(sweep[k], bool) or not isinstance(sweep[k], types)):
             raise SpecError(f"sweep.{k}: expected {getattr(types, '__name__', 'a number')}, "
                             f"got {sweep[k]!r}")
-    tree_passes = _tree_passes(sweep)
+    tree_passes = tree_passes_of(sweep)
     chunk = sweep.get("chunk_size", 1024)
     if not 1 <= chunk <= 1_048_576:
         raise SpecError(f"sweep.chunk_size: {chunk} is out of range [1, 1048576]")
@@ -364,7 +356,7 @@ def parse_spec(data: dict) -> SweepSpec:
                      step_grid=step_grid,
                      step_reference=step_reference, arithmetic=arithmetic, fpga=fpga,
                      fpga_grid=fpga_grid, ensemble=ensemble, tree_passes=tree_passes,
-                     robot_file=_robot_file(data))
+                     robot_file=_robot_file(data), decisions=decisions_of(sweep, chunk))
 
 
 def _robot_file(data: dict) -> str | None:

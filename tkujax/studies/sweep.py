@@ -36,11 +36,13 @@ from tkujax.sim.setup import RobotSetup
 from tkujax.studies import chunks
 from tkujax.studies.chunk_program import (chunk_keys, fpga_groups, make_chunk_fn, record_inputs,
                                           traced_params)
+from tkujax.studies.early import make_lane_fns, run_lanes
 from tkujax.studies.mujoco_chunk import mujoco_chunk
 from tkujax.studies.progress import Progress
 from tkujax.studies.provenance import git_commit, versions
 from tkujax.studies.record_schema import SCHEMA_KEY, SCHEMA_VERSION, TREE_PASSES_KEY
 from tkujax.studies.spec import SpecError, SweepSpec, load_spec
+from tkujax.studies.spec_program import with_decisions
 from tkujax.studies.sweep_hash import spec_hash
 
 # Names other modules have imported from here; each lives in the module named.
@@ -64,6 +66,10 @@ def choose_backend(requested: str, spec: SweepSpec) -> str:
         raise SpecError(f"backend must be one of {BACKENDS}, got {requested!r}")
     needs_mjx = [k for k in spec.randomize if k not in ("gyro_noise_std", "accel_noise_std")
                  or isinstance(spec.randomize[k], tuple)]
+    if requested == "mujoco" and spec.decisions.early:
+        raise SpecError("sweep.decisions: 'early' runs on MJX only; use backend 'mjx' or 'auto'")
+    if spec.decisions.early:
+        needs_mjx.append("decisions")
     if requested == "mujoco" and needs_mjx:
         raise SpecError(f"backend 'mujoco' cannot vary {needs_mjx} per push; use backend 'mjx'")
     if requested != "auto":
@@ -117,6 +123,8 @@ class _ChunkJob:
                                schedule=self.schedule)
             return {k: recs[k][lo:hi] for k in recs} | res
         keys = chunk_keys(spec.seed, i, self.padded)
+        if spec.decisions.early:
+            return {k: recs[k][lo:hi] for k in recs} | self.compute_early(lo, hi, keys)
         res = {}
         for fixed, sel in fpga_groups(spec, {k: recs[k][lo:hi] for k in recs}):
             # Each FixedPointConfig is its own program, compiled once for the padded chunk
@@ -134,6 +142,27 @@ class _ChunkJob:
                 v = np.asarray(v)[:len(sel)]
                 res.setdefault(k, np.empty((hi - lo,) + v.shape[1:], v.dtype))[sel] = v
         return {k: recs[k][lo:hi] for k in recs} | res
+
+
+    def compute_early(self, lo: int, hi: int, keys: jax.Array) -> dict:
+        """Outcome columns of records lo:hi with early decisions (`tkujax.studies.early`): one
+        lane program per FixedPointConfig present; each record keeps its own noise key."""
+        spec, res = self.spec, {}
+        n_lanes = math.ceil(spec.decisions.lanes / self.n_devices) * self.n_devices
+        for fixed, sel in fpga_groups(spec, {k: self.recs[k][lo:hi] for k in self.recs}):
+            fns = make_lane_fns(tuple(sorted(spec.controller_grid)), spec.duration_s,
+                                self.model_params, bool(spec.step_grid), fixed, spec.ensemble,
+                                spec.tree_passes, spec.decisions.segment_ticks)
+            part = run_lanes(fns, {k: self.recs[k][lo:hi][sel] for k in self.input_keys},
+                             keys[sel], traced_params(self.base), self.schedule, n_lanes,
+                             self.sharding, steps=bool(spec.step_grid))
+            for k, v in part.items():
+                res.setdefault(k, np.empty((hi - lo,) + v.shape[1:], v.dtype))[sel] = v
+        return res
+
+    @property
+    def n_devices(self) -> int:
+        return len(self.sharding.mesh.devices.flat)
 
 
 def _compute_pending(out: Path, job: _ChunkJob, pending: list[int], n_chunks: int,
@@ -185,7 +214,7 @@ def _describe(spec: SweepSpec, digest: str, n: int, n_chunks: int, padded: int,
         versions=versions(), git_commit=git_commit(),
         devices=[str(d) for d in jax.devices()], num_processes=num_processes,
         backend=backend, format="npz chunks, one record per push",
-        **{TREE_PASSES_KEY: spec.tree_passes})
+        **{TREE_PASSES_KEY: spec.tree_passes}, **spec.decisions.describe())
     if spec.arithmetic == "fixed":
         manifest["fixed_point_defaults"] = dataclasses.asdict(FixedPointConfig())
     if spec.ensemble is not None:
@@ -273,7 +302,7 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
               process_id: int | None = None, num_processes: int | None = None,
               coordinator: str | None = None, quiet: bool = False,
               wait_for_others_s: float = 3600.0, backend: str = "auto",
-              schedule: Schedule | None = None) -> dict:
+              schedule: Schedule | None = None, decisions: str | None = None) -> dict:
     """Run (or resume) a sweep into `out`. Returns the manifest.
 
     max_chunks: stop after computing this many new chunks (for tests and partial runs).
@@ -283,8 +312,11 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
     can be resumed on another machine; outcomes agree across backends except near the fall
     boundary). schedule: a scheduled policy's Schedule (`tkujax.control.io.load_policy_json`),
     applied with `params` in every control-on run; the manifest and the spec hash record it.
+    decisions: "full" or "early" in place of the spec's [sweep] decisions (None: the spec's);
+    early decisions run on MJX (docs/sweeps.md).
     """
     spec, params = _checked_inputs(spec, params, model_params, max_chunks, schedule)
+    spec = with_decisions(spec, decisions)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     process_id, num_processes = _processes(process_id, num_processes, coordinator)

@@ -19,6 +19,7 @@ from tkujax.model import ModelParams
 from tkujax.sim.setup import RobotSetup
 from tkujax.studies.record_schema import TREE_PASSES_BEFORE, hashed_fields
 from tkujax.studies.spec import SweepSpec
+from tkujax.studies.spec_program import hashed_raw
 
 
 def shares_robot_draws(spec: SweepSpec) -> bool:
@@ -40,7 +41,7 @@ def spec_hash(spec: SweepSpec, params: ControllerParams, model_params: ModelPara
         m = {"robot sha256": model_params.digest}
     else:
         m = hashed_fields("model_params", dataclasses.asdict(model_params))
-    parts = [spec.raw, p, m]
+    parts = [hashed_raw(spec.raw), p, m]
     if spec.arithmetic == "fixed":   # the FixedPointConfig defaults fill every unset [fpga] key
         parts.append({"fixed_point_defaults": dataclasses.asdict(FixedPointConfig())})
     if spec.phase_default:   # random onsets changed meaning when the phase axis came in
@@ -51,6 +52,8 @@ def spec_hash(spec: SweepSpec, params: ControllerParams, model_params: ModelPara
         parts.append({"schedule": schedule_to_dict(schedule)})
     if spec.tree_passes != TREE_PASSES_BEFORE:   # another program: other rounding
         parts.append(f"tree passes: {spec.tree_passes}")
+    if spec.decisions.early:   # another program, and readings up to each push's decision
+        parts.append(spec.decisions.describe())
     if shares_robot_draws(spec):
         # The robot draws became shared by the settings of a push (records of older sweeps
         # differ): such a sweep is a new one.

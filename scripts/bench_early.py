@@ -1,0 +1,92 @@
+"""Pushes per second with early decisions against the full horizon, on the same pushes and
+build, and their fall agreement (docs/sweeps.md, "Early decisions").
+
+Takes the first --pushes records of a sweep spec (chunk 0's noise keys), runs them once
+through the full-horizon chunk program (one batch) and once through the early-decision lanes
+(--lanes lanes, refilled), each timed on a second, warm call, and prints JSON: pushes_per_s of
+both modes, their ratio, the fall agreement and the mean decision time.
+
+    python scripts/bench_early.py --spec specs/sweep/scale.toml --pushes 131072 --lanes 65536
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import time
+
+import jax
+import numpy as np
+
+from tkujax.cli.runtime import configure_runtime
+from tkujax.control.io import controller_params_from
+from tkujax.control.params import ControllerParams
+
+
+def timed(fn, repeats: int = 2) -> tuple[object, float, float]:
+    """(result, first call s, fastest later call s)."""
+    t0 = time.perf_counter()
+    out = jax.block_until_ready(fn())
+    first = time.perf_counter() - t0
+    best = float("inf")
+    for _ in range(repeats - 1):
+        t0 = time.perf_counter()
+        out = jax.block_until_ready(fn())
+        best = min(best, time.perf_counter() - t0)
+    return out, first, best
+
+
+def measure(spec, n: int, lanes: int, repeats: int = 2) -> dict:
+    """Full horizon and early decisions on the first n records of `spec`."""
+    from tkujax.studies import early
+    from tkujax.studies.chunk_program import (chunk_keys, make_chunk_fn, record_inputs,
+                                              traced_params)
+
+    recs = record_inputs(spec)
+    inputs = {k: recs[k][:n].astype(np.float32) for k in recs
+              if k not in ("push_id", "from_grid", "case_id")}
+    keys = chunk_keys(spec.seed, 0, max(n, spec.chunk_size))[:n]
+    params = traced_params(controller_params_from(ControllerParams.paper(), spec.controller))
+    full_fn = make_chunk_fn((), spec.duration_s, tree_passes=spec.tree_passes)
+    batch = {k: jax.numpy.asarray(v) for k, v in inputs.items()}
+    full, full_first, full_s = timed(lambda: full_fn(batch, keys, params), repeats)
+    fns = early.make_lane_fns((), spec.duration_s, tree_passes=spec.tree_passes,
+                              segment_ticks=spec.decisions.segment_ticks)
+    got, early_first, early_s = timed(
+        lambda: early.run_lanes(fns, inputs, keys, params, None, lanes), repeats)
+    fell_full, fell_early = np.asarray(full["fell"]), np.asarray(got["fell"])
+    return dict(pushes=n, lanes=lanes, duration_s=spec.duration_s,
+                segment_ticks=spec.decisions.segment_ticks,
+                pushes_per_s=n / early_s, baseline_pushes_per_s=n / full_s,
+                speedup=full_s / early_s, fell_agreement=float(np.mean(fell_full == fell_early)),
+                fell_rate=float(np.mean(fell_full)),
+                mean_decided_s=float(np.mean(got[early.DECIDED_COLUMN])),
+                first_call_s={"full": full_first, "early": early_first},
+                device=str(jax.devices()[0].device_kind), backend=jax.default_backend())
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--spec", default="specs/sweep/scale.toml")
+    ap.add_argument("--pushes", type=int, default=64)
+    ap.add_argument("--lanes", type=int, default=16)
+    ap.add_argument("--duration-s", type=float, default=None, help="override the spec's")
+    ap.add_argument("--repeats", type=int, default=2, help="calls per mode (the first compiles)")
+    ap.add_argument("--out", default=None, help="also write the JSON here")
+    args = ap.parse_args(argv)
+    configure_runtime()
+    from tkujax.studies.spec import load_spec
+
+    spec = load_spec(args.spec)
+    if args.duration_s is not None:
+        spec = dataclasses.replace(spec, duration_s=args.duration_s)
+    res = measure(spec, args.pushes, args.lanes, max(2, args.repeats))
+    text = json.dumps(res, indent=1)
+    print(text)
+    if args.out:
+        with open(args.out, "w") as fh:
+            fh.write(text + "\n")
+
+
+if __name__ == "__main__":
+    main()
