@@ -30,6 +30,7 @@ from tkujax.studies.tune.policy import PolicyReparam, save_policy
 from tkujax.studies.tune.report import plot_outputs, summary_markdown
 from tkujax.studies.tune.search import GradientOptions, SearchConfig, calls_used, run_search
 from tkujax.studies.validation import integer
+from tkujax.studies.tune.robot import on_robot, robot_record
 from tkujax.studies.tune.spec import (TuneSpec, ensembles_record, grid_pushes,
                                       load_tune_spec, make_problem, parse_tune_spec,
                                       sample_pushes, shifted)
@@ -41,18 +42,20 @@ SHIFT_SEED = 1000
 def run_tune(spec: TuneSpec | dict | str | Path, out_dir: str | Path, quiet: bool = False,
              iterations: int | None = None, compiler_options: dict | None = None,
              evaluation: bool = True, compare: bool = True, only: list[str] | None = None,
-             deadline_s: float | None = None) -> dict:
+             deadline_s: float | None = None, robot: str | None = None) -> dict:
     """Tune with the spec's method, evaluate, and write the outputs into out_dir.
 
     spec: a TuneSpec, a parsed TOML dict, or a path. iterations overrides tune.iterations.
     compare: also run the spec's [compare] study when it has one. Returns the record.
     A spec with a [study] table runs the dimension study instead (tkujax.studies.tune.study;
-    only: its run filters, deadline_s: start no run that would end after it).
+    only: its run filters, deadline_s: start no run that would end after it). robot: a robot
+    file to tune on (the spec's [robot] file when None; tkujax.studies.tune.robot).
     """
     if isinstance(spec, dict):
         spec = parse_tune_spec(spec)
     elif not isinstance(spec, TuneSpec):
         spec = load_tune_spec(spec)
+    spec = on_robot(spec, robot)
     if iterations is not None:      # checked like the spec's own tune.iterations
         spec = dataclasses.replace(spec, iterations=integer("iterations (tune.iterations)",
                                                          iterations, 1, 100_000))
@@ -142,6 +145,7 @@ def _run_tune(spec: TuneSpec, out: Path, quiet: bool, compiler_options: dict | N
         latents={n: np.asarray(z).tolist() for n, z in cands.items()}, evaluation=evals,
         evaluation_shifted=evals_shifted,
         recommendation=decision, ensembles=ensembles_record(spec), model=dict(spec.model),
+        robot=robot_record(spec),
         compare=None if comparison is None else dict(winner=comparison["winner"],
                                                      pooled=comparison["pooled"]),
         wall_s=round(time.perf_counter() - t_start, 2), devices=[str(d) for d in jax.devices()])
