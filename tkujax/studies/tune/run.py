@@ -42,14 +42,16 @@ SHIFT_SEED = 1000
 def run_tune(spec: TuneSpec | dict | str | Path, out_dir: str | Path, quiet: bool = False,
              iterations: int | None = None, compiler_options: dict | None = None,
              evaluation: bool = True, compare: bool = True, only: list[str] | None = None,
-             deadline_s: float | None = None, robot: str | None = None) -> dict:
+             deadline_s: float | None = None, robot: str | None = None,
+             budget_s: float | None = None) -> dict:
     """Tune with the spec's method, evaluate, and write the outputs into out_dir.
 
     spec: a TuneSpec, a parsed TOML dict, or a path. iterations overrides tune.iterations.
     compare: also run the spec's [compare] study when it has one. Returns the record.
     A spec with a [study] table runs the dimension study instead (tkujax.studies.tune.study;
     only: its run filters, deadline_s: start no run that would end after it). robot: a robot
-    file to tune on (the spec's [robot] file when None; tkujax.studies.tune.robot).
+    file to tune on (the spec's [robot] file when None; tkujax.studies.tune.robot). budget_s:
+    stop the search after this many seconds of generations (compile excluded).
     """
     if isinstance(spec, dict):
         spec = parse_tune_spec(spec)
@@ -65,7 +67,8 @@ def run_tune(spec: TuneSpec | dict | str | Path, out_dir: str | Path, quiet: boo
         return run_study(spec, out_dir, only=only, deadline_s=deadline_s, quiet=quiet,
                          compiler_options=compiler_options)
     with x64(spec.float64):       # the optimiser's latents in the problem's precision too
-        return _run_tune(spec, Path(out_dir), quiet, compiler_options, evaluation, compare)
+        return _run_tune(spec, Path(out_dir), quiet, compiler_options, evaluation, compare,
+                         budget_s)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,12 +85,14 @@ class TuneRun:
     search: SearchConfig
 
 
-def resolve_run(spec: TuneSpec) -> TuneRun:
-    """The run of `spec`: tune.method "auto" becomes the dimension study's advice."""
+def resolve_run(spec: TuneSpec, budget_s: float | None = None) -> TuneRun:
+    """The run of `spec`: tune.method "auto" becomes the dimension study's advice; budget_s
+    (None: [compare]'s, else none) bounds the search's time."""
     reparam, base = spec.policy_reparam(), spec.base_params()
     advised = recommended_method(reparam.size)
     c = spec.compare or {}
-    cfg = SearchConfig(budget_s=c.get("budget_s", float("inf")), max_iterations=spec.iterations,
+    budget = c.get("budget_s", float("inf")) if budget_s is None else float(budget_s)
+    cfg = SearchConfig(budget_s=budget, max_iterations=spec.iterations,
                        popsize=spec.popsize, learning_rate=spec.learning_rate,
                        clip_norm=spec.clip_norm, sigma0=spec.baseline_sigma,
                        temperature_deg=c.get("temperature_deg", 0.5),
@@ -108,11 +113,11 @@ def _log_method(run: TuneRun, log) -> None:
 
 
 def _run_tune(spec: TuneSpec, out: Path, quiet: bool, compiler_options: dict | None,
-              evaluation: bool, compare: bool) -> dict:
+              evaluation: bool, compare: bool, budget_s: float | None = None) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     log = (lambda s: None) if quiet else (lambda s: print(s, file=sys.stderr, flush=True))
     t_start = time.perf_counter()
-    run = resolve_run(spec)
+    run = resolve_run(spec, budget_s)
     problem = make_problem(spec, run.reparam, compiler_options=compiler_options)
     comparison = None
     if compare and spec.compare is not None:
