@@ -96,6 +96,7 @@ def step_picture(args, out: Path, deadline: float) -> dict:
 
 def step_map(args, out: Path, deadline: float) -> dict:
     from tkujax.robot.closed_loop import robot_setup
+    from tkujax.robot.runs import robot_lip
     from tkujax.studies.maps import make_maps
     from tkujax.studies.sweep import load
 
@@ -105,7 +106,7 @@ def step_map(args, out: Path, deadline: float) -> dict:
     manifest = _sweep(spec, out / "map", robot, deadline)
     if not manifest["complete"]:
         return dict(status="incomplete", n_pushes=manifest["n_pushes"])
-    maps = make_maps(out / "map")
+    maps = make_maps(out / "map", robot=robot, lip=robot_lip(robot))
     rec = load(out / "map")
     on = rec["control"].astype(bool)
     return dict(status="done", n_pushes=manifest["n_pushes"], backend=manifest["backend"],
@@ -114,6 +115,7 @@ def step_map(args, out: Path, deadline: float) -> dict:
 
 
 def step_tune(args, out: Path, deadline: float) -> dict:
+    from tkujax.robot.closed_loop import robot_setup
     from tkujax.studies.tune import run_tune
 
     spec = tune_spec(args.smoke, args.tune_iterations)
@@ -121,7 +123,8 @@ def step_tune(args, out: Path, deadline: float) -> dict:
     # The generations (compile excluded) get under half the time box: the compiles, the
     # control-off pass and the held-out evaluation take the rest.
     budget = max(10.0, (deadline - time.time()) * 0.45)
-    record = run_tune(spec, out / "tune", quiet=False, compare=False, budget_s=budget)
+    record = run_tune(spec, out / "tune", quiet=False, compare=False, budget_s=budget,
+                      robot=robot_setup(_robot_path(args)))
     return dict(status="done", iterations=record["iterations"], wall_s=record["wall_s"],
                 recommendation=record["recommendation"], params_user=record["params_user"],
                 params=str(out / "tune" / "params_tuned.json"))
@@ -144,7 +147,7 @@ def step_verdict(args, out: Path, deadline: float) -> dict:
         return dict(status="incomplete", n_pushes=manifest["n_pushes"])
     res = compare_runs([f"{run}:off", f"{run}:on"], out / "compare",
                        labels=["control off", "tuned"], bands=Bands(sectors=4),
-                       min_pushes=args.min_pushes, harm_pp=2.0)
+                       min_pushes=args.min_pushes, harm_pp=2.0, robot=robot)
     v = res["verdict"]["runs"]["tuned"]
     ratio = v["ratio_to_reference"]
     passed = bool(ratio is not None and ratio <= MAX_FALL_RATIO and v["no_harm"])

@@ -41,11 +41,14 @@ def _cmd_refine(args) -> int:
 
 
 def _cmd_tune(args) -> int:
+    from tkujax.robot.runs import tune_robot
     from tkujax.studies.tune import run_tune
+    from tkujax.studies.validation import read_toml
 
     record = run_tune(args.spec, args.out, iterations=args.iterations,
                       compare=not args.no_compare, evaluation=not args.no_eval,
-                      only=args.only, deadline_s=args.deadline_s, robot=args.robot)
+                      only=args.only, deadline_s=args.deadline_s,
+                      robot=tune_robot(read_toml(args.spec), args.robot))
     if "summary" in record and "left" in record:          # a [study] spec
         print(Path(args.out, "study.md").read_text())
         print(f"study: {len(record['left'])} run(s) left"

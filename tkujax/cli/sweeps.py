@@ -84,7 +84,9 @@ def _write_replay_video(result: dict, args) -> None:
 def _cmd_replay(args) -> int:
     from tkujax.studies.replay import replay
 
-    result = replay(args.run_dir, args.index, robot=args.robot)
+    from tkujax.robot.runs import sweep_robot
+
+    result = replay(args.run_dir, args.index, robot=sweep_robot(args.run_dir, args.robot))
     _print_replay(result)
     if args.out:
         _write_replay_video(result, args)
@@ -110,7 +112,10 @@ def _cmd_capture(args) -> int:
 def _cmd_map(args) -> int:
     from tkujax.studies.maps import make_maps
 
-    result = make_maps(args.dir, robot=args.robot)
+    from tkujax.robot.runs import robot_lip, sweep_robot
+
+    robot = sweep_robot(args.dir, args.robot)
+    result = make_maps(args.dir, robot=robot, lip=None if robot is None else robot_lip(robot))
     print("\n".join(result["files"]))
     print(Path(result["summary"]).read_text())
     return 0

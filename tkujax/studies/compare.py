@@ -367,7 +367,7 @@ def compare_runs(run_args: list[str], out: str | Path, labels: list[str] | None 
                  bands: Bands = Bands(), min_pushes: int = 100, harm_pp: float = 2.0,
                  subset: str = "all", azimuth_bins: int = 24, impulse_bins: int = 12,
                  min_map_count: int = 10, unpaired_robots: bool = False,
-                 robot: str | None = None) -> dict:
+                 robot=None) -> dict:
     """Compare sweep runs against the first (see the module doc); write the outputs into out.
 
     unpaired_robots: accept runs whose model randomisation columns differ (independent robot
@@ -375,9 +375,9 @@ def compare_runs(run_args: list[str], out: str | Path, labels: list[str] | None 
     before the draws were shared); the standard errors are then unpaired.
 
     run_args: 'DIR', 'DIR:on' or 'DIR:off' each. labels: one per run (default: the folder's
-    name and the control setting). robot: the robot file the runs ran on (checked against
-    their manifests; the runs must share one robot). Returns dict(verdict, table, files,
-    summary)."""
+    name and the control setting). robot: the RobotSetup the runs ran on (None: TKU-X;
+    checked against their manifests; the runs must share one robot). Returns dict(verdict,
+    table, files, summary)."""
     if len(run_args) < 2:
         raise SpecError(f"compare needs 2 or more runs (the first is the reference), got "
                         f"{len(run_args)}")

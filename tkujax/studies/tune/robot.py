@@ -1,7 +1,7 @@
 """Tuning on a robot file: `[robot] file` in a tune spec, or `tkujax tune --robot FILE`.
 
-`on_robot(spec, path)` resolves the robot once: its RobotSetup (tkujax.robot.closed_loop)
-becomes the problem's model, and the start is the robot's scaled controller defaults
+`on_robot(spec, robot)` applies a robot once: its RobotSetup (tkujax.robot.runs.tune_robot
+loads it) becomes the problem's model, and the start is the robot's scaled controller defaults
 (`controller_params_for`) with the spec's [controller] applied. Refused, each a SpecError
 naming the key: a --robot other than the spec's [robot] file, [model] overrides, robot
 ensembles, float64, and a start outside tune.ranges (the ranges are the spec's, in SI units:
@@ -49,15 +49,17 @@ def _same_file(a: str, b: str) -> bool:
     return Path(a).resolve() == Path(b).resolve()
 
 
-def on_robot(spec: TuneSpec, path: str | None = None) -> TuneSpec:
-    """`spec` on the robot file `path` (None: the spec's [robot] file; neither: `spec`)."""
-    from tkujax.robot.closed_loop import robot_setup
+def on_robot(spec: TuneSpec, robot=None) -> TuneSpec:
+    """`spec` on `robot` (a RobotSetup: `tkujax.robot.runs.tune_robot` loads the spec's [robot]
+    file or --robot's; None: TKU-X, refused when the spec names a robot file)."""
     own = robot_file_of(spec.raw)
-    if path is not None and own is not None and not _same_file(path, own):
-        raise SpecError(f"robot.file: the spec names {own}, --robot gives {path}")
-    path = path or own
-    if path is None:
+    if robot is None:
+        if own is not None:
+            raise SpecError(f"robot.file: the spec names {own}: give its RobotSetup "
+                            "(tkujax.robot.runs.tune_robot loads it)")
         return spec
+    if own is not None and not _same_file(robot.source, own):
+        raise SpecError(f"robot.file: the spec names {own}, --robot gives {robot.source}")
     if spec.model:
         raise SpecError("[model]: a robot file gives the model; remove [model] or the robot")
     if spec.robot_table:
@@ -65,9 +67,8 @@ def on_robot(spec: TuneSpec, path: str | None = None) -> TuneSpec:
                         "ensemble to tune on a robot file")
     if spec.float64:
         raise SpecError("tune.float64: a robot file's model runs in float32; set it false")
-    setup = robot_setup(path)
-    start = controller_params_from(setup.params, spec.controller).validate()
-    spec = dataclasses.replace(spec, robot=setup, start=start)
+    start = controller_params_from(robot.params, spec.controller).validate()
+    spec = dataclasses.replace(spec, robot=robot, start=start)
     check_start(spec)
     return spec
 

@@ -42,15 +42,15 @@ SHIFT_SEED = 1000
 def run_tune(spec: TuneSpec | dict | str | Path, out_dir: str | Path, quiet: bool = False,
              iterations: int | None = None, compiler_options: dict | None = None,
              evaluation: bool = True, compare: bool = True, only: list[str] | None = None,
-             deadline_s: float | None = None, robot: str | None = None,
+             deadline_s: float | None = None, robot=None,
              budget_s: float | None = None) -> dict:
     """Tune with the spec's method, evaluate, and write the outputs into out_dir.
 
     spec: a TuneSpec, a parsed TOML dict, or a path. iterations overrides tune.iterations.
     compare: also run the spec's [compare] study when it has one. Returns the record.
     A spec with a [study] table runs the dimension study instead (tkujax.studies.tune.study;
-    only: its run filters, deadline_s: start no run that would end after it). robot: a robot
-    file to tune on (the spec's [robot] file when None; tkujax.studies.tune.robot). budget_s:
+    only: its run filters, deadline_s: start no run that would end after it). robot: the
+    RobotSetup to tune on (tkujax.robot.runs.tune_robot loads the spec's [robot] file). budget_s:
     stop the search after this many seconds of generations (compile excluded).
     """
     if isinstance(spec, dict):
