@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import platform
 import time
 
@@ -84,7 +85,7 @@ def main() -> None:
     ap.add_argument("--modes", nargs="+", default=list(COLLISION_MODES))
     ap.add_argument("--out")
     args = ap.parse_args()
-    result = dict(robot=args.robot, machine=platform.machine(), cpus=jax.device_count(),
+    result = dict(robot=args.robot, machine=platform.machine(), cores=os.cpu_count(),
                   backend=jax.default_backend(), mujoco=mujoco.__version__, batch=args.batch,
                   steps=args.steps, modes=[time_mode(args.robot, m, args.batch, args.steps)
                                            for m in args.modes],
