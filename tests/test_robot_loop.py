@@ -16,6 +16,7 @@ from tkujax.robot.builtin import GENERATED_SECOND, write_generated_robot
 from tkujax.robot.closed_loop import robot_setup
 from tkujax.sim.options import RolloutConfig
 from tkujax.sim.push import Push
+from tkujax.sim.rollout_mjx import simulate
 from tkujax.sim.rollout_mujoco import simulate_mujoco
 from tkujax.studies.spec import SpecError, parse_spec
 from tkujax.studies.sweep import check_robot_sweep, load, run_sweep
@@ -96,16 +97,21 @@ def _pushes(height_m: float, impulses, azimuth_deg) -> Push:
 
 
 @needs_op3
-def test_op3_mesh_fall_test(op3):
-    """OP3's non-foot collision geoms are meshes: a stand is no fall, a hard push with the
-    control off is one (MuJoCo C)."""
+def test_op3_box_fall_test_mujoco_c_and_mjx(op3):
+    """OP3's non-foot collision meshes are fitted boxes (collision mode "primitives"): a stand
+    is no fall, a hard push with the control off is one, and MuJoCo C and MJX agree on the
+    falls and, before any fall, on the base's pitch and the ankles."""
     idx = op3.setup.index
-    assert idx.sphere_geoms.size == 0 and idx.box_geoms.size == 0 and len(idx.mesh_geoms) > 10
-    pushes = _pushes(op3.params.com_height, [0.0, 0.0, 4.0], [0.0, 0.0, 180.0])
-    series, out = simulate_mujoco(pushes, np.array([0.0, 1.0, 0.0]), op3.params, robot=op3,
-                                  config=RolloutConfig(duration_s=2.0))
+    assert idx.sphere_geoms.size == 0 and not idx.mesh_geoms and idx.box_geoms.size > 10
+    pushes = _pushes(op3.params.com_height, [0.0, 0.6, 4.0], [0.0, 90.0, 180.0])
+    enabled, config = np.array([0.0, 1.0, 0.0]), RolloutConfig(duration_s=1.5)
+    series, out = simulate_mujoco(pushes, enabled, op3.params, robot=op3, config=config)
     assert out.fell.tolist() == [False, False, True]
-    assert series.lowest_body_z[:2].min() > 0.01       # the stand keeps every mesh clear
+    assert series.lowest_body_z[:2].min() > 0.01       # the stand keeps every box clear
+    mjx_series, mjx_out = simulate(pushes, enabled, op3.params, robot=op3, config=config)
+    assert mjx_out.fell.tolist() == out.fell.tolist()
+    np.testing.assert_allclose(mjx_series.pitch[:2], series.pitch[:2], atol=2e-3)
+    np.testing.assert_allclose(mjx_series.r_ankle[:2], series.r_ankle[:2], atol=2e-3)
 
 
 SPEC = """

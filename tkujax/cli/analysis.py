@@ -4,11 +4,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from tkujax.cli.options import controller_params_from_option
+from tkujax.cli.options import add_robot_check_option, controller_params_from_option
 
 
 def _cmd_compare(args) -> int:
-    from tkujax.studies.compare import Bands, compare_runs
+    from tkujax.robot.runs import sweep_robot
+    from tkujax.studies.compare import Bands, compare_runs, parse_run
 
     edges = (tuple(float(x) for x in args.impulse_edges.split(",")) if args.impulse_edges
              else None)
@@ -20,7 +21,8 @@ def _cmd_compare(args) -> int:
                        min_pushes=args.min_pushes, harm_pp=args.harm_pp, subset=args.subset,
                        azimuth_bins=args.azimuth_bins, impulse_bins=args.impulse_bins,
                        min_map_count=args.min_map_count,
-                       unpaired_robots=args.unpaired_robots)
+                       unpaired_robots=args.unpaired_robots,
+                       robot=sweep_robot(parse_run(args.runs[0])[0], args.robot))
     print("\n".join(res["files"]))
     print(Path(res["summary"]).read_text())
     return 0
@@ -80,6 +82,7 @@ def _add_compare(sub) -> None:
                    help="difference maps: leave cells with fewer pushes blank")
     p.add_argument("--unpaired-robots", action="store_true",
                    help="accept runs whose robot randomisation draws differ (unpaired s.e.)")
+    add_robot_check_option(p)
     p.set_defaults(func=_cmd_compare)
 
 

@@ -55,6 +55,13 @@ def add_parallel_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--coordinator", default=None, help="multi-process: HOST:PORT of process 0")
 
 
+def add_robot_check_option(p: argparse.ArgumentParser) -> None:
+    """--robot of the commands that read sweeps: the robot file the sweep ran on."""
+    p.add_argument("--robot", default=None, metavar="FILE.toml",
+                   help="the robot file the sweep ran on (checked against the sha256 its "
+                        "manifest records; default: the manifest's path)")
+
+
 def parallel_kwargs(args) -> dict:
     """The parsed parallel options as keyword arguments of run_sweep / run_capture."""
     return dict(process_id=args.process_id, num_processes=args.num_processes,

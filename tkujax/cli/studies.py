@@ -41,11 +41,14 @@ def _cmd_refine(args) -> int:
 
 
 def _cmd_tune(args) -> int:
+    from tkujax.robot.runs import tune_robot
     from tkujax.studies.tune import run_tune
+    from tkujax.studies.validation import read_toml
 
     record = run_tune(args.spec, args.out, iterations=args.iterations,
                       compare=not args.no_compare, evaluation=not args.no_eval,
-                      only=args.only, deadline_s=args.deadline_s)
+                      only=args.only, deadline_s=args.deadline_s,
+                      robot=tune_robot(read_toml(args.spec), args.robot))
     if "summary" in record and "left" in record:          # a [study] spec
         print(Path(args.out, "study.md").read_text())
         print(f"study: {len(record['left'])} run(s) left"
@@ -93,6 +96,9 @@ def _add_tune(sub) -> None:
     p.add_argument("--out", required=True, help="output folder (history.json, params_*.json, "
                                                  "loss_curve.png, summary.md)")
     p.add_argument("--iterations", type=int, default=None, help="override tune.iterations")
+    p.add_argument("--robot", default=None, metavar="FILE.toml",
+                   help="a robot file (docs/robots.md): tune on that robot from its scaled "
+                        "controller defaults (default: the spec's [robot] file)")
     p.add_argument("--no-compare", action="store_true",
                    help="skip the spec's [compare] study (methods x seeds at one budget)")
     p.add_argument("--no-eval", action="store_true", help="skip the held-out evaluation")

@@ -5,8 +5,9 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from tkujax.cli.options import (RENDER_HELP, add_parallel_options, controller_params_from_option,
-                                model_params_from_options, parallel_kwargs, policy_from_option)
+from tkujax.cli.options import (RENDER_HELP, add_parallel_options, add_robot_check_option,
+                                controller_params_from_option, model_params_from_options,
+                                parallel_kwargs, policy_from_option)
 
 
 def _cmd_sweep(args) -> int:
@@ -74,7 +75,8 @@ def _write_replay_video(result: dict, args) -> None:
         return
     from tkujax.sim import physics
 
-    host = physics.host_model(result["model_params"])
+    model = result["model_params"]
+    host = model.setup.host_model if hasattr(model, "setup") else physics.host_model(model)
     frames = render.render_frames(host, result["qpos"], args.width, args.height)
     print(render.save_gif(frames, args.out, fps=1.0 / result["control_period_s"]))
 
@@ -82,7 +84,9 @@ def _write_replay_video(result: dict, args) -> None:
 def _cmd_replay(args) -> int:
     from tkujax.studies.replay import replay
 
-    result = replay(args.run_dir, args.index)
+    from tkujax.robot.runs import sweep_robot
+
+    result = replay(args.run_dir, args.index, robot=sweep_robot(args.run_dir, args.robot))
     _print_replay(result)
     if args.out:
         _write_replay_video(result, args)
@@ -93,7 +97,7 @@ def _cmd_capture(args) -> int:
     from tkujax.studies.capture import run_capture
 
     res = run_capture(args.spec, args.out, params=controller_params_from_option(args.params),
-                      optimise=args.optimise, iterations=args.iterations,
+                      optimise=args.optimise, iterations=args.iterations, robot=args.robot,
                       max_chunks=args.max_chunks, **parallel_kwargs(args))
     m = res["manifest"]
     if not res["complete"]:
@@ -108,7 +112,10 @@ def _cmd_capture(args) -> int:
 def _cmd_map(args) -> int:
     from tkujax.studies.maps import make_maps
 
-    result = make_maps(args.dir)
+    from tkujax.robot.runs import robot_lip, sweep_robot
+
+    robot = sweep_robot(args.dir, args.robot)
+    result = make_maps(args.dir, robot=robot, lip=None if robot is None else robot_lip(robot))
     print("\n".join(result["files"]))
     print(Path(result["summary"]).read_text())
     return 0
@@ -121,6 +128,7 @@ def add_sweep_commands(sub) -> None:
     _add_capture(sub)
     p = sub.add_parser("map", help="stability maps and capturability checks of a sweep folder")
     p.add_argument("dir")
+    add_robot_check_option(p)
     p.set_defaults(func=_cmd_map)
 
 
@@ -154,6 +162,7 @@ def _add_replay(sub) -> None:
     p.add_argument("--out", default=None, help="GIF to write (needs EGL or OSMesa)")
     p.add_argument("--width", type=int, default=480)
     p.add_argument("--height", type=int, default=400)
+    add_robot_check_option(p)
     p.set_defaults(func=_cmd_replay)
 
 
@@ -167,6 +176,8 @@ def _add_capture(sub) -> None:
     p.add_argument("--optimise", type=int, default=4,
                    help="pushes given a gradient-optimal step through MJX (0 skips)")
     p.add_argument("--iterations", type=int, default=15, help="Adam iterations per optimisation")
+    p.add_argument("--robot", default=None, metavar="FILE.toml",
+                   help="a robot file: refused for now (the [step] overrides are TKU-X's)")
     p.add_argument("--max-chunks", type=int, default=None, help="stop after this many new chunks")
     add_parallel_options(p)
     p.set_defaults(func=_cmd_capture)

@@ -11,7 +11,8 @@ What it adds to `init_robot`'s SimSetup:
   from TKU-X at the stand (the hip centre 28.5 mm below OP3's base origin does not enter: the
   IK works from the hip centre; the computed stand's fore-aft foot shift and lean do): exact
   at the stand, to first order around it (`tests/test_robot_loop.py` measures the round trip);
-- the fall test's mesh geoms: every non-foot collision mesh that can touch the floor, with its
+- the fall test's mesh geoms (collision mode "model"; "primitives" makes them boxes): every
+  non-foot collision mesh that can touch the floor, with its
   vertices (the lowest vertex is the geom's lowest point);
 - MuJoCo's eulerdamp off (the C rollout chains the solver's warm start through
   qvel' = qvel + dt qacc, which holds only without it; MJX and C then step the same Euler);
@@ -42,10 +43,13 @@ from tkujax.sim.setup import SETTLE_S, ModelIndex, RobotSetup, SimSetup
 
 
 def file_digest(path: str | Path) -> str:
-    """sha256 of a robot file and of the model file it names (hex)."""
+    """sha256 of a robot file and of the model file it names (hex), and of the collision mode
+    when it is not "model" (the default changes the model the file gives)."""
     desc = load_description(path)
     h = hashlib.sha256(Path(path).read_bytes())
     h.update(desc.mjcf_path.read_bytes())
+    if desc.collision_mode != "model":
+        h.update(f"collision mode {desc.collision_mode}".encode())
     return h.hexdigest()
 
 

@@ -12,6 +12,7 @@ roles given twice, the MJCF's existence); the names are checked against the comp
     [legs.right]
     [stand]                       # optional: keyframe = "home", or joints = {name = rad, ...},
                                   # or hip_height_frac = 0.93 for the computed stand
+    [collision]                   # optional: mode = "primitives" (default) or "model"
 """
 
 from __future__ import annotations
@@ -22,13 +23,15 @@ import os
 import re
 from pathlib import Path
 
+from tkujax.robot.collision import COLLISION_MODES, DEFAULT_COLLISION_MODE
 from tkujax.studies.validation import SpecError, read_toml
 
 LEG_ROLES = ("hip_yaw", "hip_roll", "hip_pitch", "knee", "ankle_pitch", "ankle_roll")
 SIDES = ("left", "right")
-TOP_KEYS = ("mjcf", "imu", "legs", "stand", "name")
+TOP_KEYS = ("mjcf", "imu", "legs", "stand", "name", "collision")
 REQUIRED_TOP = ("mjcf", "imu", "legs")
 STAND_KEYS = ("keyframe", "joints", "hip_height_frac")
+COLLISION_KEYS = ("mode",)
 HIP_HEIGHT_FRAC = 0.93        # computed stand: hip-to-ankle = this x (thigh + calf)
 _VAR = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)(?::-([^}]*))?\}")
 
@@ -68,6 +71,7 @@ class RobotDescription:
     right: LegDescription
     stand: StandDescription
     source: str
+    collision_mode: str = DEFAULT_COLLISION_MODE   # tkujax.robot.collision.COLLISION_MODES
 
     def leg(self, side: str) -> LegDescription:
         return self.left if side == "left" else self.right
@@ -158,6 +162,19 @@ def _stand(data) -> StandDescription:
                             hip_height_frac=float(frac))
 
 
+def _collision_mode(data) -> str:
+    if data is None:
+        return DEFAULT_COLLISION_MODE
+    if not isinstance(data, dict):
+        raise RobotFileError(f"collision: expected a table, got {data!r}")
+    _check_keys(data, COLLISION_KEYS, (), "collision.")
+    mode = data.get("mode", DEFAULT_COLLISION_MODE)
+    if mode not in COLLISION_MODES:
+        raise RobotFileError(f"collision.mode: expected one of {list(COLLISION_MODES)}, got "
+                             f"{mode!r}")
+    return mode
+
+
 def parse_description(data: dict, base: Path, source: str = "<robot file>") -> RobotDescription:
     """A RobotDescription from the TOML's dict; relative paths are relative to `base`."""
     _check_keys(data, TOP_KEYS, REQUIRED_TOP, "")
@@ -178,4 +195,4 @@ def parse_description(data: dict, base: Path, source: str = "<robot file>") -> R
         raise RobotFileError(f"name: expected a string, got {name!r}")
     return RobotDescription(name=name, mjcf_path=mjcf, imu=_string(data, "imu", ""),
                             left=left, right=right, stand=_stand(data.get("stand")),
-                            source=source)
+                            source=source, collision_mode=_collision_mode(data.get("collision")))

@@ -9,6 +9,8 @@ Completes (added through mujoco.MjSpec, never written back to the file): a floor
 has no plane in its world body; an IMU site at the named body's origin (unless `imu` names a
 site) with a gyro and an accelerometer on it; a site at each ankle centre (where the ankle axes
 meet); four touch sensors per sole, one per quadrant of the foot's collision geoms' footprint.
+In the "primitives" collision mode (the default; tkujax.robot.collision) the robot's
+collision meshes become fitted boxes and its self-collisions are off, before the completion.
 Leg arrays are in tkujax's order: right then left, roles in LEG_ROLES order.
 """
 
@@ -21,6 +23,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from tkujax.robot.collision import approximate_collisions
 from tkujax.robot.description import (LEG_ROLES, RobotDescription, RobotFileError,
                                       load_description)
 
@@ -288,6 +291,9 @@ def load_robot(robot: RobotDescription | str | Path) -> RobotModel:
     raw = _compile(spec, str(desc.mjcf_path))
     root = _root_body(raw)
     legs = {side: _leg_indices(raw, root, desc, side) for side in LEG_ORDER}
+    if desc.collision_mode == "primitives":
+        approximate_collisions(spec, raw, {legs[s][1] for s in LEG_ORDER})
+        raw = _compile(spec, f"{desc.mjcf_path} with primitive collisions")
     imu, ankles, touch = _complete(spec, raw, desc, root, legs)
     model = _compile(spec, f"{desc.mjcf_path} with tkujax's sensors")
     joints = np.array([legs[s][0] for s in LEG_ORDER])

@@ -195,11 +195,11 @@ def _lowest_body_point(idx: ModelIndex, d: mjx.Data) -> jax.Array:
         boxes = dict(box_z=_rows(d.geom_xpos, idx.box_geoms)[:, 2],
                      box_zrow=_rows(d.geom_xmat, idx.box_geoms)[:, 2, :],  # world z row
                      box_half_sizes=jnp.asarray(idx.box_half_sizes, dtype))
-    if not idx.mesh_geoms:
-        return recording.lowest_point(jnp, _rows(d.geom_xpos, idx.sphere_geoms)[:, 2],
-                                      jnp.asarray(idx.sphere_radii, dtype), **boxes)
     sphere_z = (_rows(d.geom_xpos, idx.sphere_geoms)[:, 2] if idx.sphere_geoms.size
                 else jnp.zeros((0,), dtype))
+    if not idx.mesh_geoms:
+        return recording.lowest_point(jnp, sphere_z, jnp.asarray(idx.sphere_radii, dtype),
+                                      **boxes)
     mesh_z = jnp.stack([jnp.min(d.geom_xpos[g, 2] + jnp.asarray(pts, dtype) @ d.geom_xmat[g, 2])
                         for g, pts in zip(idx.mesh_geoms, idx.mesh_points)])
     return recording.lowest_point(jnp, sphere_z, jnp.asarray(idx.sphere_radii, dtype),

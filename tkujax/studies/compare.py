@@ -46,6 +46,7 @@ import numpy as np
 
 from tkujax.sim.push import onset_phase
 from tkujax.studies.chunks import read_manifest
+from tkujax.studies.robot_runs import same_robot
 from tkujax.studies.compare_report import (plot_by_sector, plot_difference_maps, summary_markdown,
                                            table_csv, table_markdown, write_text_atomic)
 from tkujax.studies.map_cells import MAX_AZIMUTH_BINS, bin_axis
@@ -365,7 +366,8 @@ def difference_cells(runs: list[Run], azimuth_bins: int = 24, impulse_bins: int 
 def compare_runs(run_args: list[str], out: str | Path, labels: list[str] | None = None,
                  bands: Bands = Bands(), min_pushes: int = 100, harm_pp: float = 2.0,
                  subset: str = "all", azimuth_bins: int = 24, impulse_bins: int = 12,
-                 min_map_count: int = 10, unpaired_robots: bool = False) -> dict:
+                 min_map_count: int = 10, unpaired_robots: bool = False,
+                 robot=None) -> dict:
     """Compare sweep runs against the first (see the module doc); write the outputs into out.
 
     unpaired_robots: accept runs whose model randomisation columns differ (independent robot
@@ -373,7 +375,9 @@ def compare_runs(run_args: list[str], out: str | Path, labels: list[str] | None 
     before the draws were shared); the standard errors are then unpaired.
 
     run_args: 'DIR', 'DIR:on' or 'DIR:off' each. labels: one per run (default: the folder's
-    name and the control setting). Returns dict(verdict, table, files, summary)."""
+    name and the control setting). robot: the RobotSetup the runs ran on (None: TKU-X;
+    checked against their manifests; the runs must share one robot). Returns dict(verdict,
+    table, files, summary)."""
     if len(run_args) < 2:
         raise SpecError(f"compare needs 2 or more runs (the first is the reference), got "
                         f"{len(run_args)}")
@@ -384,6 +388,7 @@ def compare_runs(run_args: list[str], out: str | Path, labels: list[str] | None 
     bands = bands.validate()
     runs = [load_run(a, None if labels is None else labels[i], subset)
             for i, a in enumerate(run_args)]
+    same_robot([(a, read_manifest(Path(parse_run(a)[0]))) for a in run_args], robot)
     seen = set()
     for i, r in enumerate(runs):                  # unique labels: they key every table
         if r.label in seen:

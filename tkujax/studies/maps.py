@@ -32,6 +32,7 @@ from tkujax.sim.push import peak_on_sample_phase
 from tkujax.studies.map_cells import (BAND_QUANTILES, MIN_BAND_MEMBERS, MIN_MEMBER_PUSHES, ROUND,
                                       cell_means, fall_by_phase, max_recoverable_impulse,
                                       member_boundaries, polar_mesh)
+from tkujax.studies.robot_runs import check_robot
 from tkujax.studies.spec import parse_spec
 from tkujax.studies.sweep import load
 
@@ -323,8 +324,11 @@ def _ensemble_outputs(rec: dict, controls: list[bool], maps: Path) -> tuple[dict
     return bands, [json_path, csv_path], text
 
 
-def make_maps(out_dir: str | Path, params: ControllerParams | None = None) -> dict:
-    """Write maps/*.png and maps/summary.md (+ .json) for the sweep in `out_dir`."""
+def make_maps(out_dir: str | Path, params: ControllerParams | None = None, robot=None,
+              lip: capturability.LipModel | None = None) -> dict:
+    """Write maps/*.png and maps/summary.md (+ .json) for the sweep in `out_dir`. A sweep on a
+    robot file needs that robot (a RobotSetup, checked against the manifest's sha256) and its
+    LIP (`tkujax.robot.runs.robot_lip`), which the theory overlays use."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -340,7 +344,11 @@ def make_maps(out_dir: str | Path, params: ControllerParams | None = None) -> di
     maps = out_dir / "maps"
     maps.mkdir(exist_ok=True)
     controls = [c for c in (False, True) if (rec["control"].astype(bool) == c).any()]
-    lip = capturability.lip_model()
+    if check_robot(manifest, robot, str(out_dir)) is None:
+        lip = capturability.lip_model()
+    elif lip is None:
+        raise ValueError("make_maps: a robot sweep's maps need the robot's LIP (lip=, "
+                         "tkujax.robot.runs.robot_lip)")
     ensemble = "robot_id" in rec and (np.asarray(rec["robot_id"]) >= 0).any()
     bands, ensemble_files, ensemble_md = (_ensemble_outputs(rec, controls, maps) if ensemble
                                           else ({}, [], ""))

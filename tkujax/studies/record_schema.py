@@ -181,12 +181,14 @@ def fields_missing(manifest: dict) -> dict[str, object]:
     ModelParams and (a fixed-point sweep) FixedPointConfig that the manifest does not record:
     an older tkujax wrote it, and a different outcome may be the code's change since, not a
     fault of the record. An added field takes its value-before, any other today's default.
-    A manifest without a model (None, {}: the default robot) reports none of the model's."""
+    A manifest without a model (None, {}: the default robot) or with a robot file's reports
+    none of the model's."""
     missing = {}
     for group, cls in GROUPS.items():
         recorded = manifest.get(group)
-        if recorded is None or (group == "model_params" and not recorded):
-            continue
+        if recorded is None or (group == "model_params" and (not recorded
+                                                              or "robot_sha256" in recorded)):
+            continue                     # the default robot, or a robot file's (its sha256)
         before = filled_fields(manifest, group)
         default = cls()
         missing |= {f"{group}.{f.name}": before.get(f.name, getattr(default, f.name))

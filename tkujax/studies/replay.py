@@ -33,6 +33,7 @@ from tkujax.studies.chunk_program import (OUTCOME_KEYS, chunk_keys, make_chunk_f
                                           traced_params)
 from tkujax.studies.early import TRUNCATED_WHEN_FALLEN
 from tkujax.studies.mujoco_chunk import mujoco_chunk
+from tkujax.studies.robot_runs import check_robot
 from tkujax.studies.record_schema import (fields_missing, manifest_controller_params,
                                           manifest_model_params, manifest_spec)
 
@@ -48,7 +49,7 @@ def _stored_record(run_dir: Path, manifest: dict, chunk: int, pos: int) -> dict:
         return {k: z[k][pos] for k in z.files}
 
 
-def replay(run_dir: str | Path, index: int) -> dict:
+def replay(run_dir: str | Path, index: int, robot=None) -> dict:
     """Re-simulate record `index` (its push_id) of the sweep in `run_dir`.
 
     Returns dict(index, chunk, backend, stored, replayed (outcome columns), same_outcome
@@ -56,7 +57,8 @@ def replay(run_dir: str | Path, index: int) -> dict:
     {column: (stored, replayed)}, qpos (n_ticks, nq), control_period_s, model_params (the
     record's robot: its ensemble member, or the sweep's model; None: the default),
     fields_missing (`tkujax.studies.record_schema.fields_missing`: what an older
-    manifest lacks, and the value used))."""
+    manifest lacks, and the value used)). robot: the RobotSetup a robot sweep ran on (checked
+    against the manifest's sha256; `tkujax.robot.runs.sweep_robot` loads it)."""
     run_dir = Path(run_dir)
     manifest = chunks.read_manifest(run_dir)
     if not manifest:
@@ -78,7 +80,9 @@ def replay(run_dir: str | Path, index: int) -> dict:
     params = manifest_controller_params(manifest,
                                         f"{run_dir / chunks.MANIFEST}: controller_params")
     # An ensemble sweep's robots are its members (the manifest's model_params is then unused).
-    model_params = None if spec.ensemble is not None else manifest_model_params(manifest)
+    model_params = (None if spec.ensemble is not None else
+                    check_robot(manifest, robot, str(run_dir))
+                    or manifest_model_params(manifest))
     base = controller_params_from(params, spec.controller)
     # A scheduled policy's sweep (`--params POLICY.json` / `recommended`) replays with its schedule.
     schedule = (schedule_from_dict(manifest["schedule"],

@@ -148,6 +148,11 @@ def run_capture(spec: SweepSpec | str | Path, out: str | Path,
     spec = spec if isinstance(spec, SweepSpec) else load_spec(spec)
     if not spec.step_grid:
         raise SpecError("tkujax capture needs a spec with a [step.grid] table")
+    robot = sweep_kwargs.pop("robot", None) or spec.robot_file
+    if robot is not None:
+        raise SpecError(f"robot.file / --robot ({robot}): capture regions of [step] sweeps use "
+                        "TKU-X's step geometry and are not available on a robot file; `tkujax "
+                        "map` of a robot sweep overlays the robot's LIP capture theory")
     if not 0 <= optimise <= 1000 or not 1 <= iterations <= 1000:
         raise SpecError(f"optimise must be in [0, 1000] and iterations in [1, 1000], got "
                         f"{optimise}, {iterations}")

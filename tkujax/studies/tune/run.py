@@ -30,6 +30,7 @@ from tkujax.studies.tune.policy import PolicyReparam, save_policy
 from tkujax.studies.tune.report import plot_outputs, summary_markdown
 from tkujax.studies.tune.search import GradientOptions, SearchConfig, calls_used, run_search
 from tkujax.studies.validation import integer
+from tkujax.studies.tune.robot import on_robot, robot_record
 from tkujax.studies.tune.spec import (TuneSpec, ensembles_record, grid_pushes,
                                       load_tune_spec, make_problem, parse_tune_spec,
                                       sample_pushes, shifted)
@@ -41,18 +42,22 @@ SHIFT_SEED = 1000
 def run_tune(spec: TuneSpec | dict | str | Path, out_dir: str | Path, quiet: bool = False,
              iterations: int | None = None, compiler_options: dict | None = None,
              evaluation: bool = True, compare: bool = True, only: list[str] | None = None,
-             deadline_s: float | None = None) -> dict:
+             deadline_s: float | None = None, robot=None,
+             budget_s: float | None = None) -> dict:
     """Tune with the spec's method, evaluate, and write the outputs into out_dir.
 
     spec: a TuneSpec, a parsed TOML dict, or a path. iterations overrides tune.iterations.
     compare: also run the spec's [compare] study when it has one. Returns the record.
     A spec with a [study] table runs the dimension study instead (tkujax.studies.tune.study;
-    only: its run filters, deadline_s: start no run that would end after it).
+    only: its run filters, deadline_s: start no run that would end after it). robot: the
+    RobotSetup to tune on (tkujax.robot.runs.tune_robot loads the spec's [robot] file). budget_s:
+    stop the search after this many seconds of generations (compile excluded).
     """
     if isinstance(spec, dict):
         spec = parse_tune_spec(spec)
     elif not isinstance(spec, TuneSpec):
         spec = load_tune_spec(spec)
+    spec = on_robot(spec, robot)
     if iterations is not None:      # checked like the spec's own tune.iterations
         spec = dataclasses.replace(spec, iterations=integer("iterations (tune.iterations)",
                                                          iterations, 1, 100_000))
@@ -62,7 +67,8 @@ def run_tune(spec: TuneSpec | dict | str | Path, out_dir: str | Path, quiet: boo
         return run_study(spec, out_dir, only=only, deadline_s=deadline_s, quiet=quiet,
                          compiler_options=compiler_options)
     with x64(spec.float64):       # the optimiser's latents in the problem's precision too
-        return _run_tune(spec, Path(out_dir), quiet, compiler_options, evaluation, compare)
+        return _run_tune(spec, Path(out_dir), quiet, compiler_options, evaluation, compare,
+                         budget_s)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,12 +85,14 @@ class TuneRun:
     search: SearchConfig
 
 
-def resolve_run(spec: TuneSpec) -> TuneRun:
-    """The run of `spec`: tune.method "auto" becomes the dimension study's advice."""
+def resolve_run(spec: TuneSpec, budget_s: float | None = None) -> TuneRun:
+    """The run of `spec`: tune.method "auto" becomes the dimension study's advice; budget_s
+    (None: [compare]'s, else none) bounds the search's time."""
     reparam, base = spec.policy_reparam(), spec.base_params()
     advised = recommended_method(reparam.size)
     c = spec.compare or {}
-    cfg = SearchConfig(budget_s=c.get("budget_s", float("inf")), max_iterations=spec.iterations,
+    budget = c.get("budget_s", float("inf")) if budget_s is None else float(budget_s)
+    cfg = SearchConfig(budget_s=budget, max_iterations=spec.iterations,
                        popsize=spec.popsize, learning_rate=spec.learning_rate,
                        clip_norm=spec.clip_norm, sigma0=spec.baseline_sigma,
                        temperature_deg=c.get("temperature_deg", 0.5),
@@ -105,11 +113,11 @@ def _log_method(run: TuneRun, log) -> None:
 
 
 def _run_tune(spec: TuneSpec, out: Path, quiet: bool, compiler_options: dict | None,
-              evaluation: bool, compare: bool) -> dict:
+              evaluation: bool, compare: bool, budget_s: float | None = None) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     log = (lambda s: None) if quiet else (lambda s: print(s, file=sys.stderr, flush=True))
     t_start = time.perf_counter()
-    run = resolve_run(spec)
+    run = resolve_run(spec, budget_s)
     problem = make_problem(spec, run.reparam, compiler_options=compiler_options)
     comparison = None
     if compare and spec.compare is not None:
@@ -142,6 +150,7 @@ def _run_tune(spec: TuneSpec, out: Path, quiet: bool, compiler_options: dict | N
         latents={n: np.asarray(z).tolist() for n, z in cands.items()}, evaluation=evals,
         evaluation_shifted=evals_shifted,
         recommendation=decision, ensembles=ensembles_record(spec), model=dict(spec.model),
+        robot=robot_record(spec),
         compare=None if comparison is None else dict(winner=comparison["winner"],
                                                      pooled=comparison["pooled"]),
         wall_s=round(time.perf_counter() - t_start, 2), devices=[str(d) for d in jax.devices()])

@@ -37,7 +37,8 @@ from tkujax.studies.spec import (CONTROLLER_FIELDS, ENSEMBLE_KEY, PUSH_FIELDS,
 from tkujax.studies.tune.loss import LossConfig, parse_loss
 from tkujax.studies.tune.policy import DEFAULT_SCHEDULE, PolicyReparam
 from tkujax.studies.tune.problem import RECORD_KEYS, TuneProblem
-from tkujax.studies.tune.reparam import DEFAULT_TUNED, TUNABLE, Reparam, user_factor
+from tkujax.studies.tune.reparam import DEFAULT_TUNED, TUNABLE, Reparam
+from tkujax.studies.tune.robot import check_start, robot_file_of
 from tkujax.studies.tune.search import parse_gradient_options
 from tkujax.studies.tune.searchers import METHODS
 from tkujax.studies.tune.spec_tables import parse_compare, parse_study, policy_name
@@ -279,7 +280,8 @@ def _parse_evaluate(ev: dict, seed: int, batch: int, duration: float) -> dict:
 def parse_tune_spec(data: dict) -> TuneSpec:
     """Validate a parsed tune TOML document (SpecError names the key and the allowed range)."""
     table("top level", data, {"tune", "push", "controller", "randomize", "baseline", "evaluate",
-                               "compare", "study", "model"})
+                               "compare", "study", "model", "robot"})
+    robot_file_of(data)             # checked here, resolved by tkujax.studies.tune.robot
     tune = _parse_tune(data)
     push, jitter = _parse_push(data, tune["duration_s"])
     ctrl_raw = table("controller", data.get("controller", {}), CONTROLLER_FIELDS)
@@ -308,18 +310,16 @@ def parse_tune_spec(data: dict) -> TuneSpec:
                     randomize=randomize, **baseline, **evaluate, raw=data, compare=compare,
                     shift=shift, study=study, ensemble=ensemble, robot_table=robots, model=model,
                     robot=robot, start=start_params(controller))
-    # Start values must lie strictly inside the ranges (their latents are finite).
     for key, policy in [("tune.policy", spec.policy)] + [
             (f"study.policies[{i}]", p) for i, p in enumerate((study or {}).get("policies", []))]:
         if policy != "scalars" and not spec.schedule:
             raise SpecError(f"tune.schedule: {key} = {policy!r} schedules fields, but none of "
                             f"tune.params is scheduled (set tune.schedule)")
-    for f, (a, b) in spec.reparam().user_ranges().items():
-        v = float(getattr(spec.start, f)) / user_factor(f)
-        if not a < v < b:
-            raise SpecError(f"{TUNABLE[f][0]}: start value {v:g} (from [controller] or the "
-                            f"paper) must lie strictly inside tune.ranges ({a:g}, {b:g})")
+    if robot_file_of(data) is None:     # a robot's start is checked once it is resolved
+        check_start(spec)
     return spec
+
+
 
 
 def _parse_model(given) -> tuple[dict[str, float], ModelParams | None]:

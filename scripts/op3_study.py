@@ -1,0 +1,226 @@
+"""ROBOTIS OP3 pushed, in one run on a GPU: does a recovery controller tuned for OP3 save it
+without harm? Steps, each resumable (a finished step is skipped) and time-boxed:
+
+1. picture: OP3 at its stand, rendered offscreen (optional: a failure is recorded, not fatal);
+2. map: the stability map with the control off and on at OP3's scaled defaults
+   (specs/robots/op3_map.toml), `tkujax map` of it: fall boundaries, and the capture regions
+   against the LIP theory of OP3 (its mass, CoM height and feet);
+3. tune: a recovery controller by CMA-ES from the scaled defaults (specs/robots/op3_tune.toml);
+4. verdict: held-out pushes (specs/robots/op3_heldout.toml) with the control off and with the
+   tuned controller, `tkujax compare` of the two: the tuned controller passes when it falls at
+   most 0.75 x as often as the control off and harms no direction x impulse x phase cell with
+   >= 100 pushes (harmed: > 2 points worse than the control off).
+
+    TKUJAX_MENAGERIE=/path/to/mujoco_menagerie python scripts/op3_study.py --out runs/op3_study
+    python scripts/op3_study.py --smoke --out /tmp/op3_smoke      # tiny, on a CPU
+
+summary.json holds each step's status, wall time and figures; --tar packs the folder.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tarfile
+import time
+import tomllib
+import traceback
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+SPECS = REPO / "specs" / "robots"
+STEPS = ("picture", "map", "tune", "verdict")
+MAX_FALL_RATIO = 0.75
+
+
+def _spec(name: str) -> dict:
+    return tomllib.loads((SPECS / name).read_text())
+
+
+def _robot_path(args) -> str:
+    return str(Path(args.robot).resolve())
+
+
+def map_spec(smoke: bool) -> dict:
+    spec = _spec("op3_map.toml")
+    if smoke:
+        spec["sweep"].update(chunk_size=12, duration_s=1.0)
+        spec["push"]["grid"].update(impulse_ns=[0.5, 2.5], azimuth_deg=[0, 90, 180],
+                                    onset_phase=[0.0])
+    return spec
+
+
+def tune_spec(smoke: bool, iterations: int | None) -> dict:
+    spec = _spec("op3_tune.toml")
+    if iterations:
+        spec["tune"]["iterations"] = iterations
+    if smoke:
+        spec["tune"].update(popsize=3, iterations=1, batch=4, remat=False)
+        spec["evaluate"].update(n=4, impulse_ns=[1.0], azimuth_deg=[0])
+    return spec
+
+
+def heldout_spec(smoke: bool) -> dict:
+    spec = _spec("op3_heldout.toml")
+    if smoke:
+        spec["sweep"].update(chunk_size=24, duration_s=1.0)
+        spec["push"]["random"]["n"] = 24
+    return spec
+
+
+def _sweep(spec: dict, out: Path, robot, deadline: float, params=None) -> dict:
+    """Run (or resume) a sweep chunk by chunk until it is complete or the deadline passes."""
+    from tkujax.studies.spec import parse_spec
+    from tkujax.studies.sweep import run_sweep
+
+    parsed = parse_spec(spec)
+    while True:
+        manifest = run_sweep(parsed, out, params=params, model_params=robot, max_chunks=1,
+                             quiet=True)
+        if manifest["complete"] or time.time() > deadline:
+            return manifest
+
+
+def step_picture(args, out: Path, deadline: float) -> dict:
+    from tkujax import render
+    from tkujax.robot.closed_loop import robot_setup
+
+    ok, why = render.rendering_available()
+    if not ok:
+        return dict(status="skipped", why=f"offscreen rendering unavailable: {why}")
+    robot = robot_setup(_robot_path(args))
+    frame = render.render_frames(robot.setup.host_model, robot.settled.qpos[None], 640, 480)[0]
+    return dict(status="done", file=str(render.save_image(frame, out / "op3_stand.png")))
+
+
+def step_map(args, out: Path, deadline: float) -> dict:
+    from tkujax.robot.closed_loop import robot_setup
+    from tkujax.robot.runs import robot_lip
+    from tkujax.studies.maps import make_maps
+    from tkujax.studies.sweep import load
+
+    robot = robot_setup(_robot_path(args))
+    spec = map_spec(args.smoke)
+    spec["robot"]["file"] = _robot_path(args)
+    manifest = _sweep(spec, out / "map", robot, deadline)
+    if not manifest["complete"]:
+        return dict(status="incomplete", n_pushes=manifest["n_pushes"])
+    maps = make_maps(out / "map", robot=robot, lip=robot_lip(robot))
+    rec = load(out / "map")
+    on = rec["control"].astype(bool)
+    return dict(status="done", n_pushes=manifest["n_pushes"], backend=manifest["backend"],
+                falls_off=int(rec["fell"][~on].sum()), falls_on=int(rec["fell"][on].sum()),
+                files=maps["files"], summary=maps["summary"])
+
+
+def step_tune(args, out: Path, deadline: float) -> dict:
+    from tkujax.robot.closed_loop import robot_setup
+    from tkujax.studies.tune import run_tune
+
+    spec = tune_spec(args.smoke, args.tune_iterations)
+    spec["robot"]["file"] = _robot_path(args)
+    # The generations (compile excluded) get under half the time box: the compiles, the
+    # control-off pass and the held-out evaluation take the rest.
+    budget = max(10.0, (deadline - time.time()) * 0.45)
+    record = run_tune(spec, out / "tune", quiet=False, compare=False, budget_s=budget,
+                      robot=robot_setup(_robot_path(args)))
+    return dict(status="done", iterations=record["iterations"], wall_s=record["wall_s"],
+                recommendation=record["recommendation"], params_user=record["params_user"],
+                params=str(out / "tune" / "params_tuned.json"))
+
+
+def step_verdict(args, out: Path, deadline: float) -> dict:
+    from tkujax.control.io import load_controller_params_json
+    from tkujax.robot.closed_loop import robot_setup
+    from tkujax.studies.compare import Bands, compare_runs
+
+    tuned = out / "tune" / "params_tuned.json"
+    if not tuned.is_file():
+        return dict(status="skipped", why="no tuned controller (the tune step did not finish)")
+    robot = robot_setup(_robot_path(args))
+    spec = heldout_spec(args.smoke)
+    spec["robot"]["file"] = _robot_path(args)
+    run = out / "heldout"
+    manifest = _sweep(spec, run, robot, deadline, params=load_controller_params_json(tuned))
+    if not manifest["complete"]:
+        return dict(status="incomplete", n_pushes=manifest["n_pushes"])
+    res = compare_runs([f"{run}:off", f"{run}:on"], out / "compare",
+                       labels=["control off", "tuned"], bands=Bands(sectors=4),
+                       min_pushes=args.min_pushes, harm_pp=2.0, robot=robot)
+    v = res["verdict"]["runs"]["tuned"]
+    ratio = v["ratio_to_reference"]
+    passed = bool(ratio is not None and ratio <= MAX_FALL_RATIO and v["no_harm"])
+    return dict(status="done", fall_rate_off=v["reference_fall_rate"], fall_rate_tuned=v[
+        "fall_rate"], ratio=ratio, cells_checked=v["cells_checked"],
+        harmed_cells=len(v["harmed_cells"]), passed=passed, summary=res["summary"])
+
+
+def run_step(name: str, args, out: Path, budget_s: float, summary: dict) -> None:
+    """Run one step unless it is done; record its status and wall time in `summary`."""
+    done = summary["steps"].get(name, {})
+    if done.get("status") in ("done", "skipped") and not args.redo:
+        print(f"[{name}] already {done['status']}", flush=True)
+        return
+    t0 = time.time()
+    print(f"[{name}] start (time box {budget_s:.0f} s)", flush=True)
+    fn = {"picture": step_picture, "map": step_map, "tune": step_tune,
+          "verdict": step_verdict}[name]
+    try:
+        result = fn(args, out, t0 + budget_s)
+    except Exception as err:  # noqa: BLE001 -- recorded; the next steps still run
+        traceback.print_exc()
+        result = dict(status="failed", error=f"{type(err).__name__}: {err}")
+    result["wall_s"] = round(time.time() - t0, 1)
+    summary["steps"][name] = result
+    print(f"[{name}] {result['status']} in {result['wall_s']} s", flush=True)
+
+
+def parse_args(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", required=True, help="output folder (resumable)")
+    ap.add_argument("--robot", default=str(SPECS / "op3.toml"), help="the robot file")
+    ap.add_argument("--smoke", action="store_true", help="tiny sizes: the pipeline end to end")
+    ap.add_argument("--steps", nargs="+", choices=STEPS, default=list(STEPS))
+    ap.add_argument("--budgets-s", default="30,130,230,110",
+                    help="time box of each step in STEPS order, s (sweeps stop between chunks, "
+                         "resumable; the tune's size is set by --tune-iterations)")
+    ap.add_argument("--tune-iterations", type=int, default=None,
+                    help="CMA-ES generations (default: the spec's)")
+    ap.add_argument("--min-pushes", type=int, default=100, help="verdict: cells checked")
+    ap.add_argument("--redo", action="store_true", help="run finished steps again")
+    ap.add_argument("--tar", default=None, help="pack the output folder into this .tar.gz")
+    return ap.parse_args(argv)
+
+
+def main(argv=None) -> int:
+    from tkujax.cli.runtime import configure_runtime
+
+    configure_runtime()                  # headless GL (EGL) and the persistent compile cache
+    args = parse_args(argv)
+    if args.smoke:
+        args.min_pushes = 1
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "summary.json"
+    summary = json.loads(path.read_text()) if path.is_file() else dict(steps={})
+    budgets = dict(zip(STEPS, (float(b) for b in args.budgets_s.split(","))))
+    import jax
+
+    summary.update(robot=_robot_path(args), smoke=args.smoke,
+                   devices=[str(d) for d in jax.devices()])
+    t0 = time.time()
+    for name in args.steps:
+        run_step(name, args, out, budgets[name], summary)
+        path.write_text(json.dumps(summary, indent=1, default=str))
+    summary["wall_s_last_run"] = round(time.time() - t0, 1)
+    path.write_text(json.dumps(summary, indent=1, default=str))
+    if args.tar:
+        with tarfile.open(args.tar, "w:gz") as tar:
+            tar.add(out, arcname=out.name)
+    print(json.dumps({k: v.get("status") for k, v in summary["steps"].items()}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

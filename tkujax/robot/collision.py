@@ -1,0 +1,162 @@
+"""Collision geometry made practical for MJX, on the model as loaded (the file is unchanged).
+
+`[collision] mode` in a robot file (tkujax.robot.description) chooses:
+
+- "primitives" (the default): every collision mesh on the robot becomes a box bounding its
+  vertices, in the mesh's principal frame or in its body's frame, whichever box is smaller (on a
+  foot always the body's frame, so the sole stays flat); the mesh geom stays, for its mass and
+  its looks, with its collisions off; the box is massless, in the mesh's group, with its
+  contact parameters (friction, solref, solimp, condim, margin, gap, priority). Self-collisions
+  are off: each robot collision geom gets contype 0 and conaffinity 1, the world's colliding
+  geoms (the floor) contype bit 1, so a robot geom touches the world and never the robot;
+  explicit <pair>s between two robot geoms are removed, those with a world geom kept (a pair
+  naming a replaced mesh then names its box). Spheres, capsules, boxes and the other primitives
+  keep their shapes.
+- "model": the model's collisions as written.
+
+MJX pays for mesh collisions at compile time and per step (convex-convex tests over every
+colliding pair); a push study needs the robot against the floor: the feet's contacts and, for a
+fall, any other body's. docs/robots.md gives the measured figures.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import mujoco
+import numpy as np
+
+COLLISION_MODES = ("primitives", "model")
+DEFAULT_COLLISION_MODE = "primitives"
+MIN_HALF_SIZE_M = 1e-3          # a flat mesh still gets a box this thick
+BOX_SUFFIX = "_tkujax_box"
+
+
+@dataclasses.dataclass(frozen=True)
+class BoxFit:
+    """A box in a body's frame: centre (3,), orientation quaternion (4,), half sizes (3,)."""
+
+    pos: np.ndarray
+    quat: np.ndarray
+    half_m: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class CollisionChanges:
+    """What `approximate_collisions` did (names or compiled ids of the model before it)."""
+
+    boxed_meshes: tuple[int, ...]       # mesh geoms replaced by boxes
+    self_collision_geoms: int           # robot geoms whose dynamic collisions became floor-only
+    removed_pairs: int                  # robot-robot <pair>s removed
+
+
+def _mat(quat: np.ndarray) -> np.ndarray:
+    rot = np.zeros(9)
+    mujoco.mju_quat2Mat(rot, np.asarray(quat, np.float64))
+    return rot.reshape(3, 3)
+
+
+def _quat(rot: np.ndarray) -> np.ndarray:
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(rot, np.float64).reshape(-1))
+    return quat
+
+
+def _aabb(points: np.ndarray, rot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(centre, half sizes) of `points` (body frame) in the frame whose axes are rot's columns;
+    the centre in the body frame."""
+    local = points @ rot
+    lo, hi = local.min(axis=0), local.max(axis=0)
+    return rot @ (0.5 * (lo + hi)), np.maximum(0.5 * (hi - lo), MIN_HALF_SIZE_M)
+
+
+def mesh_vertices_in_body(model: mujoco.MjModel, g: int) -> np.ndarray:
+    """The vertices of mesh geom g in its body's frame."""
+    m = model.geom_dataid[g]
+    adr, n = model.mesh_vertadr[m], model.mesh_vertnum[m]
+    verts = np.asarray(model.mesh_vert[adr:adr + n], np.float64)
+    return verts @ _mat(model.geom_quat[g]).T + model.geom_pos[g]
+
+
+def fit_box(model: mujoco.MjModel, g: int, body_frame: bool = False) -> BoxFit:
+    """The box bounding mesh geom g: in the mesh's principal frame (the compiled geom frame)
+    or in the body's frame, the smaller of the two; only the body's with `body_frame`."""
+    points = mesh_vertices_in_body(model, g)
+    frames = [np.eye(3)] if body_frame else [np.eye(3), _mat(model.geom_quat[g])]
+    fits = [(*_aabb(points, rot), rot) for rot in frames]
+    centre, half, rot = min(fits, key=lambda f: float(np.prod(f[1])))
+    return BoxFit(pos=centre, quat=_quat(rot), half_m=half)
+
+
+def _collides(model: mujoco.MjModel, g: int) -> bool:
+    return bool(model.geom_contype[g] or model.geom_conaffinity[g])
+
+
+def _add_box(spec_geom, model: mujoco.MjModel, g: int, fit: BoxFit) -> str:
+    """A massless box beside spec_geom (same body, group and contact parameters); its name."""
+    name = spec_geom.name + BOX_SUFFIX if spec_geom.name else f"tkujax_box_{g}"
+    spec_geom.parent.add_geom(
+        name=name, type=mujoco.mjtGeom.mjGEOM_BOX, size=fit.half_m, pos=fit.pos, quat=fit.quat,
+        mass=0.0, density=0.0, group=int(model.geom_group[g]),
+        contype=int(model.geom_contype[g]), conaffinity=int(model.geom_conaffinity[g]),
+        condim=int(model.geom_condim[g]), friction=model.geom_friction[g],
+        solref=model.geom_solref[g], solimp=model.geom_solimp[g],
+        solmix=float(model.geom_solmix[g]), priority=int(model.geom_priority[g]),
+        margin=float(model.geom_margin[g]), gap=float(model.geom_gap[g]),
+        rgba=model.geom_rgba[g])
+    return name
+
+
+def _retarget_pairs(spec: mujoco.MjSpec, renamed: dict[str, str]) -> None:
+    for pair in spec.pairs:
+        if pair.geomname1 in renamed:
+            pair.geomname1 = renamed[pair.geomname1]
+        if pair.geomname2 in renamed:
+            pair.geomname2 = renamed[pair.geomname2]
+
+
+def _box_meshes(spec: mujoco.MjSpec, model: mujoco.MjModel, feet: set[int]) -> list[int]:
+    """Replace each colliding robot mesh by a fitted box; the replaced geom ids."""
+    geoms = {g.id: g for g in spec.geoms}
+    paired = set(model.pair_geom1.tolist()) | set(model.pair_geom2.tolist())
+    renamed, boxed = {}, []
+    for g in range(model.ngeom):
+        if (model.geom_bodyid[g] == 0 or model.geom_type[g] != mujoco.mjtGeom.mjGEOM_MESH
+                or not (_collides(model, g) or g in paired)):
+            continue
+        spec_geom = geoms[g]
+        fit = fit_box(model, g, body_frame=int(model.geom_bodyid[g]) in feet)
+        box = _add_box(spec_geom, model, g, fit)
+        if spec_geom.name:
+            renamed[spec_geom.name] = box
+        spec_geom.contype, spec_geom.conaffinity = 0, 0
+        boxed.append(g)
+    _retarget_pairs(spec, renamed)
+    return boxed
+
+
+def _floor_only(spec: mujoco.MjSpec, model: mujoco.MjModel) -> tuple[int, int]:
+    """Robot geoms collide with the world's geoms only; (geoms changed, pairs removed)."""
+    robot = [g for g in spec.geoms if g.parent.name != "world" and (g.contype or g.conaffinity)]
+    for g in robot:
+        g.contype, g.conaffinity = 0, 1
+    if robot:
+        for g in spec.worldbody.geoms:
+            if g.contype or g.conaffinity:
+                g.contype = int(g.contype) | 1
+    world = {model.geom(g).name for g in range(model.ngeom) if model.geom_bodyid[g] == 0}
+    removed = [p for p in spec.pairs
+               if p.geomname1 not in world and p.geomname2 not in world]
+    for pair in removed:
+        spec.delete(pair)
+    return len(robot), len(removed)
+
+
+def approximate_collisions(spec: mujoco.MjSpec, model: mujoco.MjModel,
+                           feet: set[int]) -> CollisionChanges:
+    """Edit `spec` (compiled as `model`, spec.geoms' ids valid) for the "primitives" mode:
+    colliding meshes to boxes, robot self-collisions off. `feet`: the foot bodies' ids."""
+    boxed = _box_meshes(spec, model, feet)
+    changed, removed = _floor_only(spec, model)
+    return CollisionChanges(boxed_meshes=tuple(boxed), self_collision_geoms=changed,
+                            removed_pairs=removed)
