@@ -106,12 +106,15 @@ def lane_ticks(pieces: TickPieces, episode: Episode, config: RolloutConfig, lane
         d, imu = _physics(pieces, d, imu, command, pieces.substeps - pieces.switch)
         row = pieces.record(d, out, ctrl)
         quiet, decision = decision_of(lane, row, d, episode, config.control_period_s)
+        active = (lane["k"] < lane["limit"]) & (lane["decision"] == UNDECIDED)
+        # Only row k can change: select the row, not the whole buffer (the same rows).
+        row = jax.tree.map(lambda x, b: jnp.where(active, x, b[k]), row, lane["rows"])
         rows = jax.tree.map(lambda b, x: jax.lax.dynamic_update_index_in_dim(b, x, k, 0),
                             lane["rows"], row)
-        new = dict(lane, d=d, imu=imu, ctrl=ctrl, rows=rows, k=lane["k"] + 1, quiet=quiet,
-                   decision=decision)
-        active = (lane["k"] < lane["limit"]) & (lane["decision"] == UNDECIDED)
-        return jax.tree.map(lambda a, b: jnp.where(active, a, b), new, lane), None
+        new = dict(d=d, imu=imu, ctrl=ctrl, k=lane["k"] + 1, quiet=quiet, decision=decision)
+        kept = {name: lane[name] for name in new}
+        new = jax.tree.map(lambda a, b: jnp.where(active, a, b), new, kept)
+        return dict(lane, rows=rows, **new), None
 
     lane, _ = jax.lax.scan(tick, lane, None, length=n)
     return lane
