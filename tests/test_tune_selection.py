@@ -74,7 +74,7 @@ def test_search_returns_the_selectors_best(stand, method):
     target = np.array([0.0, 0.0, 0.0])
     sel = ValidationSelector(_distance_rates(target), every_s=1e-9)
     rs = run_search_lockstep(method, stand, Z0, batches, keys, CFG, SEEDS, select=sel)
-    for i, r in enumerate(rs):
+    for r in rs:
         curve = r["selection_curve"]
         assert len(curve) == r["iterations"] + 1               # the start + every iteration
         assert r["validation_fall"] == min(c["fall"] for c in curve)

@@ -49,6 +49,18 @@ def _stored_record(run_dir: Path, manifest: dict, chunk: int, pos: int) -> dict:
         return {k: z[k][pos] for k in z.files}
 
 
+def _differences(stored: dict, replayed: dict) -> dict:
+    """{column: (stored, replayed)} of the columns that differ (booleans exactly, numbers
+    beyond RTOL/ATOL)."""
+    out = {}
+    for k, v in replayed.items():
+        a, b = np.asarray(stored[k]), np.asarray(v)
+        same = (a == b) if a.dtype.kind == "b" else np.allclose(a, b, RTOL, ATOL, equal_nan=True)
+        if not same:
+            out[k] = (a.item(), b.item())
+    return out
+
+
 def replay(run_dir: str | Path, index: int, robot=None) -> dict:
     """Re-simulate record `index` (its push_id) of the sweep in `run_dir`.
 
@@ -116,12 +128,7 @@ def replay(run_dir: str | Path, index: int, robot=None) -> dict:
     if spec.decisions.early and bool(stored["fell"]):
         # The replay runs the full horizon; an early record read these up to its fall decision.
         replayed = {k: v for k, v in replayed.items() if k not in TRUNCATED_WHEN_FALLEN}
-    differences = {}
-    for k, v in replayed.items():
-        a, b = np.asarray(stored[k]), np.asarray(v)
-        same = (a == b) if a.dtype.kind == "b" else np.allclose(a, b, RTOL, ATOL, equal_nan=True)
-        if not same:
-            differences[k] = (a.item(), b.item())
+    differences = _differences(stored, replayed)
     return dict(index=index, chunk=chunk, backend=backend,
                 stored={k: stored[k].item() for k in stored},
                 replayed={k: np.asarray(v).item() for k, v in replayed.items()},
