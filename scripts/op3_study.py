@@ -90,7 +90,9 @@ def step_picture(args, out: Path, deadline: float) -> dict:
     if not ok:
         return dict(status="skipped", why=f"offscreen rendering unavailable: {why}")
     robot = robot_setup(_robot_path(args))
-    frame = render.render_frames(robot.setup.host_model, robot.settled.qpos[None], 640, 480)[0]
+    # Every geom group: the boxes the simulation collides with beside the visual meshes.
+    frame = render.render_frames(robot.setup.host_model, robot.settled.qpos[None], 640, 480,
+                                 all_geom_groups=True)[0]
     return dict(status="done", file=str(render.save_image(frame, out / "op3_stand.png")))
 
 

@@ -39,8 +39,9 @@ def _camera(azimuth_deg: float) -> mujoco.MjvCamera:
 
 def render_frames(model: mujoco.MjModel, qpos_seq: np.ndarray, width: int = 480,
                   height: int = 400, azimuth_deg: float = 215.0,
-                  track_xy: bool = True) -> list[np.ndarray]:
-    """RGB frames (height, width, 3) uint8 for each row of `qpos_seq` (n, nq)."""
+                  track_xy: bool = True, all_geom_groups: bool = False) -> list[np.ndarray]:
+    """RGB frames (height, width, 3) uint8 for each row of `qpos_seq` (n, nq).
+    all_geom_groups: draw every geom group, the collision geoms (often hidden) included."""
     for name, v in (("width", width), ("height", height)):
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 16 <= v <= 4096:
             raise ValueError(f"{name} must be an integer in [16, 4096] pixels, got {v!r}")
@@ -48,6 +49,8 @@ def render_frames(model: mujoco.MjModel, qpos_seq: np.ndarray, width: int = 480,
     cam = _camera(azimuth_deg)
     scene_option = mujoco.MjvOption()
     scene_option.sitegroup[:] = 0   # hide sensor sites; show the bodies
+    if all_geom_groups:
+        scene_option.geomgroup[:] = 1
     frames = []
     with mujoco.Renderer(model, height, width) as renderer:
         for qpos in np.atleast_2d(qpos_seq):

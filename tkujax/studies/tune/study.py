@@ -62,7 +62,7 @@ from tkujax.studies.tune.compare import json_default
 from tkujax.studies.tune.search import calls_used
 from tkujax.studies.tune.searchers import searcher_class
 from tkujax.studies.tune.study_report import (comparison_runs, plot_heldout_vs_wall, plot_study,
-                                              study_markdown)
+                                              plot_validation_vs_wall, study_markdown)
 
 RUN_KEYS = ("policy", "method", "seed")
 
@@ -204,17 +204,21 @@ def load_runs(out: Path) -> list[dict]:
 
 
 def write_summary(out: Path, spec=None) -> list[dict]:
-    """summary.json (rows of every finished run), study.md and the plots."""
+    """summary.json (rows of every finished run, each with its method's kind: "gradient" or
+    "zeroth"), study.md and the plots."""
     out = Path(out)
     runs = load_runs(out)
     rows = sorted(({k: r.get(k) for k in ROW_KEYS} for r in runs),
                   key=lambda r: (r["n_params"], r["method"], r["seed"]))
+    for row, c in zip(rows, comparison_runs(runs)):      # both in (n_params, method, seed) order
+        row["kind"] = c["kind"]
     _write_json(out / "summary.json", rows)
     _write_json(out / "summary_runs.json", comparison_runs(runs))
     (out / "study.md").write_text(study_markdown(rows, spec))
     if runs:
         plot_study(out, rows, runs)
         plot_heldout_vs_wall(out, runs)
+        plot_validation_vs_wall(out, runs)
         if spec is not None:
             write_best_policy(out, spec, runs)
     return rows

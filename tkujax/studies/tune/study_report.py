@@ -199,3 +199,35 @@ def plot_heldout_vs_wall(out: Path, runs: list[dict]) -> None:
                      "params)", fontsize=9)
         _label(ax, "wall clock (s, compile included)", "held-out fall rate (%)")
     _save(fig, out / "heldout_vs_wall.png")
+
+
+def plot_validation_vs_wall(out: Path, runs: list[dict]) -> None:
+    """validation_vs_wall.png (runs with study.select = "validation"): the hard fall rate of
+    each method's INCUMBENT (the Adam iterate, the CMA-ES mean) on the validation pushes as
+    the search goes, the mean over seeds, one panel per policy: where a method's steps lead,
+    not only what it returns (the best of these, the start included)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    runs = [r for r in runs if r.get("selection_curve")]
+    if not runs:
+        return
+    methods = sorted({r["method"] for r in runs})
+    colors = {m: f"C{i}" for i, m in enumerate(methods)}
+    policies = list(dict.fromkeys(r["policy"] for r in sorted(runs, key=lambda r: r["n_params"])))
+    fig, axes = plt.subplots(1, len(policies), figsize=(4 * len(policies), 3.6), squeeze=False)
+    for ax, pol in zip(axes[0], policies):
+        for m in methods:
+            curves = [r["selection_curve"] for r in runs
+                      if r["policy"] == pol and r["method"] == m]
+            if not curves:
+                continue
+            n = min(len(c) for c in curves)
+            t = np.mean([[p["wall_s"] for p in c[:n]] for c in curves], axis=0)
+            y = np.mean([[p["fall"] for p in c[:n]] for c in curves], axis=0)
+            ax.plot(t, 100 * y, "-o", ms=3, color=colors[m], label=f"{m} ({len(curves)} seeds)")
+        ax.set_title(f"{pol} ({next(r['n_params'] for r in runs if r['policy'] == pol)} "
+                     "params)", fontsize=9)
+        _label(ax, "search clock (s, after the compile)", "incumbent's validation fall (%)")
+    _save(fig, out / "validation_vs_wall.png")
