@@ -56,7 +56,7 @@ from tkujax.control.cpg import unit_oscillators, cpg_feet, cpg_feet_lateral
 from tkujax.control.kalman import (KalmanState, accel_to_angle, accel_variance, gyro_to_rates,
                                    kalman_init, kalman_step)
 from tkujax.control.params import ControllerParams
-from tkujax.control.policy import Schedule, scheduled_params
+from tkujax.control.policy import Schedule, recovery_inputs, scheduled_params
 from tkujax.control.solve import solve_legs
 
 # Before a step starts its start time is "far in the future": finite so that sin() of the
@@ -214,9 +214,13 @@ def controller_step(state: ControllerState, sensors: Sensors, params: Controller
     rates = gyro_to_rates(sensors.gyro)
     pitch_rate, psi_rate = rates[..., 0], -rates[..., 1]
     if schedule is not None:
-        # After the Kalman step (which the schedule cannot change): this period's estimate.
+        # After the Kalman step (which the schedule cannot change): this period's estimate;
+        # "mlpr" also reads the controller's own recovery state as the period starts.
+        recovery = (recovery_inputs(state.time_s, state.step_start_s, state.step_weight,
+                                    state.steps.swing_left, params)
+                    if schedule.kind == "mlpr" else None)
         params = scheduled_params(schedule, params, phi - params.standing_lean, pitch_rate,
-                                  kalman.phi[..., 1], rates[..., 1])
+                                  kalman.phi[..., 1], rates[..., 1], recovery)
     enabled = jnp.asarray(enabled, phi.dtype)
     det = detect_push(phi, psi, pitch_rate, psi_rate, params)
     # Either detector triggers the (first) step: 1 - (1 - a)(1 - b) is "a or b" for 0/1 gates.

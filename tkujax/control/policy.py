@@ -22,6 +22,14 @@ where z_base_f is the latent of the scalar value and offset_f the schedule's cor
            (uniform weights) and the schedule stays differentiable everywhere.
   mlp      offset = tanh(x W1 + b1) W2 + b2, x = [pitch deviation / 0.1 rad, pitch rate / 1
            rad/s, roll / 0.1 rad, roll rate / 1 rad/s].
+  mlpr     the same MLP with recovery inputs appended (`recovery_inputs`, from the controller's
+           own state at the start of the period): x = [the four above, step weight (0 before
+           the controller's own detection, 1 after), time since the current recovery step
+           started (the detection for the first step, the re-trigger for a further one) / 0.5 s,
+           clipped to [0, 1] s and 0 before detection, left and right support (1 - the CPG's
+           commanded lift fraction of that foot: 1 on the ground, 0 at mid-swing)]. The
+           controller reads no touch sensors (`Sensors` is the IMU alone), so the support is the
+           gait's commanded phase, not a measured contact.
 
 With table = 0 (sectors) or W2 = b2 = 0 (mlp) every offset is exactly 0.0, z_f = z_base_f
 bit for bit, and the controller is exactly the unscheduled one with the scalar values.
@@ -39,6 +47,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from tkujax.control.cpg import unit_oscillators
 from tkujax.control.params import ControllerParams
 
 UNSCHEDULABLE = frozenset({"kalman_q", "kalman_r", "accel_gate", "control_period", "cp_excess",
@@ -47,16 +56,21 @@ UNSCHEDULABLE = frozenset({"kalman_q", "kalman_r", "accel_gate", "control_period
                            "leg_length", "com_height", "gate_temperature", "standing_lean"})
 # Input scales of the MLP (rad, rad/s): pitch deviation, pitch rate, roll, roll rate.
 MLP_INPUT_SCALE = (0.1, 1.0, 0.1, 1.0)
+# Inputs of each MLP kind: the four IMU quantities; "mlpr" adds the four of `recovery_inputs`.
+MLP_INPUTS = {"mlp": 4, "mlpr": 8}
+RECOVERY_TIME_MAX_S = 1.0      # time since the step started: clipped to [0, this]
+RECOVERY_TIME_SCALE_S = 0.5    # ... and divided by this
 DIRECTION_EPS_RAD = 0.02
 
 
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class Schedule:
-    """kind: "sectors" or "mlp" (static). fields, lo, hi, log: the scheduled ControllerParams
-    fields and their SI ranges (static; log: the sigmoid interpolates log10). sharpness: the
-    sector softmax's inverse temperature (static). Data: z_base (F,); table (S, F) for
-    "sectors"; w1 (4, H), b1 (H,), w2 (H, F), b2 (F,) for "mlp" (None otherwise)."""
+    """kind: "sectors", "mlp" or "mlpr" (static). fields, lo, hi, log: the scheduled
+    ControllerParams fields and their SI ranges (static; log: the sigmoid interpolates log10).
+    sharpness: the sector softmax's inverse temperature (static). Data: z_base (F,); table
+    (S, F) for "sectors"; w1 (I, H), b1 (H,), w2 (H, F), b2 (F,) for "mlp" (I = 4) and "mlpr"
+    (I = 8) (None otherwise)."""
 
     z_base: jax.Array
     table: jax.Array | None = None
@@ -83,9 +97,29 @@ def sector_weights(v_pitch, v_lat, n_sectors: int, sharpness: float) -> jax.Arra
     return jax.nn.softmax(sharpness * cos, axis=-1)
 
 
+def recovery_inputs(time_s, step_start_s, step_weight, swing_left,
+                    params: ControllerParams) -> jax.Array:
+    """(..., 4) recovery inputs of the "mlpr" schedule from the controller's state at the start
+    of a period (`ControllerState`: time_s, step_start_s, step_weight, steps.swing_left):
+    [step weight, clip(time_s - step_start_s, 0, RECOVERY_TIME_MAX_S) / RECOVERY_TIME_SCALE_S,
+    left support, right support]. Before detection step_start_s is far in the future, so the
+    time is 0 and both feet support. The support of the swing foot is 1 - the CPG's lift
+    fraction (`cpg.unit_oscillators`, with params' step timing: a scheduled step period is not
+    yet known when the schedule is evaluated). Non-finite entries read as 0."""
+    dtype = jnp.result_type(jnp.asarray(time_s).dtype, float)
+    age = jnp.asarray(time_s, dtype) - jnp.asarray(step_start_s, dtype)
+    since = jnp.clip(age, 0.0, RECOVERY_TIME_MAX_S) / RECOVERY_TIME_SCALE_S
+    lift = unit_oscillators(age, params)[2]
+    left = jnp.asarray(swing_left, dtype)
+    x = jnp.stack([jnp.broadcast_to(jnp.asarray(step_weight, dtype), age.shape), since,
+                   1.0 - left * lift, 1.0 - (1.0 - left) * lift], -1)
+    return jnp.where(jnp.isfinite(x), x, 0.0)
+
+
 def schedule_offsets(schedule: Schedule, pitch_dev, pitch_rate, roll, roll_rate,
-                     params: ControllerParams) -> jax.Array:
-    """(F,) latent offsets of the scheduled fields in this state."""
+                     params: ControllerParams, recovery=None) -> jax.Array:
+    """(F,) latent offsets of the scheduled fields in this state. recovery: the (..., 4)
+    `recovery_inputs`, required by (and only read by) the "mlpr" kind."""
     dtype = jnp.result_type(pitch_dev.dtype, float)
     if schedule.kind == "sectors":
         tau = jnp.sqrt(params.com_height / params.gravity)      # 1 / omega of the LIP
@@ -98,7 +132,15 @@ def schedule_offsets(schedule: Schedule, pitch_dev, pitch_rate, roll, roll_rate,
             MLP_INPUT_SCALE, dtype)
         h = jnp.tanh(x @ schedule.w1.astype(dtype) + schedule.b1.astype(dtype))
         return h @ schedule.w2.astype(dtype) + schedule.b2.astype(dtype)
-    raise ValueError(f"Schedule.kind must be 'sectors' or 'mlp', got {schedule.kind!r}")
+    if schedule.kind == "mlpr":
+        if recovery is None:
+            raise ValueError("an 'mlpr' schedule needs the recovery inputs (recovery_inputs)")
+        x = jnp.concatenate([jnp.stack([pitch_dev, pitch_rate, roll, roll_rate], -1)
+                             / jnp.asarray(MLP_INPUT_SCALE, dtype),
+                             jnp.asarray(recovery, dtype)], -1)
+        h = jnp.tanh(x @ schedule.w1.astype(dtype) + schedule.b1.astype(dtype))
+        return h @ schedule.w2.astype(dtype) + schedule.b2.astype(dtype)
+    raise ValueError(f"Schedule.kind must be 'sectors', 'mlp' or 'mlpr', got {schedule.kind!r}")
 
 
 def latent_to_values(z, lo, hi, log) -> jax.Array:
@@ -114,14 +156,14 @@ def latent_to_values(z, lo, hi, log) -> jax.Array:
 
 
 def scheduled_params(schedule: Schedule, params: ControllerParams, pitch_dev, pitch_rate, roll,
-                     roll_rate) -> ControllerParams:
+                     roll_rate, recovery=None) -> ControllerParams:
     """params with the scheduled fields replaced by their values in this state.
 
     Written as value + (map(z_base + offset) - map(z_base)): mathematically map(z_base +
     offset), and with a zero offset the difference is exactly 0.0, so the field keeps the bits
     of params (which the tuner computed as map(z_base) in another fusion) while the gradient
-    with respect to the offset and z_base is the map's."""
-    off = schedule_offsets(schedule, pitch_dev, pitch_rate, roll, roll_rate, params)
+    with respect to the offset and z_base is the map's. recovery: as `schedule_offsets`."""
+    off = schedule_offsets(schedule, pitch_dev, pitch_rate, roll, roll_rate, params, recovery)
     z_base = schedule.z_base.astype(off.dtype)
     v = (latent_to_values(z_base + off, schedule.lo, schedule.hi, schedule.log)
          - latent_to_values(z_base, schedule.lo, schedule.hi, schedule.log))
@@ -133,7 +175,11 @@ def scheduled_params(schedule: Schedule, params: ControllerParams, pitch_dev, pi
 
 
 # -- the policy file (`tkujax sweep --params FILE` with a "schedule" key) -------------------
-SCHEDULE_ARRAYS = {"sectors": ("table",), "mlp": ("w1", "b1", "w2", "b2")}
+SCHEDULE_ARRAYS = {"sectors": ("table",), "mlp": ("w1", "b1", "w2", "b2"),
+                   "mlpr": ("w1", "b1", "w2", "b2")}
+MLP_INPUT_NAMES = {"mlp": "pitch deviation, pitch rate, roll, roll rate",
+                   "mlpr": "pitch deviation, pitch rate, roll, roll rate, step weight, time "
+                           "since the step started, left support, right support"}
 
 
 def schedule_to_dict(schedule: Schedule) -> dict:
@@ -206,9 +252,10 @@ def schedule_from_dict(d, where: str) -> Schedule:
     else:
         w1 = array("w1", 2)
         width = w1.shape[1]
-        if w1.shape[0] != 4:
-            raise ValueError(f"{where}.w1: expected shape (4, H) (inputs: pitch deviation, "
-                             f"pitch rate, roll, roll rate), got {w1.shape}")
+        n_in = MLP_INPUTS[kind]
+        if w1.shape[0] != n_in:
+            raise ValueError(f"{where}.w1: expected shape ({n_in}, H) (inputs: "
+                             f"{MLP_INPUT_NAMES[kind]}), got {w1.shape}")
         arrays = dict(w1=w1, b1=array("b1", 1, width), w2=array("w2", 2, n_f),
                       b2=array("b2", 1, n_f))
         if arrays["w2"].shape[0] != width:

@@ -8,6 +8,9 @@
   mlpH         the scalars, plus a one-hidden-layer tanh MLP (H units, 1..256; "mlp" = 8) from
                [pitch deviation, pitch rate, roll, roll rate] to the F latent corrections:
                n = k + 5 H + (H + 1) F.
+  mlprH        mlpH with recovery inputs ("mlpr" = 8 units): the MLP also reads the controller's
+               step weight, the time since its recovery step started and the CPG's left/right
+               support (`tkujax.control.policy.recovery_inputs`): n = k + 9 H + (H + 1) F.
 
 Latent layout: z = [scalar latents (k), schedule latents]. The schedule's latents are
 corrections in latent units added to the scalar latents of the scheduled fields, so the value
@@ -26,25 +29,25 @@ import jax.numpy as jnp
 import numpy as np
 
 from tkujax.control.params import ControllerParams
-from tkujax.control.policy import UNSCHEDULABLE, Schedule
+from tkujax.control.policy import MLP_INPUTS, UNSCHEDULABLE, Schedule
 from tkujax.studies.tune.reparam import Reparam
 
 # Scheduled by default: the step's timing, target gain and triggers, and the stance gains.
 DEFAULT_SCHEDULE = ("step_period", "cp_gain", "cp_trigger_forward_m", "cp_trigger_backward_m",
                     "cp_trigger_lateral_m", "stance_ankle_kp", "stance_hip_kp",
                     "stance_roll_kp")
-POLICY_PATTERN = re.compile(r"^(scalars|sectors(\d+)|mlp(\d*))$")
-MLP_MAX_WIDTH = 256        # mlp96: 16 scalars + 8 fields -> 1,272 parameters
+POLICY_PATTERN = re.compile(r"^(scalars|sectors(\d+)|(mlpr?)(\d*))$")
+MLP_MAX_WIDTH = 256        # mlp96: 16 scalars + 8 fields -> 1,272 parameters; mlpr96: 1,656
 MLP_INIT_SEED = 0          # the hidden layer's fixed draw (the same start for every method)
 
 
 def parse_policy(name: str) -> tuple[str, int]:
     """"scalars" -> ("scalars", 0); "sectors4" -> ("sectors", 4); "mlp" / "mlp16" ->
-    ("mlp", 8 / 16). ValueError otherwise."""
+    ("mlp", 8 / 16); "mlpr" / "mlpr16" -> ("mlpr", 8 / 16). ValueError otherwise."""
     m = POLICY_PATTERN.match(name) if isinstance(name, str) else None
     if m is None:
-        raise ValueError(f"expected 'scalars', 'sectorsN' (N in 2..16) or 'mlp[H]' (H in "
-                         f"1..{MLP_MAX_WIDTH}), got {name!r}")
+        raise ValueError(f"expected 'scalars', 'sectorsN' (N in 2..16), 'mlp[H]' or 'mlpr[H]' "
+                         f"(H in 1..{MLP_MAX_WIDTH}), got {name!r}")
     if m.group(1) == "scalars":
         return "scalars", 0
     if m.group(2) is not None:
@@ -52,10 +55,11 @@ def parse_policy(name: str) -> tuple[str, int]:
         if not 2 <= n <= 16:
             raise ValueError(f"sectorsN: N must be in 2..16, got {n}")
         return "sectors", n
-    h = int(m.group(3)) if m.group(3) else 8
+    kind = m.group(3)
+    h = int(m.group(4)) if m.group(4) else 8
     if not 1 <= h <= MLP_MAX_WIDTH:
-        raise ValueError(f"mlpH: H must be in 1..{MLP_MAX_WIDTH}, got {h}")
-    return "mlp", h
+        raise ValueError(f"{kind}H: H must be in 1..{MLP_MAX_WIDTH}, got {h}")
+    return kind, h
 
 
 @dataclasses.dataclass(frozen=True)
@@ -91,7 +95,7 @@ class PolicyReparam:
 
     @property
     def width(self) -> int:
-        """Sectors (sectors) or hidden units (mlp); 0 for scalars."""
+        """Sectors (sectors) or hidden units (mlp, mlpr); 0 for scalars."""
         return parse_policy(self.policy)[1]
 
     @property
@@ -103,8 +107,8 @@ class PolicyReparam:
         F, n = len(self.schedule_fields), self.width
         if self.kind == "sectors":
             return n * F
-        if self.kind == "mlp":
-            return 4 * n + n + n * F + F
+        if self.kind in MLP_INPUTS:
+            return MLP_INPUTS[self.kind] * n + n + n * F + F
         return 0
 
     @property
@@ -155,6 +159,10 @@ class PolicyReparam:
             rng = np.random.default_rng(MLP_INIT_SEED)
             w1 = rng.normal(0.0, 1.0 / np.sqrt(4.0), (4, n))
             return np.concatenate([w1.ravel(), np.zeros(n), np.zeros(n * F), np.zeros(F)])
+        if self.kind == "mlpr":
+            n_in = MLP_INPUTS["mlpr"]
+            w1 = np.random.default_rng(MLP_INIT_SEED).normal(0.0, 1.0 / np.sqrt(n_in), (n_in, n))
+            return np.concatenate([w1.ravel(), np.zeros(n), np.zeros(n * F), np.zeros(F)])
         return np.zeros(self.schedule_size)
 
     def schedule(self, z) -> Schedule | None:
@@ -173,9 +181,10 @@ class PolicyReparam:
         z_base = zs[jnp.asarray(idx)]
         if self.kind == "sectors":
             return Schedule(z_base=z_base, table=rest.reshape(n, F), **static)
+        n_in = MLP_INPUTS[self.kind]
         o = 0
-        w1 = rest[o:o + 4 * n].reshape(4, n)
-        o += 4 * n
+        w1 = rest[o:o + n_in * n].reshape(n_in, n)
+        o += n_in * n
         b1 = rest[o:o + n]
         o += n
         w2 = rest[o:o + n * F].reshape(n, F)
