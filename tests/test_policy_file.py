@@ -76,7 +76,7 @@ def test_round_trip_sectors_and_mlp(tmp_path):
 
 
 @pytest.mark.parametrize("patch, match", [
-    (dict(kind="tree"), r"schedule.kind: expected one of \['mlp', 'sectors'\], got 'tree'"),
+    (dict(kind="tree"), r"schedule.kind: expected one of \['mlp', 'mlpr', 'sectors'\], got 'tree'"),
     (dict(fields=["kalman_q", "step_period"]), r"schedule.fields: 'kalman_q' cannot be sched"),
     (dict(b2=[1.0, 2.0, 3.0]), r"schedule.b2: expected a 1-d array, last axis 2, got shape"),
     (dict(w1=[[0.0] * 3] * 3), r"schedule.w1: expected shape \(4, H\)"),
