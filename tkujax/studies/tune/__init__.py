@@ -6,8 +6,9 @@ over seeds at one wall-clock budget. The result is evaluated with the hard contr
 held-out (and shifted) pushes.
 
 Parameterisations (`tune.policy`, tkujax.studies.tune.policy): "scalars" (the default: the
-fields of `tune.params`), "sectorsN" and "mlp[H]" (the scalars plus corrections of the
-`tune.schedule` fields as functions of the controller's filtered state, tkujax.control.policy).
+fields of `tune.params`), "sectorsN", "mlp[H]" and "mlpr[H]" (the scalars plus corrections
+of the `tune.schedule` fields as functions of the controller's filtered state, and for "mlpr"
+of its recovery state too, tkujax.control.policy).
 A [study] table runs the dimension study (policies x methods x seeds, tkujax.studies.tune.study;
 its seeds optionally side by side in one batch, tkujax.studies.tune.lockstep).
 
