@@ -201,7 +201,7 @@ def test_spec_accepts_and_validates_the_kind(patch, match):
 
 @pytest.mark.slow
 def test_mjx_start_gives_the_unscheduled_series():
-    """A tiny MJX batch (2 pushes x 0.6 s, a step in each): the mlpr schedule at its start (zero
+    """A tiny MJX batch (2 pushes x 0.6 s, a step after one): the mlpr schedule at its start (zero
     output layer, live hidden layer) gives the series of no schedule."""
     from tkujax.sim import push as push_lib
     from tkujax.sim import rollout_mjx as sim
@@ -215,7 +215,9 @@ def test_mjx_start_gives_the_unscheduled_series():
     config = sim.RolloutConfig(duration_s=0.6)
     plain, out_p = sim.simulate(pushes, 1.0, params, config=config)
     with_s, out_s = sim.simulate(pushes, 1.0, params, config=config, schedule=sched)
-    assert np.all(plain["step_weight"][:, -1] >= 0.5), "each push must trigger a step"
+    # The push from behind triggers a step (the one in front stays inside this spec's wide
+    # backward trigger), so the recovery inputs leave their resting values.
+    assert plain["step_weight"][0, -1] >= 0.5 and plain["step_weight"][1, -1] < 0.5
     for key in plain:
         np.testing.assert_allclose(with_s[key], plain[key], rtol=1e-5, atol=1e-6, err_msg=key)
     np.testing.assert_array_equal(out_s["fell"], out_p["fell"])
