@@ -51,7 +51,7 @@ def robot(tmp_path_factory):
     return capture_robot(REPO / "specs" / "capture" / "capture_region_cpu.toml", str(path))
 
 
-def _spec(robot, y0=0.0, path=None):
+def _spec(robot, y0=-0.05, path=None):
     text = SPEC.format(robot=robot[0].source, y0=y0)
     if path is not None:
         path.write_text(text)
@@ -89,9 +89,10 @@ def test_theory_is_the_robots(robot, captured):
 
 
 def test_forced_step_lands_where_asked(robot, captured):
-    """The feet end (x, y) apart relative to the stand (StepOverride): measured on MuJoCo's
-    kinematics of the replayed final state, within 3 cm (TKU-X itself: 1.7 cm; the CPG has no
-    lateral weight shift, so the feet slide sideways a little on straight steps)."""
+    """The swing ankle (the left one for y >= 0, else the right one) ends (x, y) from its stand
+    place relative to the stance ankle (StepOverride): measured on MuJoCo's kinematics of the
+    replayed final state, within 3 cm (TKU-X itself: 1.7 cm; the CPG has no lateral weight
+    shift, so the feet slide sideways a little on straight steps)."""
     setup = robot[0]
     model = setup.setup.host_model
     data = mujoco.MjData(model)
@@ -104,8 +105,8 @@ def test_forced_step_lands_where_asked(robot, captured):
             data.qpos[:] = q
             mujoco.mj_kinematics(model, data)
             apart.append(data.site_xpos[left][:2] - data.site_xpos[right][:2])
-        moved = apart[1] - apart[0]
         s = res["stored"]
+        moved = (apart[1] - apart[0]) * (1.0 if s["step_y_m"] >= 0 else -1.0)
         target = np.array([s["step_x_m"], s["step_y_m"]]) if s["step_active"] else np.zeros(2)
         print(f"record {i}: target {target}, feet moved {np.round(moved, 4)}")
         assert np.linalg.norm(moved - target) < 0.03, (i, target, moved)
