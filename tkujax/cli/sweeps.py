@@ -96,8 +96,11 @@ def _cmd_replay(args) -> int:
 def _cmd_capture(args) -> int:
     from tkujax.studies.capture import run_capture
 
+    from tkujax.robot.runs import capture_robot
+
+    robot, feet = capture_robot(args.spec, args.robot)
     res = run_capture(args.spec, args.out, params=controller_params_from_option(args.params),
-                      optimise=args.optimise, iterations=args.iterations, robot=args.robot,
+                      optimise=args.optimise, iterations=args.iterations, robot=robot, feet=feet,
                       max_chunks=args.max_chunks, **parallel_kwargs(args))
     m = res["manifest"]
     if not res["complete"]:
@@ -177,7 +180,8 @@ def _add_capture(sub) -> None:
                    help="pushes given a gradient-optimal step through MJX (0 skips)")
     p.add_argument("--iterations", type=int, default=15, help="Adam iterations per optimisation")
     p.add_argument("--robot", default=None, metavar="FILE.toml",
-                   help="a robot file: refused for now (the [step] overrides are TKU-X's)")
+                   help="a robot file (docs/robots.md; default: the spec's [robot] file): its "
+                        "measured geometry gives the theory and the reach (no --optimise)")
     p.add_argument("--max-chunks", type=int, default=None, help="stop after this many new chunks")
     add_parallel_options(p)
     p.set_defaults(func=_cmd_capture)

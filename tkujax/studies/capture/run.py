@@ -1,6 +1,7 @@
 """`tkujax capture SPEC --out DIR`: a [step] sweep (run_sweep: chunked, resumable, sharded,
 multi-process), then its capture regions, theory overlays, J_1 table, figures and the
-gradient-optimal steps, into DIR/capture/."""
+gradient-optimal steps, into DIR/capture/. On a robot file (robot=, feet=: see
+tkujax.studies.capture.on_robot) the theory and the reach are the robot's."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ import numpy as np
 
 from tkujax.control.params import ControllerParams
 from tkujax.studies.capture import figures, theory
+from tkujax.studies.capture.on_robot import check_capture_robot
 from tkujax.studies.capture.region import analyse
 from tkujax.studies.spec import SpecError, SweepSpec, load_spec
 from tkujax.control.io import controller_params_from
@@ -140,28 +142,31 @@ def _summary_md(manifest: dict, rows: list[dict], j1: list[dict], opt: list[dict
 
 def run_capture(spec: SweepSpec | str | Path, out: str | Path,
                 params: ControllerParams | None = None, optimise: int = 4,
-                iterations: int = 15, **sweep_kwargs) -> dict:
+                iterations: int = 15, robot=None, feet: theory.Feet | None = None,
+                **sweep_kwargs) -> dict:
     """Run (or resume) the [step] sweep, then write DIR/capture/: regions.json, j1.json,
     optimise.json, summary.md and the figures. optimise: how many pushes get a
-    gradient-optimal step (0 skips it). sweep_kwargs go to run_sweep (backend, max_chunks,
+    gradient-optimal step (0 skips it; TKU-X only). robot, feet: a robot file's RobotSetup and
+    its capture geometry (`tkujax.robot.runs.capture_robot` loads both; the spec's [robot]
+    file needs them), None for TKU-X. sweep_kwargs go to run_sweep (backend, max_chunks,
     process ids, ...)."""
     spec = spec if isinstance(spec, SweepSpec) else load_spec(spec)
     if not spec.step_grid:
         raise SpecError("tkujax capture needs a spec with a [step.grid] table")
-    robot = sweep_kwargs.pop("robot", None) or spec.robot_file
-    if robot is not None:
-        raise SpecError(f"robot.file / --robot ({robot}): capture regions of [step] sweeps use "
-                        "TKU-X's step geometry and are not available on a robot file; `tkujax "
-                        "map` of a robot sweep overlays the robot's LIP capture theory")
     if not 0 <= optimise <= 1000 or not 1 <= iterations <= 1000:
         raise SpecError(f"optimise must be in [0, 1000] and iterations in [1, 1000], got "
                         f"{optimise}, {iterations}")
-    params = params or ControllerParams.paper()
+    params = params or getattr(robot, "params", None) or ControllerParams.paper()
+    base = controller_params_from(params, spec.controller)
+    feet = check_capture_robot(spec, robot, feet, base)
+    if robot is not None:
+        # The gradient study's MJX problem is built on TKU-X's model.
+        optimise = 0
+        sweep_kwargs["model_params"] = robot
     manifest = run_sweep(spec, out, params=params, **sweep_kwargs)
     if not manifest["complete"]:
         return dict(manifest=manifest, complete=False)
-    base = controller_params_from(params, spec.controller)
-    feet = theory.stand_feet(params=base)
+    feet = feet or theory.stand_feet(params=base)
     res = analyse(out, feet)
     dest = res["dir"]
     files = figures.region_panels(res["regions"], dest, feet.reach_m)
@@ -177,4 +182,4 @@ def run_capture(spec: SweepSpec | str | Path, out: str | Path,
                                                  res["jn"]))
     return dict(manifest=manifest, complete=True, regions=res["rows"], j1=res["j1"],
                 jn=res["jn"], optimise=opt, files=[str(p) for p in files],
-                summary=str(dest / "summary.md"))
+                summary=str(dest / "summary.md"), feet=feet)
