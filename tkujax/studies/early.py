@@ -218,6 +218,14 @@ def _snapshot(state: _Lanes, group: np.ndarray, k0: np.ndarray):
     return lanes
 
 
+def pre_push_snapshot(fns: LaneFns, recs: dict, keys, params, schedule, n_lanes: int,
+                      group: np.ndarray, k0: np.ndarray, sharding=None):
+    """The pre-push snapshot lanes of these records (`snapshot_groups`' group and k0), as
+    `run_lanes` computes them in its `n_lanes` lanes."""
+    state = _Lanes(fns, recs, keys, params, schedule, sharding, np.full(n_lanes, -1))
+    return _snapshot(state, group, k0)
+
+
 def run_lanes(fns: LaneFns, recs: dict[str, np.ndarray], keys: jax.Array, params,
               schedule, n_lanes: int, sharding=None, snapshot: bool = True,
               steps: bool = False) -> dict[str, np.ndarray]:
