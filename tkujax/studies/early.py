@@ -13,7 +13,9 @@ lanes (`[sweep] decisions = "early"`, docs/sweeps.md).
 `run_lanes` is the host loop: pushes go to free lanes in index order (lowest lane first),
 decided lanes' outcomes are written under their push's index, and the lanes are refilled.
 Nothing depends on Python branching on traced values; which lane a push lands in depends
-only on the decisions before it, so a chunk's records are the same on every run.
+only on the decisions before it, so a chunk's records are the same on every run. A sweep
+streams all the chunks of a process through one batch of lanes instead
+(`tkujax.studies.lane_stream`, the same programs and records: no lane reads another).
 
 Pre-push snapshot: where the pushes of a chunk differ only in the push itself (the same
 control setting, robot, controller and no sensor noise), every one of them stands the same
