@@ -153,21 +153,16 @@ class LaneStream:
         starts = None
         for take in filled:
             part = self.parts[self.lane_part[take[0]]]
+            mine = np.zeros(self.n_lanes, bool)
+            mine[take] = True
             if part.snap is None:
                 fresh = self.fns.start(*args)
             else:
-                mine = np.zeros(self.n_lanes, bool)
-                mine[take] = True
-                group = np.where(mine, part.snap[1][self.lane_row], -1)
+                group = np.where(mine, part.snap[1][np.where(mine, self.lane_row, 0)], -1)
                 fresh = self.fns.start_snap(*args, part.snap[0],
                                             self.put(np.maximum(group, 0).astype(np.int32)),
                                             self.put(group >= 0))
-            if starts is None:
-                starts = fresh
-            else:
-                mine = np.zeros(self.n_lanes, bool)
-                mine[take] = True
-                starts = _pick(self.put(mine), fresh, starts)
+            starts = fresh if starts is None else _pick(self.put(mine), fresh, starts)
         return recs, starts
 
     def run(self, more, finished) -> None:
