@@ -122,7 +122,9 @@ def _streamed(stream, fns, chunk, n_chunks):
 
 @pytest.mark.slow
 def test_refill_across_chunks_gives_the_records_of_one_chunk_at_a_time(tmp_path):
-    spec = _spec(chunk_size=4, lanes=3)      # 3 chunks of 4 pushes through 3 lanes
+    # Chunks of 7 and 5 pushes through 3 lanes: the second chunk's snapshot lanes start beside
+    # the first chunk's lanes (rows beyond the second's), and the first chunk drains into it.
+    spec = _spec(chunk_size=7, lanes=3)
     recs = record_inputs(spec)
     inputs = {k: v for k, v in recs.items() if k not in ("push_id", "from_grid", "case_id")}
     fns = early.make_lane_fns((), spec.duration_s, tree_passes=spec.tree_passes,
@@ -130,13 +132,15 @@ def test_refill_across_chunks_gives_the_records_of_one_chunk_at_a_time(tmp_path)
     params = traced_params(ControllerParams.paper())
 
     def chunk(i):
-        return {k: v[4 * i:4 * i + 4] for k, v in inputs.items()}, chunk_keys(spec.seed, i, 4)
+        rows = slice(7 * i, 7 * i + 7)
+        return ({k: v[rows] for k, v in inputs.items()},
+                chunk_keys(spec.seed, i, 7)[:len(inputs["onset_s"][rows])])
 
-    one = [early.run_lanes(fns, *chunk(i), params, None, 3) for i in range(3)]
+    one = [early.run_lanes(fns, *chunk(i), params, None, 3) for i in range(2)]
     stats = {}
     for cross in (False, True):
-        out, stats[cross] = _streamed(LaneStream(3, params, None, cross=cross), fns, chunk, 3)
-        for i in range(3):
+        out, stats[cross] = _streamed(LaneStream(3, params, None, cross=cross), fns, chunk, 2)
+        for i in range(2):
             _assert_identical(out[i], one[i])
     # Across chunks the lanes of a draining chunk took the next chunk's pushes.
     assert stats[True]["idle_lane_segments"] < stats[False]["idle_lane_segments"]
@@ -148,7 +152,7 @@ def test_refill_across_chunks_gives_the_records_of_one_chunk_at_a_time(tmp_path)
     _assert_identical({k: v for k, v in load(tmp_path / "all").items() if k in whole}, whole)
     run_sweep(spec, tmp_path / "resumed", max_chunks=1, quiet=True, backend="mjx")
     assert run_sweep(spec, tmp_path / "resumed", quiet=True,
-                     backend="mjx")["chunks_computed_last_run"] == 2
+                     backend="mjx")["chunks_computed_last_run"] == 1
     _assert_identical(load(tmp_path / "resumed"), load(tmp_path / "all"))
 
 
