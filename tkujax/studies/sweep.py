@@ -206,8 +206,9 @@ def _compute_early(out: Path, job: _ChunkJob, claims: chunks.Claims, progress: P
             return []
         if not written and not held:
             progress.note("compiling the rollout (first chunk; minutes on a CPU) ...")
+        held[i] = [0, {}]                 # held (released at an exception) from here on
         parts = job.early_parts(stream, i)
-        held[i] = [len(parts), {}]
+        held[i][0] = len(parts)
         return parts
 
     def finished(part) -> None:
