@@ -7,11 +7,20 @@ through the full-horizon chunk program (one batch) and once through the early-de
 both modes, their ratio, the fall agreement and the mean decision time.
 
     python scripts/bench_early.py --spec specs/sweep/scale.toml --pushes 131072 --lanes 65536
+
+With --chunk C it instead streams the pushes as chunks of C (each chunk's own noise keys, as a
+sweep does) through the lanes twice: one chunk at a time (the lanes drain at every chunk's end)
+and with refill across chunk boundaries (`tkujax.studies.lane_stream`), and prints both modes'
+pushes/s, the fraction of lane-segments idle (no push in the lane) and whether the records
+are the same bit for bit.
+
+    python scripts/bench_early.py --pushes 1024 --chunk 128 --lanes 64
 """
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import json
 import time
 
@@ -65,11 +74,60 @@ def measure(spec, n: int, lanes: int, repeats: int = 2) -> dict:
                 device=str(jax.devices()[0].device_kind), backend=jax.default_backend())
 
 
+def measure_refill(spec, n: int, lanes: int, chunk: int, repeats: int = 2) -> dict:
+    """Early decisions on the first n records of `spec` in chunks of `chunk`, one chunk at a
+    time and with refill across chunks."""
+    from tkujax.studies import early
+    from tkujax.studies.chunk_program import chunk_keys, record_inputs, traced_params
+    from tkujax.studies.lane_stream import LaneStream
+
+    recs = record_inputs(spec)
+    inputs = {k: recs[k][:n] for k in recs if k not in ("push_id", "from_grid", "case_id")}
+    params = traced_params(controller_params_from(ControllerParams.paper(), spec.controller))
+    fns = early.make_lane_fns((), spec.duration_s, tree_passes=spec.tree_passes,
+                              segment_ticks=spec.decisions.segment_ticks)
+    bounds = [(lo, min(lo + chunk, n)) for lo in range(0, n, chunk)]
+    keys = [np.asarray(chunk_keys(spec.seed, i, chunk))[:hi - lo]
+            for i, (lo, hi) in enumerate(bounds)]
+
+    def run(cross: bool):
+        stream, out = LaneStream(lanes, params, None, cross=cross), {}
+        todo = list(range(len(bounds)))
+
+        def more(idle):
+            if not todo:
+                return []
+            i = todo.pop(0)
+            lo, hi = bounds[i]
+            return [stream.part(i, fns, {k: v[lo:hi] for k, v in inputs.items()}, keys[i])]
+
+        stream.run(more, lambda part: out.__setitem__(part.label, part.out))
+        cols = {k: np.concatenate([out[i][k] for i in range(len(bounds))]) for k in out[0]}
+        return cols, stream.stats
+
+    res = dict(pushes=n, chunk=chunk, lanes=lanes, duration_s=spec.duration_s,
+               segment_ticks=spec.decisions.segment_ticks,
+               device=str(jax.devices()[0].device_kind), backend=jax.default_backend())
+    got = {}
+    for name, cross in (("one_chunk_at_a_time", False), ("across_chunks", True)):
+        (cols, stats), first, best = timed(functools.partial(run, cross), repeats)
+        got[name] = cols
+        res[name] = dict(pushes_per_s=n / best, first_call_s=first, **stats,
+                         idle_fraction=stats["idle_lane_segments"] / stats["lane_segments"])
+    res["speedup"] = (res["across_chunks"]["pushes_per_s"]
+                      / res["one_chunk_at_a_time"]["pushes_per_s"])
+    a, b = got.values()
+    res["identical"] = all(np.array_equal(a[k], b[k], equal_nan=True) for k in a)
+    return res
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--spec", default="specs/sweep/scale.toml")
     ap.add_argument("--pushes", type=int, default=64)
     ap.add_argument("--lanes", type=int, default=16)
+    ap.add_argument("--chunk", type=int, default=None,
+                    help="compare one chunk at a time with refill across chunks of this size")
     ap.add_argument("--duration-s", type=float, default=None, help="override the spec's")
     ap.add_argument("--repeats", type=int, default=2, help="calls per mode (the first compiles)")
     ap.add_argument("--out", default=None, help="also write the JSON here")
@@ -80,7 +138,10 @@ def main(argv=None) -> None:
     spec = load_spec(args.spec)
     if args.duration_s is not None:
         spec = dataclasses.replace(spec, duration_s=args.duration_s)
-    res = measure(spec, args.pushes, args.lanes, max(2, args.repeats))
+    if args.chunk:
+        res = measure_refill(spec, args.pushes, args.lanes, args.chunk, max(2, args.repeats))
+    else:
+        res = measure(spec, args.pushes, args.lanes, max(2, args.repeats))
     text = json.dumps(res, indent=1)
     print(text)
     if args.out:

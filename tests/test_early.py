@@ -2,14 +2,19 @@
 on the fall outcome (and on the recovery readings where they are defined)."""
 
 import dataclasses
+import json
+import os
+import socket
+import time
 
 import jax
 import numpy as np
 import pytest
 
 from tkujax.control.params import ControllerParams
-from tkujax.studies import early
+from tkujax.studies import chunks, early
 from tkujax.studies.chunk_program import chunk_keys, make_chunk_fn, record_inputs, traced_params
+from tkujax.studies.lane_stream import LaneStream
 from tkujax.studies.spec import SpecError, parse_spec
 from tkujax.studies.sweep import load, run_sweep
 from tkujax.studies.sweep_hash import spec_hash
@@ -102,6 +107,67 @@ def test_pre_push_snapshot_gives_the_same_records(early_run):
     fresh = early.run_lanes(fns, inputs, chunk_keys(spec.seed, 0, 6), params, None, 4,
                             snapshot=False)
     _assert_identical(fresh, {k: rec[k][:6] for k in fresh})
+
+
+def _streamed(stream, fns, chunk, n_chunks):
+    """({chunk: outcome columns}, stream stats): chunks 0..n_chunks-1 through `stream`."""
+    out, todo = {}, list(range(n_chunks))
+
+    def more(idle):
+        return [stream.part(i, fns, *chunk(i)) for i in [todo.pop(0)]] if todo else []
+
+    stream.run(more, lambda part: out.__setitem__(part.label, part.out))
+    return out, stream.stats
+
+
+@pytest.mark.slow
+def test_refill_across_chunks_gives_the_records_of_one_chunk_at_a_time(tmp_path):
+    # Chunks of 7 and 5 pushes through 3 lanes: the second chunk's snapshot lanes start beside
+    # the first chunk's lanes (rows beyond the second's), and the first chunk drains into it.
+    spec = _spec(chunk_size=7, lanes=3)
+    recs = record_inputs(spec)
+    inputs = {k: v for k, v in recs.items() if k not in ("push_id", "from_grid", "case_id")}
+    fns = early.make_lane_fns((), spec.duration_s, tree_passes=spec.tree_passes,
+                              segment_ticks=spec.decisions.segment_ticks)
+    params = traced_params(ControllerParams.paper())
+
+    def chunk(i):
+        rows = slice(7 * i, 7 * i + 7)
+        return ({k: v[rows] for k, v in inputs.items()},
+                chunk_keys(spec.seed, i, 7)[:len(inputs["onset_s"][rows])])
+
+    one = [early.run_lanes(fns, *chunk(i), params, None, 3) for i in range(2)]
+    stats = {}
+    for cross in (False, True):
+        out, stats[cross] = _streamed(LaneStream(3, params, None, cross=cross), fns, chunk, 2)
+        for i in range(2):
+            _assert_identical(out[i], one[i])
+    # Across chunks the lanes of a draining chunk took the next chunk's pushes.
+    assert stats[True]["idle_lane_segments"] < stats[False]["idle_lane_segments"]
+    assert stats[True]["segments"] < stats[False]["segments"]
+    # The sweep streams across chunks too, and a run resumed after its first chunk gives the
+    # same records.
+    whole = {k: np.concatenate([o[k] for o in one]) for k in one[0]}
+    run_sweep(spec, tmp_path / "all", quiet=True, backend="mjx")
+    _assert_identical({k: v for k, v in load(tmp_path / "all").items() if k in whole}, whole)
+    run_sweep(spec, tmp_path / "resumed", max_chunks=1, quiet=True, backend="mjx")
+    assert run_sweep(spec, tmp_path / "resumed", quiet=True,
+                     backend="mjx")["chunks_computed_last_run"] == 1
+    _assert_identical(load(tmp_path / "resumed"), load(tmp_path / "all"))
+
+
+def test_claims_skip_chunks_another_writer_holds(tmp_path):
+    (tmp_path / chunks.CLAIMS).mkdir()
+    other = os.getppid()                     # a live process on this host, not this one
+    (tmp_path / chunks.CLAIMS / "chunk_000001.claim").write_text(json.dumps(dict(
+        pid=other, host=socket.gethostname(), start=None,
+        time=time.time())))
+    claims = chunks.Claims(tmp_path, [0, 1, 2], 3, None, time.monotonic() + 0.1)
+    assert [claims.next(wait=False), claims.next(wait=False), claims.next(wait=False)] == \
+        [0, 2, None]
+    assert claims.next() is None             # chunk 1 still held when the deadline passes
+    limited = chunks.Claims(tmp_path, [0, 2], 3, 1, time.monotonic())
+    assert [limited.next(), limited.next()] == [0, None]
 
 
 def test_decisions_keys_validate_and_keep_old_hashes():

@@ -266,3 +266,41 @@ def read_chunks(out: Path, manifest: dict) -> list[dict[str, np.ndarray]]:
             raise ChunkError(f"{out / name} has {len(next(iter(parts[-1].values())))} rows, "
                              f"the manifest says {entries[name]['rows']}")
     return parts
+
+
+class Claims:
+    """This process's pending chunks, claimed one at a time (`next`): a chunk another writer
+    holds is retried once the others are tried, until it is done or its claim goes stale
+    (bounded by `deadline`, time.monotonic); at most `max_chunks` (None: all) are claimed.
+    The caller writes a claimed chunk and releases it (`release`)."""
+
+    def __init__(self, out: Path, pending: list[int], n_chunks: int, max_chunks: int | None,
+                 deadline: float):
+        self.out, self.n_chunks, self.max_chunks = out, n_chunks, max_chunks
+        self.deadline = deadline
+        self.queue, self.waiting, self.claimed = list(pending), [], 0
+
+    def next(self, wait: bool = True) -> int | None:
+        """The next chunk claimed here that is not done yet; None when none is left, or, with
+        wait=False, when only chunks another writer holds are left (nothing slept)."""
+        while self.max_chunks is None or self.claimed < self.max_chunks:
+            while self.queue:
+                i = self.queue.pop(0)
+                if not try_claim(self.out, i):
+                    self.waiting.append(i)
+                    continue
+                entries = read_manifest(self.out).get("chunks", {})
+                if check_chunk(self.out, i, entries.get(chunk_name(i))) is None:
+                    release(self.out, i)          # another writer finished it meanwhile
+                    continue
+                self.claimed += 1
+                return i
+            if not wait or not self.waiting:
+                return None
+            done = done_chunks(self.out, self.n_chunks)
+            self.waiting = [i for i in self.waiting if i not in done]
+            if not self.waiting or time.monotonic() > self.deadline:
+                return None
+            time.sleep(0.5)
+            self.queue, self.waiting = self.waiting, []
+        return None

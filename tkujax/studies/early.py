@@ -13,7 +13,9 @@ lanes (`[sweep] decisions = "early"`, docs/sweeps.md).
 `run_lanes` is the host loop: pushes go to free lanes in index order (lowest lane first),
 decided lanes' outcomes are written under their push's index, and the lanes are refilled.
 Nothing depends on Python branching on traced values; which lane a push lands in depends
-only on the decisions before it, so a chunk's records are the same on every run.
+only on the decisions before it, so a chunk's records are the same on every run. A sweep
+streams all the chunks of a process through one batch of lanes instead
+(`tkujax.studies.lane_stream`, the same programs and records: no lane reads another).
 
 Pre-push snapshot: where the pushes of a chunk differ only in the push itself (the same
 control setting, robot, controller and no sensor noise), every one of them stands the same
@@ -216,6 +218,14 @@ def _snapshot(state: _Lanes, group: np.ndarray, k0: np.ndarray):
         lanes, _, _ = state.fns.segment(lanes, lanes, reset, recs, state.params, state.schedule)
     state.lane_push[:] = -1
     return lanes
+
+
+def pre_push_snapshot(fns: LaneFns, recs: dict, keys, params, schedule, n_lanes: int,
+                      group: np.ndarray, k0: np.ndarray, sharding=None):
+    """The pre-push snapshot lanes of these records (`snapshot_groups`' group and k0), as
+    `run_lanes` computes them in its `n_lanes` lanes."""
+    state = _Lanes(fns, recs, keys, params, schedule, sharding, np.full(n_lanes, -1))
+    return _snapshot(state, group, k0)
 
 
 def run_lanes(fns: LaneFns, recs: dict[str, np.ndarray], keys: jax.Array, params,

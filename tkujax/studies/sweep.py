@@ -36,7 +36,8 @@ from tkujax.sim.setup import RobotSetup
 from tkujax.studies import chunks
 from tkujax.studies.chunk_program import (chunk_keys, fpga_groups, make_chunk_fn, record_inputs,
                                           traced_params)
-from tkujax.studies.early import make_lane_fns, run_lanes
+from tkujax.studies.early import make_lane_fns
+from tkujax.studies.lane_stream import LaneStream
 from tkujax.studies.mujoco_chunk import mujoco_chunk
 from tkujax.studies.progress import Progress
 from tkujax.studies.provenance import git_commit, versions
@@ -122,9 +123,7 @@ class _ChunkJob:
                                fpga_varied=tuple(sorted(spec.fpga_grid)), ensemble=spec.ensemble,
                                schedule=self.schedule)
             return {k: recs[k][lo:hi] for k in recs} | res
-        keys = chunk_keys(spec.seed, i, self.padded)
-        if spec.decisions.early:
-            return {k: recs[k][lo:hi] for k in recs} | self.compute_early(lo, hi, keys)
+        keys = chunk_keys(spec.seed, i, self.padded)   # (early decisions: early_parts)
         res = {}
         for fixed, sel in fpga_groups(spec, {k: recs[k][lo:hi] for k in recs}):
             # Each FixedPointConfig is its own program, compiled once for the padded chunk
@@ -143,22 +142,26 @@ class _ChunkJob:
                 res.setdefault(k, np.empty((hi - lo,) + v.shape[1:], v.dtype))[sel] = v
         return {k: recs[k][lo:hi] for k in recs} | res
 
+    def lane_stream(self) -> LaneStream:
+        """The batch of lanes the early chunks of this process stream through."""
+        n_lanes = math.ceil(self.spec.decisions.lanes / self.n_devices) * self.n_devices
+        return LaneStream(n_lanes, traced_params(self.base), self.schedule, self.sharding,
+                          steps=bool(self.spec.step_grid))
 
-    def compute_early(self, lo: int, hi: int, keys: jax.Array) -> dict:
-        """Outcome columns of records lo:hi with early decisions (`tkujax.studies.early`): one
-        lane program per FixedPointConfig present; each record keeps its own noise key."""
-        spec, res = self.spec, {}
-        n_lanes = math.ceil(spec.decisions.lanes / self.n_devices) * self.n_devices
+    def early_parts(self, stream: LaneStream, i: int) -> list:
+        """Chunk i's pushes as parts of `stream`, one per FixedPointConfig present, labelled
+        (i, rows of the chunk); each record keeps its own noise key."""
+        spec, n = self.spec, len(self.recs["push_id"])
+        lo, hi = i * spec.chunk_size, min((i + 1) * spec.chunk_size, n)
+        keys = np.asarray(chunk_keys(spec.seed, i, self.padded))
+        parts = []
         for fixed, sel in fpga_groups(spec, {k: self.recs[k][lo:hi] for k in self.recs}):
             fns = make_lane_fns(tuple(sorted(spec.controller_grid)), spec.duration_s,
                                 self.model_params, bool(spec.step_grid), fixed, spec.ensemble,
                                 spec.tree_passes, spec.decisions.segment_ticks)
-            part = run_lanes(fns, {k: self.recs[k][lo:hi][sel] for k in self.input_keys},
-                             keys[sel], traced_params(self.base), self.schedule, n_lanes,
-                             self.sharding, steps=bool(spec.step_grid))
-            for k, v in part.items():
-                res.setdefault(k, np.empty((hi - lo,) + v.shape[1:], v.dtype))[sel] = v
-        return res
+            parts.append(stream.part((i, sel), fns, {k: self.recs[k][lo:hi][sel]
+                                                     for k in self.input_keys}, keys[sel]))
+        return parts
 
     @property
     def n_devices(self) -> int:
@@ -170,35 +173,68 @@ def _compute_pending(out: Path, job: _ChunkJob, pending: list[int], n_chunks: in
     """Claim and compute the pending chunks (another writer may hold some); once only chunks
     claimed by others remain, poll until they are done or their claims go stale (bounded by
     `deadline`, time.monotonic). Returns the number of chunks computed here."""
-    n = len(job.recs["push_id"])
-    computed = 0
-    while pending and (max_chunks is None or computed < max_chunks):
-        waiting = []
-        for i in pending:
-            if (max_chunks is not None and computed >= max_chunks) or not chunks.try_claim(out, i):
-                waiting.append(i)
-                continue
-            try:
-                entries = chunks.read_manifest(out).get("chunks", {})
-                if chunks.check_chunk(out, i, entries.get(chunks.chunk_name(i))) is None:
-                    continue                      # another writer finished it meanwhile
-                if computed == 0:
-                    progress.note("compiling the rollout (first chunk; minutes on a CPU) ...")
-                chunks.write_chunk(out, i, job.compute(i))
-            finally:
-                chunks.release(out, i)
-            computed += 1
-            progress.update(min((i + 1) * job.spec.chunk_size, n) - i * job.spec.chunk_size)
-            if computed == 1:
-                progress.restart()   # later rates and ETAs exclude the compile
-        if max_chunks is not None and computed >= max_chunks:
-            break
-        pending = [i for i in waiting if i not in chunks.done_chunks(out, n_chunks)]
-        if pending:
-            if time.monotonic() > deadline:
-                break
-            time.sleep(0.5)
+    claims = chunks.Claims(out, pending, n_chunks, max_chunks, deadline)
+    if job.spec.decisions.early and job.backend != "mujoco":
+        return _compute_early(out, job, claims, progress)
+    n, computed = len(job.recs["push_id"]), 0
+    while (i := claims.next()) is not None:
+        try:
+            if computed == 0:
+                progress.note("compiling the rollout (first chunk; minutes on a CPU) ...")
+            chunks.write_chunk(out, i, job.compute(i))
+        finally:
+            chunks.release(out, i)
+        computed += 1
+        progress.update(min((i + 1) * job.spec.chunk_size, n) - i * job.spec.chunk_size)
+        if computed == 1:
+            progress.restart()   # later rates and ETAs exclude the compile
     return computed
+
+
+def _compute_early(out: Path, job: _ChunkJob, claims: chunks.Claims, progress: Progress) -> int:
+    """Early decisions (`tkujax.studies.lane_stream`): the claimed chunks' pushes streamed
+    through one batch of lanes, the next chunk claimed as soon as lanes are free and no push
+    of the chunks claimed is left to start; each chunk written (and released) as soon as all
+    its pushes are decided. A chunk whose claim is held at an exception is released."""
+    stream = job.lane_stream()
+    held: dict[int, list] = {}      # chunk -> [parts left, outcome columns]
+    written = []
+
+    def more(idle: bool) -> list:
+        i = claims.next(wait=idle)
+        if i is None:
+            return []
+        if not written and not held:
+            progress.note("compiling the rollout (first chunk; minutes on a CPU) ...")
+        held[i] = [0, {}]                 # held (released at an exception) from here on
+        parts = job.early_parts(stream, i)
+        held[i][0] = len(parts)
+        return parts
+
+    def finished(part) -> None:
+        i, sel = part.label
+        left = held[i]
+        left[0] -= 1
+        hi = min((i + 1) * job.spec.chunk_size, len(job.recs["push_id"]))
+        for k, v in part.out.items():
+            left[1].setdefault(k, np.empty((hi - i * job.spec.chunk_size,) + v.shape[1:],
+                                           v.dtype))[sel] = v
+        if left[0] == 0:
+            rows = slice(i * job.spec.chunk_size, hi)
+            chunks.write_chunk(out, i, {k: job.recs[k][rows] for k in job.recs} | left[1])
+            chunks.release(out, i)
+            del held[i]
+            written.append(i)
+            progress.update(hi - rows.start)
+            if len(written) == 1:
+                progress.restart()
+
+    try:
+        stream.run(more, finished)
+    finally:
+        for i in held:
+            chunks.release(out, i)
+    return len(written)
 
 
 def _describe(spec: SweepSpec, digest: str, n: int, n_chunks: int, padded: int,
