@@ -50,7 +50,8 @@ TAU = 2.0 * DEG
 BATCH = 2
 
 
-def _pushes(impulse_ns, azimuth_deg) -> dict:
+def two_pushes(impulse_ns, azimuth_deg) -> dict:
+    """BATCH pushes at the given impulses and azimuths, the rest of each record fixed."""
     d = dict(impulse_ns=np.array(impulse_ns, float), azimuth_deg=np.array(azimuth_deg, float),
              height_m=np.full(BATCH, 0.36), duration_s=np.full(BATCH, 0.02),
              onset_s=np.full(BATCH, 0.15))
@@ -59,8 +60,8 @@ def _pushes(impulse_ns, azimuth_deg) -> dict:
     return d
 
 
-TINY = _pushes([0.05, 0.05], [0.0, 180.0])
-STEP = _pushes([1.2, 1.0], [0.0, 180.0])
+TINY = two_pushes([0.05, 0.05], [0.0, 180.0])
+STEP = two_pushes([1.2, 1.0], [0.0, 180.0])
 KEYS = jax.random.split(jax.random.PRNGKey(0), BATCH)
 
 

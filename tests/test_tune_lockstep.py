@@ -28,7 +28,7 @@ CFG = SearchConfig(budget_s=1e6, max_iterations=3, popsize=5, sigma0=0.3, zo_sig
 Z0 = np.array([0.2, -0.1, 0.3])
 
 
-class _Stand:
+class StandIn:
     """TuneProblem's interface (its own methods) on a cheap loss of z and the batch."""
 
     float64 = False
@@ -69,7 +69,7 @@ class _Stand:
         return jnp.mean(totals), dict(terms=dict(total=totals), outcomes=outs)
 
 
-def _records(n: int, seed: int) -> dict:
+def stand_records(n: int, seed: int) -> dict:
     rng = np.random.default_rng(seed)
     out = {k: rng.uniform(0.0, 1.0, n) for k in RECORD_KEYS}
     out["impulse_ns"] = rng.uniform(0.5, 2.0, n)
@@ -77,13 +77,13 @@ def _records(n: int, seed: int) -> dict:
     return out
 
 
-def _keys(n: int, seed: int):
+def stand_keys(n: int, seed: int):
     return jax.random.split(jax.random.PRNGKey(100 + seed), n)
 
 
 @pytest.fixture(scope="module")
 def stand():
-    return _Stand()
+    return StandIn()
 
 
 def _assert_same(single: list[dict], lock: list[dict], rtol=1e-5, atol=1e-6):
@@ -104,8 +104,8 @@ def _assert_same(single: list[dict], lock: list[dict], rtol=1e-5, atol=1e-6):
 @pytest.mark.parametrize("method", ["cma", "sepcma", "es", "gradient", "hybrid", "linesearch",
                                     "guided_sepcma", "guided_cma"])
 def test_lockstep_matches_run_search_per_seed(stand, method):
-    batches = [_records(N, 10 + s) for s in SEEDS]
-    keys = [_keys(N, s) for s in SEEDS]
+    batches = [stand_records(N, 10 + s) for s in SEEDS]
+    keys = [stand_keys(N, s) for s in SEEDS]
     single = [run_search(method, stand, Z0, batches[i], keys[i], CFG, seed=s)
               for i, s in enumerate(SEEDS)]
     lines = []
@@ -129,8 +129,8 @@ def test_lockstep_matches_run_search_with_push_clip(stand, method):
     import dataclasses
 
     cfg = dataclasses.replace(CFG, push_clip=0.5)
-    batches = [_records(N, 10 + s) for s in SEEDS]
-    keys = [_keys(N, s) for s in SEEDS]
+    batches = [stand_records(N, 10 + s) for s in SEEDS]
+    keys = [stand_keys(N, s) for s in SEEDS]
     single = [run_search(method, stand, Z0, batches[i], keys[i], cfg, seed=s)
               for i, s in enumerate(SEEDS)]
     lock = run_search_lockstep(method, stand, Z0, batches, keys, cfg, SEEDS)
@@ -144,8 +144,8 @@ def test_lockstep_matches_run_search_with_push_clip(stand, method):
 def test_lockstep_shares_one_clock(stand):
     """A budget, not the iteration cap, ends the loop: every seed has done the same number of
     iterations, and their curves end at the same wall time (one clock)."""
-    batches = [_records(N, 10 + s) for s in SEEDS]
-    keys = [_keys(N, s) for s in SEEDS]
+    batches = [stand_records(N, 10 + s) for s in SEEDS]
+    keys = [stand_keys(N, s) for s in SEEDS]
     cfg = SearchConfig(budget_s=0.3, max_iterations=100_000, popsize=5, groups=2)
     lock = run_search_lockstep("cma", stand, Z0, batches, keys, cfg, SEEDS)
     its = {r["iterations"] for r in lock}
@@ -160,8 +160,8 @@ def test_lockstep_evaluation_matches_per_seed(stand):
     from tkujax.studies.tune.compare import fell_rates
 
     n, batch = 6, N                          # 2 chunks, the last one padded
-    recs = [_records(n, 50 + s) for s in SEEDS]
-    keys = [_keys(n, 7 + s) for s in SEEDS]
+    recs = [stand_records(n, 50 + s) for s in SEEDS]
+    keys = [stand_keys(n, 7 + s) for s in SEEDS]
     zs = np.array([Z0, Z0 + 0.3])
     got = fell_rates_lockstep(stand, {"best": zs}, recs, keys, batch)["best"]
     for s in range(len(SEEDS)):
@@ -172,8 +172,8 @@ def test_lockstep_evaluation_matches_per_seed(stand):
 
 
 def test_lockstep_rejects_bad_shapes(stand):
-    batches = [_records(N, s) for s in SEEDS]
-    keys = [_keys(N, s) for s in SEEDS]
+    batches = [stand_records(N, s) for s in SEEDS]
+    keys = [stand_keys(N, s) for s in SEEDS]
     with pytest.raises(ValueError, match="method"):
         run_search_lockstep("adam", stand, Z0, batches, keys, CFG, SEEDS)
     with pytest.raises(ValueError, match="2 training batches for 3 seeds"):
@@ -217,8 +217,8 @@ def test_compile_included_clock_runs_the_same_search(stand):
     from tkujax.studies.tune.lockstep import lockstep_calls
     from tkujax.studies.tune.study_clock import clocked_search
 
-    batches = [_records(N, 10 + s) for s in SEEDS]
-    keys = [_keys(N, s) for s in SEEDS]
+    batches = [stand_records(N, 10 + s) for s in SEEDS]
+    keys = [stand_keys(N, s) for s in SEEDS]
     for method in ("guided_sepcma", "es", "gradient"):
         want = run_search_lockstep(method, stand, Z0, batches, keys, CFG, SEEDS)
         times = {}
@@ -238,8 +238,8 @@ def test_compile_included_clock_charges_and_snapshots(stand):
     from tkujax.studies.tune.lockstep import lockstep_calls
     from tkujax.studies.tune.study_clock import clocked_search
 
-    batches = [_records(N, 10 + s) for s in SEEDS]
-    keys = [_keys(N, s) for s in SEEDS]
+    batches = [stand_records(N, 10 + s) for s in SEEDS]
+    keys = [stand_keys(N, s) for s in SEEDS]
     calls = lockstep_calls(stand, batches, keys, CFG, 2)
     cfg = SearchConfig(budget_s=2.0, max_iterations=100_000, popsize=5, groups=2)
     times = dict(forward=5.0, population=1.0)

@@ -15,12 +15,13 @@ import pytest
 from tkujax.control.params import ControllerParams
 from tkujax.sim.records import Series
 from tkujax.studies.gradient.bundled import bundle_noise
-from tkujax.studies.spec import RANDOMIZE_DEFAULTS, SpecError
+from tkujax.studies.spec import SpecError
 from tkujax.studies.tune import DEG, LossConfig, Reparam, TuneProblem, parse_tune_spec
 from tkujax.studies.tune.loss import push_loss
 from tkujax.studies.tune.reparam import PAPER_TUNABLE
 from tkujax.studies.tune.report import gradient_section
 from tkujax.studies.tune.search import GradientOptions, SearchConfig, run_search
+from tests.test_tune import BATCH, two_pushes
 
 DT = 0.03
 MARGIN = LossConfig(kind="margin")
@@ -218,18 +219,6 @@ def test_bundled_run_draws_fresh_antithetic_noise_per_gradient_call():
 
 
 # -- through a tiny TuneProblem (compiles MJX: slow) ---------------------------------------
-BATCH = 2
-
-
-def _pushes(impulse_ns, azimuth_deg) -> dict:
-    d = dict(impulse_ns=np.array(impulse_ns, float), azimuth_deg=np.array(azimuth_deg, float),
-             height_m=np.full(BATCH, 0.36), duration_s=np.full(BATCH, 0.02),
-             onset_s=np.full(BATCH, 0.15))
-    for k, v in RANDOMIZE_DEFAULTS.items():
-        d[k] = np.full(BATCH, -1.0 if v is None else v)
-    return d
-
-
 KEYS = jax.random.split(jax.random.PRNGKey(0), BATCH)
 
 
@@ -244,7 +233,7 @@ def _problem(**kw) -> TuneProblem:
 def test_options_off_trace_the_program_they_always_were():
     """Explicitly-off options (no window, no timing gradient, bundle_sigma 0) trace the very
     jaxpr of the default problem; the margin kind, a window and the timing gradient do not."""
-    recs = _pushes([0.5, 0.5], [0.0, 180.0])
+    recs = two_pushes([0.5, 0.5], [0.0, 180.0])
 
     def jaxpr(p):
         z = np.zeros(p.reparam.size)
@@ -263,7 +252,7 @@ def test_options_off_trace_the_program_they_always_were():
 def test_bundled_problem_needs_noise_exactly_when_on():
     p = _problem(duration_s=0.15, float64=False)
     with pytest.raises(ValueError, match="noise"):
-        p.grouped_value_and_grad(np.zeros(p.reparam.size), 0.0, _pushes([0.5, 0.5], [0, 180]),
+        p.grouped_value_and_grad(np.zeros(p.reparam.size), 0.0, two_pushes([0.5, 0.5], [0, 180]),
                                  KEYS, 2, noise=np.zeros((2, p.reparam.size)))
     with pytest.raises(ValueError, match="bundle_sigma"):
         _problem(duration_s=0.15, float64=False, bundle_sigma=-1.0)
@@ -275,7 +264,7 @@ def test_margin_loss_through_the_tuner_matches_finite_differences():
     gradient are finite, the fall term is in (0, 1), and the gradient in two latents matches
     central differences (h = 1e-5) to 1e-3 relative."""
     p = _problem()
-    recs = _pushes([1.2, 1.0], [0.0, 180.0])
+    recs = two_pushes([1.2, 1.0], [0.0, 180.0])
     z0 = np.zeros(p.reparam.size)
     tau = 2.0 * DEG
     loss, aux, grad = p.value_and_grad(z0, tau, recs, KEYS)
@@ -294,7 +283,7 @@ def test_margin_loss_through_the_tuner_matches_finite_differences():
 def test_bundled_gradient_with_zero_noise_is_the_plain_one():
     p = _problem(bundle_sigma=0.1)
     q = _problem()
-    recs = _pushes([1.2, 1.0], [0.0, 180.0])
+    recs = two_pushes([1.2, 1.0], [0.0, 180.0])
     z0 = np.zeros(p.reparam.size)
     lb, gb = p.grouped_value_and_grad(z0, 2 * DEG, recs, KEYS, 2,
                                       noise=np.zeros((2, z0.size)))

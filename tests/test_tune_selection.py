@@ -18,7 +18,7 @@ from tkujax.studies.tune.selection import (FRESH_DRAW_SEED_STRIDE, BatchStream,
                                            ValidationSelector, incumbent)
 from tkujax.studies.tune.spec_tables import parse_study
 from tkujax.studies.validation import SpecError
-from tests.test_tune_lockstep import N, SEEDS, Z0, _keys, _records, _Stand
+from tests.test_tune_lockstep import N, SEEDS, Z0, StandIn, stand_keys, stand_records
 
 CFG = SearchConfig(budget_s=1e6, max_iterations=4, popsize=5, sigma0=0.3, groups=2,
                    learning_rate=0.1, temperature_deg=20.0)
@@ -26,7 +26,7 @@ CFG = SearchConfig(budget_s=1e6, max_iterations=4, popsize=5, sigma0=0.3, groups
 
 @pytest.fixture(scope="module")
 def stand():
-    return _Stand()
+    return StandIn()
 
 
 def _distance_rates(target):
@@ -69,8 +69,8 @@ def test_incumbent_is_the_cma_mean_or_the_iterate():
 def test_search_returns_the_selectors_best(stand, method):
     """The loop offers every incumbent (every_s tiny) and returns the selector's best, which
     the known landscape confirms; the start is returned when nothing beats it."""
-    batches = [_records(N, 10 + s) for s in SEEDS]
-    keys = [_keys(N, s) for s in SEEDS]
+    batches = [stand_records(N, 10 + s) for s in SEEDS]
+    keys = [stand_keys(N, s) for s in SEEDS]
     target = np.array([0.0, 0.0, 0.0])
     sel = ValidationSelector(_distance_rates(target), every_s=1e-9)
     rs = run_search_lockstep(method, stand, Z0, batches, keys, CFG, SEEDS, select=sel)
@@ -91,16 +91,16 @@ def test_fresh_batches_follow_the_stream(stand):
 
     def sample(seed):
         seen.append(seed)
-        return _records(N, seed), _keys(N, seed % 1000)
+        return stand_records(N, seed), stand_keys(N, seed % 1000)
 
     stream = BatchStream(sample, SEEDS, base_seed=7)
-    batches = [_records(N, 7 + s) for s in SEEDS]
-    keys = [_keys(N, 7 + s) for s in SEEDS]
+    batches = [stand_records(N, 7 + s) for s in SEEDS]
+    keys = [stand_keys(N, 7 + s) for s in SEEDS]
     calls = lockstep_calls(stand, batches, keys, CFG, len(SEEDS), stream=stream)
     calls.next_batch()
     assert seen == [7 + s + FRESH_DRAW_SEED_STRIDE for s in SEEDS]
     np.testing.assert_array_equal(calls.batch["impulse_ns"][1],
-                                  _records(N, 8 + FRESH_DRAW_SEED_STRIDE)["impulse_ns"])
+                                  stand_records(N, 8 + FRESH_DRAW_SEED_STRIDE)["impulse_ns"])
     a = run_search_lockstep("gradient", stand, Z0, batches, keys, CFG, SEEDS, stream=stream)
     b = run_search_lockstep("gradient", stand, Z0, batches, keys, CFG, SEEDS, stream=stream)
     fixed = run_search_lockstep("gradient", stand, Z0, batches, keys, CFG, SEEDS)
