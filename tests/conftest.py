@@ -46,3 +46,13 @@ class CompileCounter:
 @pytest.fixture
 def compiles() -> CompileCounter:
     return CompileCounter()
+
+
+@pytest.fixture(autouse=True, scope="module")
+def release_compiled_programs():
+    """After each test file, drop the compiled programs JAX keeps in memory. A worker runs
+    many files one after another (`--dist loadfile`), and their MJX programs add up to
+    several GB per worker on a 24 GB machine; a later file reads its programs back from the
+    persistent compilation cache."""
+    yield
+    jax.clear_caches()
