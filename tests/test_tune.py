@@ -428,6 +428,22 @@ def test_linesearch_rejects_a_wrong_gradient_and_tries_other_directions():
     assert r["best_loss"] < start                       # random rays found descent
 
 
+def test_linesearch_compares_with_the_incumbent_on_the_same_pushes():
+    """The ray ends with the incumbent itself: a ray point better than the incumbent's loss on
+    an earlier batch but worse than its loss on this one is not taken (fresh batches); the
+    radii shrink by ray_ratio."""
+    from tkujax.studies.tune.searchers import LineSearcher, SearchConfig
+
+    cfg = SearchConfig(popsize=5, ray_radius=4.0, ray_ratio=0.25)
+    s = LineSearcher(np.zeros(2), 1.0, cfg, seed=0)
+    points = s.ask(np.array([[1.0, 0.0], [1.0, 0.0]]))
+    np.testing.assert_allclose(points[:, 0], [-4.0, -1.0, -0.25, -0.0625, 0.0])
+    s.tell(points, np.array([0.8, 0.8, 0.8, 0.8, 0.5]))      # this batch: incumbent 0.5
+    assert s.moves == 0 and s.loss == 0.5 and np.all(s.z == 0.0)
+    s.tell(s.ask(None), np.array([0.8, 0.4, 0.8, 0.8, 0.5]))  # next direction: a move to r 1
+    assert s.moves == 1 and s.loss == 0.4 and s.radii_taken[-1] == 1.0
+
+
 def test_alpha_order_mix_trusts_the_lower_variance_and_rejects_bias():
     from tkujax.studies.tune.search import alpha_order_mix
 

@@ -459,7 +459,11 @@ def test_recommended_method_follows_the_study_evidence():
                 assert measured[n] == ("cma" if method == "sepcma" else method), (n, measured)
     assert recommended_method(16) == "cma" and recommended_method(8) == "cma"
     assert recommended_method(30) == "cma" and recommended_method(100) == "sepcma"
-    assert recommended_method(1000) == "sepcma"
+    assert recommended_method(300) == "sepcma" and recommended_method(1000) == "linesearch"
+    policy_study = summary.parent.parent / "gradients_paper/summary.json"
+    if policy_study.exists():
+        measured = recommend_methods(json.loads(policy_study.read_text()))
+        assert measured[1656] == "linesearch" and measured[80] == "sepcma", measured
     with pytest.raises(ValueError, match="n_params"):
         recommended_method(0)
     data = _spec_dict()

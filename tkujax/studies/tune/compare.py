@@ -58,7 +58,8 @@ def run_compare(spec: TuneSpec, out: Path, problem: TuneProblem,
     cfg = SearchConfig(budget_s=c["budget_s"], popsize=c["popsize"], sigma0=c["sigma0"],
                        zo_sigma=c["zo_sigma"], groups=c["groups"],
                        learning_rate=c["learning_rate"], temperature_deg=c["temperature_deg"],
-                       push_clip=c["push_clip"], ray_radius=c["ray_radius"])
+                       push_clip=c["push_clip"], ray_radius=c["ray_radius"],
+                       ray_ratio=c["ray_ratio"])
     shift_spec = shifted(spec)
     runs, evals = [], []
     for s in c["seeds"]:

@@ -97,7 +97,8 @@ def resolve_run(spec: TuneSpec, budget_s: float | None = None) -> TuneRun:
                        clip_norm=spec.clip_norm, sigma0=spec.baseline_sigma,
                        temperature_deg=c.get("temperature_deg", 0.5),
                        groups=c.get("groups", 4 if spec.batch % 4 == 0 else 1),
-                       ray_radius=c.get("ray_radius", 2.0))
+                       ray_radius=c.get("ray_radius", 2.0),
+                       ray_ratio=c.get("ray_ratio", 0.5))
     return TuneRun(spec, reparam, base, reparam.latent_of(base),
                    advised if spec.method == "auto" else spec.method, advised, cfg)
 

@@ -37,11 +37,12 @@ loss and the search configuration.
             the two disagree by more than 2 standard errors (the first-order gradient is then
             biased by a contact or gate discontinuity). Adam on the mix.
   linesearch  the clipped first-order gradient as a DIRECTION only, its step length chosen
-            on the hard loss: one batched call evaluates `popsize` points along the ray
-            (radii ray_radius, ray_radius/2, ...), and the best is taken only if it lowers the
-            hard loss (else the next direction: a push group's own gradient, then a random
-            one). A gradient is computed only after a move. The dimension study's answer to
-            the gradient's climb (results/tune_dimension): on this rough loss a local
+            on the hard loss: one batched call evaluates the incumbent and `popsize` - 1 points
+            along the ray (radii ray_radius, ray_radius x ray_ratio, ...), and the best is
+            taken only if it lowers the hard loss below the incumbent's on the same batch
+            (else the next direction: a push group's own gradient, then a random one). A
+            gradient is computed only after a move. The dimension study's answer to the
+            gradient's climb (results/tune_dimension): on this rough loss a local
             gradient predicts the loss a step away poorly, so the step is measured, not
             trusted.
   es        the (1+1)-ES with the 1/5 success rule on the hard loss (the simple baseline).
@@ -79,6 +80,7 @@ class SearchConfig:
     temperature_deg: float = 0.5      # soft gate of first-order gradients
     push_clip: float = 0.0            # > 0: clip each push's gradient at push_clip x median
     ray_radius: float = 2.0           # linesearch: the longest step of the first ray (latent)
+    ray_ratio: float = 0.5            # linesearch: each radius of a ray over the previous one
     guided_steps: tuple[float, ...] = (0.5, 1.0, 2.0)   # guided_*: step multipliers along -g
 
     @property
@@ -332,12 +334,13 @@ class LineSearcher:
     """The linesearch method: the incumbent (best hard loss so far), the directions of its
     last gradient (the batch mean, then each push group's) and the ray's length.
 
-    Each iteration evaluates `popsize` points z - r_j d/|d| with r_j = radius 2^-j; the best
-    replaces the incumbent only if its hard loss is lower (the incumbent never gets worse on
-    the training batch). After a move the next ray starts at 4 r* (capped at 4 ray_radius)
-    and a new gradient is needed; after a failed ray the next direction is tried: the push
-    groups' gradients, then random directions (the batch and point are the same, so the
-    gradient would be too)."""
+    Each iteration evaluates popsize - 1 points z - r_j d/|d| with r_j = radius ray_ratio^j,
+    and the incumbent z itself (last): the best point replaces the incumbent only if its hard
+    loss is lower than the incumbent's on the same pushes, so the comparison stays paired when
+    every iteration draws a fresh batch (study.fresh_batches). After a move the next ray
+    starts at 4 r* (capped at 4 ray_radius) and a new gradient is needed; after a failed ray
+    the next direction is tried: the push groups' gradients, then random directions (the
+    point is the same, so the gradient would be too)."""
 
     uses_gradient: ClassVar[bool] = True
     counter: ClassVar[str] = "it"
@@ -368,8 +371,8 @@ class LineSearcher:
             self.index, self.needs_gradient = 0, False
         d, self._kind = self._direction()
         d = d / np.linalg.norm(d)
-        self._radii = self.radius * 0.5 ** np.arange(self.cfg.popsize)
-        return self.z[None] - self._radii[:, None] * d[None]
+        self._radii = self.radius * self.cfg.ray_ratio ** np.arange(self.cfg.popsize - 1)
+        return np.concatenate([self.z[None] - self._radii[:, None] * d[None], self.z[None]])
 
     def _direction(self) -> tuple[np.ndarray, str]:
         if self.index < len(self.directions):
@@ -381,7 +384,8 @@ class LineSearcher:
 
     def tell(self, points, losses) -> None:
         losses = np.array([finite_loss(v) for v in losses])
-        j = int(np.argmin(losses))
+        self.loss = float(losses[-1])               # the incumbent, on this iteration's pushes
+        j = int(np.argmin(losses[:-1]))
         self.kinds.append(self._kind)
         if losses[j] < self.loss:
             self.z, self.loss = np.asarray(points[j], float), float(losses[j])

@@ -19,7 +19,8 @@ def policy_name(key: str, value) -> str:
 
 
 COMPARE_FIELDS = {"methods", "seeds", "budget_s", "popsize", "sigma0", "zo_sigma", "groups",
-                  "learning_rate", "temperature_deg", "push_clip", "ray_radius", "eval_n"}
+                  "learning_rate", "temperature_deg", "push_clip", "ray_radius", "ray_ratio",
+                  "eval_n"}
 
 
 def methods_list(table: str, c: dict, default: list) -> list:
@@ -59,6 +60,8 @@ def search_settings(table: str, c: dict, batch: int, popsize: int, budget_s: flo
         # linesearch: the longest step of its first ray (searchers.LineSearcher)
         ray_radius=number(f"{table}.ray_radius", c.get("ray_radius", 2.0), 1e-3, 100.0,
                            "(latent)"),
+        ray_ratio=number(f"{table}.ray_ratio", c.get("ray_ratio", 0.5), 0.05, 0.95,
+                          "(each radius over the previous)"),
         eval_n=integer(f"{table}.eval_n", c.get("eval_n", 4 * batch), 1, 10_000_000))
 
 
@@ -74,7 +77,8 @@ def parse_compare(raw, batch: int) -> dict:
 
 
 STUDY_FIELDS = {"policies", "methods", "seeds", "budget_s", "popsize", "sigma0", "zo_sigma",
-                "push_clip", "ray_radius", "groups", "learning_rate", "temperature_deg", "eval_n",
+                "push_clip", "ray_radius", "ray_ratio", "groups", "learning_rate",
+                "temperature_deg", "eval_n",
                 "above_impulse_ns", "sep_cma_from", "margin_s", "compile_s", "seeds_side_by_side",
                 "guided_steps", "budget_includes_compile", "heldout_checkpoints", "select",
                 "select_n", "select_every_s", "fresh_batches"}

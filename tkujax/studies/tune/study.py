@@ -311,6 +311,7 @@ class StudyRunner:
                            groups=st["groups"], learning_rate=st["learning_rate"],
                            clip_norm=spec.clip_norm, temperature_deg=st["temperature_deg"],
                            push_clip=st["push_clip"], ray_radius=st["ray_radius"],
+                           ray_ratio=st["ray_ratio"],
                            guided_steps=st["guided_steps"])
         return problem, rep, z0, variant, m, cfg
 
