@@ -496,3 +496,20 @@ def test_heldout_curve_reuses_the_start_and_best_evaluations():
     assert [[p["heldout_fall"] for p in c] for c in curves] == [[1.0, 0.25, 0.0],
                                                                  [0.5, 0.25, 0.0]]
     assert [p["wall_s"] for p in curves[0]] == [1.0, 2.0, 3.0]
+
+
+def test_budget_override_replaces_the_study_budget_and_is_checked(monkeypatch, tmp_path):
+    """`tkujax tune SPEC --budget-s S` (run_tune's budget_s) gives a [study] spec's runs that
+    budget; a budget outside [1 s, 1 day] is refused naming the key."""
+    import tkujax.studies.tune.study as study_module
+    from tkujax.studies.tune.run import run_tune
+
+    seen = []
+    monkeypatch.setattr(study_module, "run_study",
+                        lambda spec, out_dir, **kw: seen.append(spec.study["budget_s"]) or {})
+    data = _spec_dict()
+    run_tune(data, tmp_path, budget_s=210.0)
+    run_tune(data, tmp_path)
+    assert seen == [210.0, parse_tune_spec(data).study["budget_s"]]
+    with pytest.raises(SpecError, match=r"budget_s \(study.budget_s\).*out of range"):
+        run_tune(data, tmp_path, budget_s=0.5)

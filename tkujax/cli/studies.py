@@ -47,7 +47,7 @@ def _cmd_tune(args) -> int:
 
     record = run_tune(args.spec, args.out, iterations=args.iterations,
                       compare=not args.no_compare, evaluation=not args.no_eval,
-                      only=args.only, deadline_s=args.deadline_s,
+                      only=args.only, deadline_s=args.deadline_s, budget_s=args.budget_s,
                       robot=tune_robot(read_toml(args.spec), args.robot))
     if "summary" in record and "left" in record:          # a [study] spec
         print(Path(args.out, "study.md").read_text())
@@ -108,6 +108,9 @@ def _add_tune(sub) -> None:
     p.add_argument("--deadline-s", type=float, default=None,
                    help="[study] specs: start no run that would end after this many seconds "
                         "(finished runs are kept; rerun to resume)")
+    p.add_argument("--budget-s", type=float, default=None,
+                   help="override the search's wall-clock budget per run (s; [study] specs: "
+                        "study.budget_s)")
     p.set_defaults(func=_cmd_tune)
 
 

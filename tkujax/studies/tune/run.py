@@ -29,7 +29,7 @@ from tkujax.studies.tune.problem import x64
 from tkujax.studies.tune.policy import PolicyReparam, save_policy
 from tkujax.studies.tune.report import plot_outputs, summary_markdown
 from tkujax.studies.tune.search import GradientOptions, SearchConfig, calls_used, run_search
-from tkujax.studies.validation import integer
+from tkujax.studies.validation import integer, number
 from tkujax.studies.tune.robot import on_robot, robot_record
 from tkujax.studies.tune.spec import (TuneSpec, ensembles_record, grid_pushes,
                                       load_tune_spec, make_problem, parse_tune_spec,
@@ -51,7 +51,8 @@ def run_tune(spec: TuneSpec | dict | str | Path, out_dir: str | Path, quiet: boo
     A spec with a [study] table runs the dimension study instead (tkujax.studies.tune.study;
     only: its run filters, deadline_s: start no run that would end after it). robot: the
     RobotSetup to tune on (tkujax.robot.runs.tune_robot loads the spec's [robot] file). budget_s:
-    stop the search after this many seconds of generations (compile excluded).
+    stop the search after this many seconds of generations (compile excluded); with a [study]
+    table it replaces study.budget_s (each run records the budget it had).
     """
     if isinstance(spec, dict):
         spec = parse_tune_spec(spec)
@@ -63,6 +64,10 @@ def run_tune(spec: TuneSpec | dict | str | Path, out_dir: str | Path, quiet: boo
                                                          iterations, 1, 100_000))
     if spec.study is not None:
         from tkujax.studies.tune.study import run_study
+
+        if budget_s is not None:
+            spec = dataclasses.replace(spec, study={**spec.study, "budget_s": number(
+                "budget_s (study.budget_s)", budget_s, 1.0, 86_400.0, "s")})
 
         return run_study(spec, out_dir, only=only, deadline_s=deadline_s, quiet=quiet,
                          compiler_options=compiler_options)
