@@ -36,15 +36,11 @@ loss and the search configuration.
             pairs, giving its variance): alpha = var_ZO / (var_FO + var_ZO), and alpha = 0 when
             the two disagree by more than 2 standard errors (the first-order gradient is then
             biased by a contact or gate discontinuity). Adam on the mix.
-  linesearch  the clipped first-order gradient as a DIRECTION only, its step length chosen
-            on the hard loss: one batched call evaluates the incumbent and `popsize` - 1 points
-            along the ray (radii ray_radius, ray_radius x ray_ratio, ...), and the best is
-            taken only if it lowers the hard loss below the incumbent's on the same batch
-            (else the next direction: a push group's own gradient, then a random one). A
-            gradient is computed only after a move. The dimension study's answer to the
-            gradient's climb (results/tune_dimension): on this rough loss a local
-            gradient predicts the loss a step away poorly, so the step is measured, not
-            trusted.
+  linesearch  the clipped first-order gradient as a DIRECTION only, its step length measured
+            on the hard loss along a ray, against the incumbent on the same pushes
+            (`LineSearcher`). The dimension study's answer to the gradient's climb
+            (results/tune_dimension): on this rough loss a local gradient predicts the loss a
+            step away poorly, so the step is measured, not trusted.
   es        the (1+1)-ES with the 1/5 success rule on the hard loss (the simple baseline).
   guided_sepcma, guided_cma  sep-CMA-ES / CMA-ES whose every generation also tries the
             first-order gradient: candidates m - sigma sqrt(k) a g/|g| along the gradient g at
