@@ -275,6 +275,8 @@ def test_study_resumes_and_summarises(tmp_path):
     assert [r["n_params"] for r in rows] == sorted(r["n_params"] for r in rows)
     md = (tmp_path / "study.md").read_text()
     assert "| 22 | cma |" in md or "| 22 | gradient |" in md    # a method per size
+    clock = "included" if spec.study.get("budget_includes_compile") else "excluded"
+    assert f"per run (compile {clock})" in md
     assert (tmp_path / "study.png").exists() and (tmp_path / "convergence.png").exists()
     third = _FakeRunner()
     run_study(spec, tmp_path, runner=third, quiet=True)
@@ -459,11 +461,14 @@ def test_recommended_method_follows_the_study_evidence():
                 assert measured[n] == ("cma" if method == "sepcma" else method), (n, measured)
     assert recommended_method(16) == "cma" and recommended_method(8) == "cma"
     assert recommended_method(30) == "cma" and recommended_method(100) == "sepcma"
-    assert recommended_method(300) == "sepcma" and recommended_method(1000) == "linesearch"
-    policy_study = summary.parent.parent / "gradients_paper/summary.json"
-    if policy_study.exists():
-        measured = recommend_methods(json.loads(policy_study.read_text()))
-        assert measured[1656] == "linesearch" and measured[80] == "sepcma", measured
+    assert recommended_method(150) == "sepcma" and recommended_method(300) == "linesearch"
+    assert recommended_method(1000) == "linesearch"
+    for study, sizes in (("gradients_paper", (80, 1656)), ("gradients_paper_mlpr16", (296,))):
+        path = summary.parent.parent / study / "summary.json"
+        if path.exists():
+            measured = recommend_methods(json.loads(path.read_text()))
+            for n in sizes:
+                assert measured[n] == dict(EVIDENCE)[n], (study, n, measured)
     with pytest.raises(ValueError, match="n_params"):
         recommended_method(0)
     data = _spec_dict()

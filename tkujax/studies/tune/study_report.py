@@ -32,7 +32,8 @@ def study_markdown(rows: list[dict], spec=None) -> str:
         s = spec.study
         lines += [f"Spec {spec.name}: policies {s['policies']}, methods {s['methods']}, seeds "
                   f"{s['seeds']}, {s['budget_s']:g} s of wall clock per run (compile "
-                  f"excluded), batch {spec.batch} pushes x {spec.duration_s} s"
+                  f"{'included' if s.get('budget_includes_compile') else 'excluded'}), batch "
+                  f"{spec.batch} pushes x {spec.duration_s} s"
                   + ("; the seeds of one policy and method side by side, sharing one device "
                      "and one budget (study.seeds_side_by_side)." if s.get("seeds_side_by_side")
                      else "; one run after another, each with the device alone."), ""]
