@@ -461,9 +461,10 @@ def test_recommended_method_follows_the_study_evidence():
                 assert measured[n] == ("cma" if method == "sepcma" else method), (n, measured)
     assert recommended_method(16) == "cma" and recommended_method(8) == "cma"
     assert recommended_method(30) == "cma" and recommended_method(100) == "sepcma"
-    assert recommended_method(150) == "sepcma" and recommended_method(300) == "linesearch"
+    assert recommended_method(130) == "sepcma" and recommended_method(300) == "linesearch"
     assert recommended_method(1000) == "linesearch"
-    for study, sizes in (("gradients_paper", (80, 1656)), ("gradients_paper_mlpr16", (296,))):
+    for study, sizes in (("gradients_paper", (80, 1656)), ("gradients_paper_mlpr8", (160,)),
+                         ("gradients_paper_mlpr16", (296,))):
         path = summary.parent.parent / study / "summary.json"
         if path.exists():
             measured = recommend_methods(json.loads(path.read_text()))
