@@ -55,6 +55,21 @@ def test_two_early_runs_are_identical(early_run, tmp_path):
 
 
 @pytest.mark.slow
+def test_exact_replay_of_an_early_record_is_bit_identical(early_run):
+    """`replay(exact=True)` runs the record in the sweep's lanes (the others idle, from the
+    stand, not the chunk's snapshot): every stored column, the ones an early record reads up
+    to its fall decision and decided_s included, equals the stored bits."""
+    from tkujax.studies.replay import replay
+
+    out, _, reference = early_run
+    for i in (int(np.flatnonzero(reference["fell"])[0]),
+              int(np.flatnonzero(~reference["fell"])[-1])):
+        result = replay(out, i, exact=True)
+        assert result["identical"], result["differences"]
+        assert {"decided_s", "peak_incl_deg", "fell"} <= set(result["replayed"])
+
+
+@pytest.mark.slow
 def test_interrupted_early_run_resumes_identically(early_run, tmp_path):
     _, _, reference = early_run
     first = run_sweep(_spec(), tmp_path, max_chunks=1, quiet=True, backend="mjx")

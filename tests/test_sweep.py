@@ -213,6 +213,23 @@ def test_full_run_records_and_manifest(full_run):
 
 
 @pytest.mark.slow
+def test_exact_replay_matches_the_stored_record_bit_for_bit(full_run, capsys):
+    """`tkujax replay --exact` re-runs an MJX record by the sweep's own program at its batch
+    shape: a fallen and a survived record equal the stored ones in every column's bits (the
+    plain replay, a batch of one, need only agree to rounding)."""
+    from tkujax.cli import main
+    from tkujax.studies.replay import replay
+
+    out, _, rec = full_run
+    for i in (int(np.flatnonzero(rec["fell"])[-1]), int(np.flatnonzero(~rec["fell"])[-1])):
+        result = replay(out, i, exact=True)
+        assert result["exact"] and result["identical"], result["differences"]
+        assert set(result["replayed"]) >= {"fell", "peak_incl_deg", "recovery_time_s"}
+    assert main(["replay", str(out), "--index", str(i), "--exact"]) == 0
+    assert "bit for bit" in capsys.readouterr().out
+
+
+@pytest.mark.slow
 def test_interrupted_sweep_resumes_identically(full_run, tmp_path):
     _, _, reference = full_run
     first = run_sweep(TINY, tmp_path, max_chunks=1, quiet=True, backend="mjx")  # interrupted

@@ -51,7 +51,10 @@ def _print_replay(result: dict) -> None:
           f"{_numbers(push)}")
     print(f"stored:   {_numbers({k: result['stored'][k] for k in result['replayed']})}")
     print(f"replayed: {_numbers(result['replayed'])}")
-    if result["identical"]:
+    if result["identical"] and result.get("exact"):
+        print("replayed outcome equals the stored one bit for bit (every column; the sweep's "
+              "own program)")
+    elif result["identical"]:
         print("replayed outcome equals the stored one (every column)")
     elif result["same_outcome"]:
         print("replayed outcome equals the stored one (fell, diverged); numbers differ beyond "
@@ -86,11 +89,13 @@ def _cmd_replay(args) -> int:
 
     from tkujax.robot.runs import sweep_robot
 
-    result = replay(args.run_dir, args.index, robot=sweep_robot(args.run_dir, args.robot))
+    result = replay(args.run_dir, args.index, robot=sweep_robot(args.run_dir, args.robot),
+                    exact=args.exact)
     _print_replay(result)
     if args.out:
         _write_replay_video(result, args)
-    return 0 if result["same_outcome"] else 1
+    ok = result["identical"] if result["exact"] else result["same_outcome"]
+    return 0 if ok else 1
 
 
 def _cmd_capture(args) -> int:
@@ -165,6 +170,9 @@ def _add_replay(sub) -> None:
     p.add_argument("--out", default=None, help="GIF to write (needs EGL or OSMesa)")
     p.add_argument("--width", type=int, default=480)
     p.add_argument("--height", type=int, default=400)
+    p.add_argument("--exact", action="store_true",
+                   help="MJX: also re-run the record by the sweep's own program at its batch "
+                        "shape and compare bit for bit (exit 1 unless identical; costs a chunk)")
     add_robot_check_option(p)
     p.set_defaults(func=_cmd_replay)
 

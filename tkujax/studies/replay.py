@@ -9,7 +9,9 @@ backend recorded in the manifest. The noise is the sweep's too:
   MJX: the record alone, with its key from the sweep's per-chunk derivation:
     split(fold_in(PRNGKey(seed), chunk), padded_chunk)[position]. A batch of one compiles
     differently from the sweep's batch, so floats may differ in the last bits (and, after a
-    fall, by more: the tumbling is chaotic); fell and diverged are what must agree.
+    fall, by more: the tumbling is chaotic); fell and diverged are what must agree. With
+    exact=True the outcomes come from the sweep's own program at its shape instead
+    (`tkujax.studies.replay_exact`), compared bit for bit.
 
 A manifest written by an older tkujax lacks the parameter fields added since: each takes the
 value that reproduces the code from before it existed (`tkujax.studies.record_schema`), and the
@@ -61,7 +63,7 @@ def _differences(stored: dict, replayed: dict) -> dict:
     return out
 
 
-def replay(run_dir: str | Path, index: int, robot=None) -> dict:
+def replay(run_dir: str | Path, index: int, robot=None, exact: bool = False) -> dict:
     """Re-simulate record `index` (its push_id) of the sweep in `run_dir`.
 
     Returns dict(index, chunk, backend, stored, replayed (outcome columns), same_outcome
@@ -70,7 +72,9 @@ def replay(run_dir: str | Path, index: int, robot=None) -> dict:
     record's robot: its ensemble member, or the sweep's model; None: the default),
     fields_missing (`tkujax.studies.record_schema.fields_missing`: what an older
     manifest lacks, and the value used)). robot: the RobotSetup a robot sweep ran on (checked
-    against the manifest's sha256; `tkujax.robot.runs.sweep_robot` loads it)."""
+    against the manifest's sha256; `tkujax.robot.runs.sweep_robot` loads it). exact (MJX):
+    the outcomes by the sweep's own program (`tkujax.studies.replay_exact`); identical then
+    means equal bit for bit, in every outcome column the chunk stores."""
     run_dir = Path(run_dir)
     manifest = chunks.read_manifest(run_dir)
     if not manifest:
@@ -124,12 +128,20 @@ def replay(run_dir: str | Path, index: int, robot=None) -> dict:
         key = chunk_keys(spec.seed, chunk, padded)[pos:pos + 1]
         res = jax.tree_util.tree_map(lambda x: np.asarray(x)[0],
                                      fn(one, key, traced_params(base), schedule))
-    replayed = {k: res[k] for k in OUTCOME_KEYS if k in stored}
-    if spec.decisions.early and bool(stored["fell"]):
-        # The replay runs the full horizon; an early record read these up to its fall decision.
-        replayed = {k: v for k, v in replayed.items() if k not in TRUNCATED_WHEN_FALLEN}
-    differences = _differences(stored, replayed)
-    return dict(index=index, chunk=chunk, backend=backend,
+    exact = exact and backend != "mujoco"      # MuJoCo C re-runs the whole chunk anyway
+    if exact:
+        from tkujax.studies.replay_exact import bitwise_differences, exact_outcomes
+
+        out = exact_outcomes(spec, manifest, inputs, chunk, pos, base, model_params, schedule)
+        replayed = {k: v for k, v in out.items() if k in stored}
+        differences = bitwise_differences(stored, replayed)
+    else:
+        replayed = {k: res[k] for k in OUTCOME_KEYS if k in stored}
+        if spec.decisions.early and bool(stored["fell"]):
+            # The replay runs the full horizon; an early record read these up to its fall.
+            replayed = {k: v for k, v in replayed.items() if k not in TRUNCATED_WHEN_FALLEN}
+        differences = _differences(stored, replayed)
+    return dict(index=index, chunk=chunk, backend=backend, exact=exact,
                 stored={k: stored[k].item() for k in stored},
                 replayed={k: np.asarray(v).item() for k, v in replayed.items()},
                 same_outcome=not ({"fell", "diverged"} & set(differences)),
