@@ -185,7 +185,7 @@ def step_verdict(args, out: Path, deadline: float) -> dict:
     from tkujax.robot.closed_loop import robot_setup
     from tkujax.studies.compare import Bands, compare_runs
 
-    tuned = out / "tune" / "params_tuned.json"
+    tuned = Path(args.params) if args.params else out / "tune" / "params_tuned.json"
     if not tuned.is_file():
         # Not "skipped": a later run resumes here once the tune has finished.
         return dict(status="waiting", why="no tuned controller (the tune step did not finish)")
@@ -258,6 +258,9 @@ def parse_args(argv=None):
                     help="seconds of CMA-ES generations, compile excluded (default: from the "
                          "tune's time box, as the variant says)")
     ap.add_argument("--min-pushes", type=int, default=100, help="verdict: cells checked")
+    ap.add_argument("--params", default=None,
+                    help="verdict: judge this controller parameter file instead of the tune's "
+                         "(e.g. specs/robots/op3_front.json)")
     ap.add_argument("--redo", action="store_true", help="run finished steps again")
     ap.add_argument("--tar", default=None, help="pack the output folder into this .tar.gz")
     return ap.parse_args(argv)
