@@ -8,11 +8,14 @@ control off, vs_tuned the change against the tuned set.
     TKUJAX_MENAGERIE=... python scripts/op3_front_check.py --n 256 --front --variants tuned bwd3
 """
 from __future__ import annotations
-import argparse, json, sys, time
+import argparse
+import json
+import sys
+import time
 from pathlib import Path
-import numpy as np, jax.numpy as jnp
+import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from op3_gate_check import heldout_like, SECTORS  # noqa: E402
+from op3_gate_check import heldout_like, SECTORS
 from tkujax.control.io import controller_params_from
 from tkujax.robot.closed_loop import robot_setup
 from tkujax.sim.options import RolloutConfig
@@ -20,9 +23,7 @@ from tkujax.sim.push import Push
 from tkujax.sim.rollout_mujoco import simulate_mujoco
 
 REPO = Path(__file__).resolve().parents[1]
-TUNED = json.loads((REPO / "results/op3/gate/tune/params_tuned.json").read_text()
-                   if (REPO / "results/op3/gate/tune/params_tuned.json").exists() else
-                   Path("/work/main/results/op3/gate/tune/params_tuned.json").read_text())
+TUNED = json.loads((REPO / "results/op3/gate/tune/params_tuned.json").read_text())
 VARIANTS = {
     "off": None,
     "tuned": {},
@@ -65,8 +66,9 @@ def main():
         t0 = time.time()
         _, o = simulate_mujoco(push, np.full(n, 0.0 if over is None else 1.0), p, robot=robot,
                                config=RolloutConfig(duration_s=2.0))
-        fell = np.asarray(o.fell, bool); falls[name] = fell
-        off = falls["off"]; tu = falls.get("tuned", fell)
+        fell = np.asarray(o.fell, bool)
+        falls[name] = fell
+        off, tu = falls["off"], falls.get("tuned", fell)
         r = dict(overrides=over, falls=int(fell.sum()), harm=int((fell & ~off).sum()),
                  saved=int((off & ~fell).sum()), worse_than_tuned=int((fell & ~tu).sum()),
                  better_than_tuned=int((tu & ~fell).sum()), falls_1_2_to_1_7=int(fell[band].sum()),

@@ -6,8 +6,9 @@ the swing foot, the IK's reachability, the feet's x at touchdown and the capture
 (world x relative to the rearmost ankle; OP3's heel reaches 6.35 cm behind the ankle).
 """
 from __future__ import annotations
-import json, sys
-import numpy as np, jax.numpy as jnp
+import json
+import numpy as np
+import jax.numpy as jnp
 from pathlib import Path
 from tkujax.control.io import controller_params_from
 from tkujax.robot.closed_loop import robot_setup
@@ -16,22 +17,26 @@ from tkujax.sim.push import Push
 from tkujax.sim.rollout_mujoco import simulate_mujoco
 
 REPO = Path(__file__).resolve().parents[1]
-TUNED = json.loads((Path("/work/main/results/op3/gate/tune/params_tuned.json")).read_text())
+TUNED = json.loads((REPO / "results/op3/gate/tune/params_tuned.json").read_text())
 
 
 def diag(over, imps, onset=0.4, height=0.275, dur=0.02, label=""):
     robot = robot_setup(str(REPO / "specs" / "robots" / "op3.toml"))
     n = len(imps)
-    f = lambda v: jnp.asarray(np.broadcast_to(v, (n,)), jnp.float32)
+
+    def f(v):
+        return jnp.asarray(np.broadcast_to(v, (n,)), jnp.float32)
+
     push = Push(impulse_ns=f(imps), azimuth_rad=f(np.pi), height_m=f(height), duration_s=f(dur),
                 onset_s=f(onset))
     on = over is not None
     params = controller_params_from(robot.params, over or {}).validate()
     s, o = simulate_mujoco(push, np.full(n, 1.0 if on else 0.0), params, robot=robot,
                            config=RolloutConfig(duration_s=2.0))
-    t = np.asarray(s.t); com = np.asarray(s.com); ra = np.asarray(s.r_ankle); la = np.asarray(s.l_ankle)
-    w = np.asarray(s.step_weight); xs = np.asarray(s.x_sup); reach = np.asarray(s.reachable)
-    pe = np.degrees(np.asarray(s.pitch_est)); pt = np.degrees(np.asarray(s.pitch))
+    t, com = np.asarray(s.t), np.asarray(s.com)
+    ra, la = np.asarray(s.r_ankle), np.asarray(s.l_ankle)
+    w, xs, reach = np.asarray(s.step_weight), np.asarray(s.x_sup), np.asarray(s.reachable)
+    pe, pt = np.degrees(np.asarray(s.pitch_est)), np.degrees(np.asarray(s.pitch))
     om = np.sqrt(9.81 / 0.262)
     print(f"== {label}")
     for i in range(n):
@@ -45,13 +50,14 @@ def diag(over, imps, onset=0.4, height=0.275, dur=0.02, label=""):
             per = params.step_period
             kt = min(int(np.searchsorted(ti, ti[k] + float(per))), len(ti) - 1)
             back = min(ra[i, kt, 0], la[i, kt, 0])
-            line += (f"trig t-onset={ti[k]-onset:.3f}s x_sup={xs[i,k]*100:+.1f}cm pitch_true={pt[i,k]:+.1f} "
-                     f"est={pe[i,k]:+.1f} | td(+{per:.2f}s): rA={ra[i,kt,0]*100:+.1f} lA={la[i,kt,0]*100:+.1f} "
+            line += (f"trig t-onset={ti[k]-onset:.3f}s x_sup={xs[i,k]*100:+.1f}cm "
+                     f"pitch_true={pt[i,k]:+.1f} est={pe[i,k]:+.1f} | td(+{per:.2f}s): "
+                     f"rA={ra[i,kt,0]*100:+.1f} lA={la[i,kt,0]*100:+.1f} "
                      f"cp={cp[kt]*100:+.1f} cp-rearAnkle={(cp[kt]-back)*100:+.1f}cm "
                      f"unreach={int((reach[i]<0.5).sum())} xsup_final={xs[i,-1]*100:+.1f}")
         else:
             line += "no step"
-        kmin = np.argmin(cp[: len(ti) // 2]); line += f" | cp_min={cp.min()*100:+.1f}"
+        line += f" | cp_min={cp.min()*100:+.1f}"
         print(line, flush=True)
     return o
 

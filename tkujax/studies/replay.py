@@ -108,39 +108,10 @@ def replay(run_dir: str | Path, index: int, robot=None, exact: bool = False) -> 
     lo, hi = chunk * size, min((chunk + 1) * size, n)
     inputs = {k: recs[k][lo:hi] for k in recs if k not in ("push_id", "from_grid")}
     backend = manifest.get("backend", "mjx")
-    if backend == "mujoco":
-        res = mujoco_chunk(inputs, spec.seed + chunk, base, spec.duration_s, model_params,
-                           with_qpos=True, varied=tuple(sorted(spec.controller_grid)),
-                           steps=bool(spec.step_grid),
-                           fpga=spec.fpga if spec.arithmetic == "fixed" else None,
-                           fpga_varied=tuple(sorted(spec.fpga_grid)), ensemble=spec.ensemble,
-                           schedule=schedule)
-        res = {k: v[pos] for k, v in res.items()}
-    else:
-        import jax
-
-        padded = int(manifest.get("padded_chunk", size))
-        fn = make_chunk_fn(tuple(sorted(spec.controller_grid)), spec.duration_s,
-                           model_params, with_qpos=True, steps=bool(spec.step_grid),
-                           fixed=spec.fixed_point_config({k: v[pos] for k, v in inputs.items()}),
-                           ensemble=spec.ensemble, tree_passes=spec.tree_passes)
-        one = {k: np.asarray(v[pos:pos + 1], np.float32) for k, v in inputs.items()}
-        key = chunk_keys(spec.seed, chunk, padded)[pos:pos + 1]
-        res = jax.tree_util.tree_map(lambda x: np.asarray(x)[0],
-                                     fn(one, key, traced_params(base), schedule))
+    res = _rerun(spec, manifest, inputs, chunk, pos, base, model_params, schedule, backend)
     exact = exact and backend != "mujoco"      # MuJoCo C re-runs the whole chunk anyway
-    if exact:
-        from tkujax.studies.replay_exact import bitwise_differences, exact_outcomes
-
-        out = exact_outcomes(spec, manifest, inputs, chunk, pos, base, model_params, schedule)
-        replayed = {k: v for k, v in out.items() if k in stored}
-        differences = bitwise_differences(stored, replayed)
-    else:
-        replayed = {k: res[k] for k in OUTCOME_KEYS if k in stored}
-        if spec.decisions.early and bool(stored["fell"]):
-            # The replay runs the full horizon; an early record read these up to its fall.
-            replayed = {k: v for k, v in replayed.items() if k not in TRUNCATED_WHEN_FALLEN}
-        differences = _differences(stored, replayed)
+    replayed, differences = _compared(spec, manifest, stored, res, inputs, chunk, pos, base,
+                                      model_params, schedule, exact)
     return dict(index=index, chunk=chunk, backend=backend, exact=exact,
                 stored={k: stored[k].item() for k in stored},
                 replayed={k: np.asarray(v).item() for k, v in replayed.items()},
@@ -151,3 +122,45 @@ def replay(run_dir: str | Path, index: int, robot=None, exact: bool = False) -> 
                 model_params=(model_params if spec.ensemble is None else
                               spec.ensemble.members[int(stored["robot_id"])]),
                 control_period_s=RolloutConfig().control_period_s)
+
+
+def _rerun(spec, manifest: dict, inputs: dict, chunk: int, pos: int, base, model_params,
+           schedule, backend: str) -> dict:
+    """The record's outcome columns and qpos: MuJoCo C re-runs its whole chunk; MJX runs the
+    record alone (with qpos, for rendering)."""
+    if backend == "mujoco":
+        res = mujoco_chunk(inputs, spec.seed + chunk, base, spec.duration_s, model_params,
+                           with_qpos=True, varied=tuple(sorted(spec.controller_grid)),
+                           steps=bool(spec.step_grid),
+                           fpga=spec.fpga if spec.arithmetic == "fixed" else None,
+                           fpga_varied=tuple(sorted(spec.fpga_grid)), ensemble=spec.ensemble,
+                           schedule=schedule)
+        return {k: v[pos] for k, v in res.items()}
+    import jax
+
+    padded = int(manifest.get("padded_chunk", spec.chunk_size))
+    fn = make_chunk_fn(tuple(sorted(spec.controller_grid)), spec.duration_s,
+                       model_params, with_qpos=True, steps=bool(spec.step_grid),
+                       fixed=spec.fixed_point_config({k: v[pos] for k, v in inputs.items()}),
+                       ensemble=spec.ensemble, tree_passes=spec.tree_passes)
+    one = {k: np.asarray(v[pos:pos + 1], np.float32) for k, v in inputs.items()}
+    key = chunk_keys(spec.seed, chunk, padded)[pos:pos + 1]
+    return jax.tree_util.tree_map(lambda x: np.asarray(x)[0],
+                                  fn(one, key, traced_params(base), schedule))
+
+
+def _compared(spec, manifest, stored: dict, res: dict, inputs, chunk, pos, base, model_params,
+              schedule, exact: bool) -> tuple[dict, dict]:
+    """(replayed outcome columns, {column: (stored, replayed)} that differ). exact: the
+    columns of the sweep's own program, compared bit for bit."""
+    if exact:
+        from tkujax.studies.replay_exact import bitwise_differences, exact_outcomes
+
+        out = exact_outcomes(spec, manifest, inputs, chunk, pos, base, model_params, schedule)
+        replayed = {k: v for k, v in out.items() if k in stored}
+        return replayed, bitwise_differences(stored, replayed)
+    replayed = {k: res[k] for k in OUTCOME_KEYS if k in stored}
+    if spec.decisions.early and bool(stored["fell"]):
+        # The replay runs the full horizon; an early record read these up to its fall.
+        replayed = {k: v for k, v in replayed.items() if k not in TRUNCATED_WHEN_FALLEN}
+    return replayed, _differences(stored, replayed)

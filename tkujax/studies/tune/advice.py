@@ -5,8 +5,8 @@
 `results/tune_dimension` (the dimension study: one NVIDIA H100, 120 s of wall clock per run,
 3 seeds side by side) up to 128 parameters, from `results/gradients_paper_mlpr8` and
 `results/gradients_paper_mlpr16` (one NVIDIA H200, 210 s per run compile included) at 160 and
-296, and from `results/gradients_paper` (140 s) at the policy size: the method with the lowest mean held-out fall rate per size among those run so
-far, updated with those studies.
+296, and from `results/gradients_paper` (140 s) at the policy size: the method with the
+lowest mean held-out fall rate per size among those run so far, updated with those studies.
 """
 
 from __future__ import annotations
