@@ -41,7 +41,9 @@ def exact_outcomes(spec, manifest: dict, inputs: dict, chunk: int, pos: int, bas
     sharding = _sharding()
     n_devices = len(sharding.mesh.devices.flat)
     padded = int(manifest.get("padded_chunk", spec.chunk_size))
-    one = {k: np.asarray(v[pos:pos + 1]) for k, v in inputs.items()}
+    # The sweep's input columns (`tkujax.studies.sweep._ChunkJob.input_keys`): the same
+    # arguments, so the same program.
+    one = {k: np.asarray(v[pos:pos + 1]) for k, v in inputs.items() if k != "case_id"}
     fixed = spec.fixed_point_config({k: v[0] for k, v in one.items()})
     varied, steps = tuple(sorted(spec.controller_grid)), bool(spec.step_grid)
     keys = np.asarray(chunk_keys(spec.seed, chunk, padded))[pos:pos + 1]
