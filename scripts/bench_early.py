@@ -45,6 +45,15 @@ def timed(fn, repeats: int = 2) -> tuple[object, float, float]:
     return out, first, best
 
 
+def emit(res: dict, out: str | None) -> None:
+    """Print res as JSON, and also write it to `out` when given."""
+    text = json.dumps(res, indent=1)
+    print(text)
+    if out:
+        with open(out, "w") as fh:
+            fh.write(text + "\n")
+
+
 def measure(spec, n: int, lanes: int, repeats: int = 2) -> dict:
     """Full horizon and early decisions on the first n records of `spec`."""
     from tkujax.studies import early
@@ -142,11 +151,7 @@ def main(argv=None) -> None:
         res = measure_refill(spec, args.pushes, args.lanes, args.chunk, max(2, args.repeats))
     else:
         res = measure(spec, args.pushes, args.lanes, max(2, args.repeats))
-    text = json.dumps(res, indent=1)
-    print(text)
-    if args.out:
-        with open(args.out, "w") as fh:
-            fh.write(text + "\n")
+    emit(res, args.out)
 
 
 if __name__ == "__main__":

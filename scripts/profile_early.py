@@ -20,11 +20,12 @@ import argparse
 import collections
 import dataclasses
 import functools
-import json
 import time
 
 import jax
 import numpy as np
+
+from bench_early import emit, timed   # scripts/ is on the path when this script runs
 
 from tkujax.cli.runtime import configure_runtime
 from tkujax.control.io import controller_params_from
@@ -33,13 +34,7 @@ from tkujax.control.params import ControllerParams
 
 def warm_time(fn, repeats: int = 3) -> float:
     """The fastest of `repeats` warm calls (after one compiling call), seconds."""
-    jax.block_until_ready(fn())
-    best = float("inf")
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn())
-        best = min(best, time.perf_counter() - t0)
-    return best
+    return timed(fn, repeats + 1)[2]
 
 
 def timed_fns(fns, spent: dict):
@@ -114,11 +109,7 @@ def main(argv=None) -> None:
     res["run"] = dict(wall_s=wall, pushes_per_s=n / wall, programs_s=dict(spent),
                       host_s=wall - sum(spent.values()),
                       mean_decided_s=float(np.mean(out[early.DECIDED_COLUMN])))
-    text = json.dumps(res, indent=1)
-    print(text)
-    if args.out:
-        with open(args.out, "w") as fh:
-            fh.write(text + "\n")
+    emit(res, args.out)
 
 
 if __name__ == "__main__":
