@@ -14,6 +14,9 @@ without harm? Steps, each resumable (a finished step is skipped) and time-boxed:
     TKUJAX_MENAGERIE=/path/to/mujoco_menagerie python scripts/op3_study.py --out runs/op3_study
     python scripts/op3_study.py --smoke --out /tmp/op3_smoke      # tiny, on a CPU
 
+`--variant widen` does the same from specs/robots/op3_widen.json (the widening sideways step,
+op3_tune_widen.toml) into OUT/widen and judges the tune's recommendation (params_after.json).
+
 `--variant gate` tunes and judges the controller with the accelerometer gate on
 (specs/robots/op3_tune_gate.toml: the paper's Kalman filter otherwise reads a push's own
 acceleration as a lean the other way, and OP3 stepped away from its capture point), into
@@ -49,7 +52,9 @@ class Variant(NamedTuple):
     time boxes, and how much of the tune's time box its generations get: `search_share` of
     it, or with `search_reserve_s` all of it but that reserve, which holds the compiles, the
     control-off pass, the held-out evaluation and the generation running at the budget's end
-    (a fixed reserve, so a longer time box goes to generations)."""
+    (a fixed reserve, so a longer time box goes to generations). `judged`: the tune's file
+    that the verdict judges (params_tuned.json: the tuned set; params_after.json: the tune's
+    recommendation, the start unless the tuned set beat it on the tune's own evaluation)."""
 
     tune: str
     heldout: str
@@ -58,6 +63,7 @@ class Variant(NamedTuple):
     budgets_s: str
     search_share: float = 0.45
     search_reserve_s: float | None = None
+    judged: str = "params_tuned.json"
 
 
 VARIANTS = {
@@ -66,6 +72,10 @@ VARIANTS = {
     # pushes ~25 s each, evaluation ~65 s), the verdict ~155 s (two chunks of 8,192 x 2 s).
     "gate": Variant("op3_tune_gate.toml", "op3_heldout.toml", "gate", ("tune", "verdict"),
                     "30,130,345,190", search_reserve_s=170.0),
+    # The widening sideways step (op3_tune_widen.toml), the verdict on the tune's
+    # recommendation; one GPU call of ~10 minutes: the tune ~400 s, the verdict ~160 s.
+    "widen": Variant("op3_tune_widen.toml", "op3_heldout.toml", "widen", ("tune", "verdict"),
+                     "30,130,400,175", search_reserve_s=170.0, judged="params_after.json"),
 }
 
 
@@ -185,12 +195,13 @@ def step_verdict(args, out: Path, deadline: float) -> dict:
     from tkujax.robot.closed_loop import robot_setup
     from tkujax.studies.compare import Bands, compare_runs
 
-    tuned = Path(args.params) if args.params else out / "tune" / "params_tuned.json"
+    tuned = (Path(args.params) if args.params
+             else out / "tune" / VARIANTS[args.variant].judged)
     if not tuned.is_file():
         # Not "skipped": a later run resumes here once the tune has finished.
         return dict(status="waiting", why="no tuned controller (the tune step did not finish)")
     robot = robot_setup(_robot_path(args))
-    spec = heldout_spec(args.smoke, VARIANTS[args.variant].heldout)
+    spec = heldout_spec(args.smoke, args.heldout or VARIANTS[args.variant].heldout)
     spec["robot"]["file"] = _robot_path(args)
     run = out / "heldout"
     manifest = _sweep(spec, run, robot, deadline, params=load_controller_params_json(tuned))
@@ -202,7 +213,8 @@ def step_verdict(args, out: Path, deadline: float) -> dict:
     v = res["verdict"]["runs"]["tuned"]
     ratio = v["ratio_to_reference"]
     passed = bool(ratio is not None and ratio <= MAX_FALL_RATIO and v["no_harm"])
-    return dict(status="done", spec=VARIANTS[args.variant].heldout, params=str(tuned),
+    return dict(status="done", spec=args.heldout or VARIANTS[args.variant].heldout,
+                params=str(tuned),
                 fall_rate_off=v["reference_fall_rate"], fall_rate_tuned=v["fall_rate"],
                 ratio=ratio, cells_checked=v["cells_checked"],
                 harmed_cells=len(v["harmed_cells"]), passed=passed, summary=res["summary"])
@@ -243,7 +255,8 @@ def parse_args(argv=None):
     ap.add_argument("--smoke", action="store_true", help="tiny sizes: the pipeline end to end")
     ap.add_argument("--variant", choices=list(VARIANTS), default="paper",
                     help="paper: op3_tune.toml into OUT; gate: the accelerometer gate "
-                         "(op3_tune_gate.toml) into OUT/gate, steps tune and verdict")
+                         "(op3_tune_gate.toml) into OUT/gate, steps tune and verdict; widen: "
+                         "the widening sideways step (op3_tune_widen.toml) into OUT/widen")
     ap.add_argument("--steps", nargs="+", choices=STEPS, default=None,
                     help="default: the variant's")
     ap.add_argument("--budgets-s", default=None,
@@ -261,6 +274,9 @@ def parse_args(argv=None):
     ap.add_argument("--params", default=None,
                     help="verdict: judge this controller parameter file instead of the tune's "
                          "(e.g. specs/robots/op3_front.json)")
+    ap.add_argument("--heldout", default=None,
+                    help="verdict: this held-out spec of specs/robots (default: the variant's, "
+                         "op3_heldout.toml; op3_heldout_b.toml: a second set, another seed)")
     ap.add_argument("--redo", action="store_true", help="run finished steps again")
     ap.add_argument("--tar", default=None, help="pack the output folder into this .tar.gz")
     return ap.parse_args(argv)

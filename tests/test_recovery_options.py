@@ -218,7 +218,8 @@ def test_recommended_is_the_committed_tuning_result(params):
     tuned = json.loads((Path(__file__).parents[1] / "results" / "tune_recovery_ensemble"
                         / "params_after.json").read_text())
     for f in dataclasses.fields(ControllerParams):
-        assert getattr(rec, f.name) == tuned[f.name], f.name
+        # A field added after the tuning holds its default, which the tuning ran with.
+        assert getattr(rec, f.name) == tuned.get(f.name, f.default), f.name
     # Everything the tuning did not touch is the paper's (geometry, Kalman noises, thresholds).
     for name in ("leg_length", "com_height", "kalman_q", "kalman_r", "standing_lean"):
         assert getattr(rec, name) == getattr(params, name)

@@ -14,7 +14,9 @@ Algorithm 1.
 Sideways pushes (params.lateral_steps = 1, a tkujax extension): the roll is watched too; when
 the lateral lean psi = -roll (positive toward +y) leaves (-eps_lateral, eps_lateral) a step is
 triggered as well, with y_Sup = capture_point(psi) and the swing foot on the falling side
-(`cpg_feet_lateral`). The same single step carries x_Sup (from the pitch) and y_Sup.
+(`cpg_feet_lateral`). The same single step carries x_Sup (from the pitch) and y_Sup. A negative
+params.cp_gain_lateral turns the first step into the widening step: y_Sup changes sign, so the
+foot on the push's side steps outward (`ControllerParams` docstring).
 
 Recovery extensions (tkujax; all off in `ControllerParams()` / `.paper()`, which run exactly
 Algorithm 1): a rate-aware capture point (`cp_rate_blend`, `cp_lookahead_s`), a capture-point
@@ -279,8 +281,9 @@ def controller_step(state: ControllerState, sensors: Sensors, params: Controller
 
 class Detection(NamedTuple):
     """pitch_gate / lateral_gate: [0, 1] detectors of this period; x_new / y_new: the step the
-    controller would take now (m, cp_gain applied); x_cp / y_cp: the rate-aware capture point
-    relative to the ankles' midpoint, sagittal / lateral (m, no gain, no lookahead)."""
+    controller would take now (m, cp_gain applied, and cp_gain_lateral to y_new); x_cp / y_cp:
+    the rate-aware capture point relative to the ankles' midpoint, sagittal / lateral (m, no
+    gain, no lookahead)."""
 
     pitch_gate: jax.Array
     lateral_gate: jax.Array
@@ -295,7 +298,7 @@ def detect_push(phi, psi, pitch_rate, psi_rate, params: ControllerParams) -> Det
     capture point leaving the support (cp_trigger = 1), selected by `where`."""
     theta = cp_angle(phi, params)
     x_new = params.cp_gain * capture_point_rate(theta, pitch_rate, params)
-    y_new = params.cp_gain * capture_point_rate(psi, psi_rate, params)
+    y_new = params.cp_gain_lateral * (params.cp_gain * capture_point_rate(psi, psi_rate, params))
     # Where the capture point is now (no lookahead): the trigger asks whether standing would
     # still survive, which is a question about the present state.
     now = dataclasses.replace(params, cp_lookahead_s=0.0)

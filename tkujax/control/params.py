@@ -79,6 +79,16 @@ class ControllerParams:
       cp_trigger_forward_m  m      forward trigger distance (the default toe is ~48 mm ahead).
       cp_trigger_backward_m m      backward trigger distance (the default heel is ~103 mm behind).
       cp_trigger_lateral_m  m      sideways trigger distance (outer sole edge ~ d_y + 42 mm).
+      cp_gain_lateral       -      multiplies the sideways part of the first step, y_Sup, on top
+                                   of cp_gain (with lateral steps). 1 (default): the foot on the
+                                   falling side steps toward the capture point. Negative: the
+                                   foot on the push's side, the unloaded one, steps outward by
+                                   |cp_gain_lateral| times that distance, widening the stance,
+                                   while the support hip moves the waist back toward the push
+                                   (the widening step: on OP3 the step toward the capture point
+                                   adds falls and this one saves some; results/op3/README.md).
+                                   Later steps take it too (their sideways part moves a foot
+                                   outward only, so the other foot's next step is sagittal).
       stance_ankle_kp       rad/rad      ankle-pitch feedback on the pitch deviation
                                    phi - standing_lean, added to both ankles, before and after
                                    the step (the ankle strategy); 0 = paper.
@@ -125,6 +135,7 @@ class ControllerParams:
     cp_trigger_forward_m: float = 0.05
     cp_trigger_backward_m: float = 0.10
     cp_trigger_lateral_m: float = 0.09
+    cp_gain_lateral: float = 1.0
     stance_ankle_kp: float = 0.0
     stance_ankle_kd: float = 0.0
     stance_hip_kp: float = 0.0
@@ -205,6 +216,7 @@ class ControllerParams:
         check("cp_excess", lambda v: v in (0.0, 1.0), "{0, 1}")
         check("cp_update_window", lambda v: 0.0 <= v <= 2.0, "[0, 2] s")
         check("cp_gain", lambda v: 0.0 <= v <= 10.0, "[0, 10]")
+        check("cp_gain_lateral", lambda v: -3.0 <= v <= 3.0, "[-3, 3]")
         check("gate_temperature", lambda v: 0.0 <= v <= 1.0, "[0, 1] rad")
         check("lateral_steps", lambda v: v in (0.0, 1.0), "{0, 1}")
         check("eps_lateral", lambda v: 0.0 <= v < half_pi, "[0, pi/2) rad")

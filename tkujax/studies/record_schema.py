@@ -22,6 +22,7 @@ Versions:
   4  also records "decisions" ("full" or "early"; SweepSpec.decisions, with "lanes" and
      "segment_ticks" when early); a manifest before it ran the full horizon. Early records
      carry a decided_s column.
+  5  also records controller_params.cp_gain_lateral (the widening step; 1.0 before it).
 
 Adding a field to one of the three dataclasses: append an AddedField with `since` =
 SCHEMA_VERSION + 1 and the value that reproduces the code without it, and bump SCHEMA_VERSION
@@ -40,7 +41,7 @@ from tkujax.model.io import model_params_from_dict
 from tkujax.studies.spec import SweepSpec, parse_spec
 from tkujax.studies.spec_program import decisions_of
 
-SCHEMA_VERSION = 4
+SCHEMA_VERSION = 5
 UNVERSIONED = 1               # the version of a manifest that records none
 SCHEMA_KEY = "schema_version"
 # The sweep's passes over the body tree, recorded from version 3 on, and what ran before.
@@ -116,6 +117,9 @@ ADDED_FIELDS: tuple[AddedField, ...] = (
     _controller("stance_roll_kd", 0.0),
     _controller("stance_limit", 0.3),
     _controller("max_steps", 1.0),
+    # The sideways step's gain (negative: the widening step); 1.0 is the step toward the
+    # capture point that every controller took before it.
+    AddedField("controller_params", "cp_gain_lateral", 1.0, since=5),
     # The IMU low-pass filters: before them the controller read the instantaneous sample
     # (0 = no filter), not today's default cut-off.
     AddedField("model_params", "accel_lowpass_hz", 0.0, since=2),

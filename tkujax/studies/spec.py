@@ -115,9 +115,9 @@ CONTROLLER_FIELDS = (
     "kalman_q", "kalman_r", "accel_gate",
     # Recovery extensions (ControllerParams docstring); their "off" values are the paper.
     "cp_rate_blend", "cp_lookahead_s", "cp_trigger", "cp_trigger_forward_m",
-    "cp_trigger_backward_m", "cp_trigger_lateral_m", "stance_ankle_kp", "stance_ankle_kd",
-    "stance_hip_kp", "stance_hip_kd", "stance_roll_kp", "stance_roll_kd", "stance_limit",
-    "max_steps",
+    "cp_trigger_backward_m", "cp_trigger_lateral_m", "cp_gain_lateral", "stance_ankle_kp",
+    "stance_ankle_kd", "stance_hip_kp", "stance_hip_kd", "stance_roll_kp", "stance_roll_kd",
+    "stance_limit", "max_steps",
 )
 # Randomisation: multiplicative scales and additive values applied per push.
 RANDOMIZE_FIELDS = {
