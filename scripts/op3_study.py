@@ -201,7 +201,8 @@ def step_verdict(args, out: Path, deadline: float) -> dict:
         # Not "skipped": a later run resumes here once the tune has finished.
         return dict(status="waiting", why="no tuned controller (the tune step did not finish)")
     robot = robot_setup(_robot_path(args))
-    spec = heldout_spec(args.smoke, args.heldout or VARIANTS[args.variant].heldout)
+    heldout = args.heldout or VARIANTS[args.variant].heldout
+    spec = heldout_spec(args.smoke, heldout)
     spec["robot"]["file"] = _robot_path(args)
     run = out / "heldout"
     manifest = _sweep(spec, run, robot, deadline, params=load_controller_params_json(tuned))
@@ -213,8 +214,7 @@ def step_verdict(args, out: Path, deadline: float) -> dict:
     v = res["verdict"]["runs"]["tuned"]
     ratio = v["ratio_to_reference"]
     passed = bool(ratio is not None and ratio <= MAX_FALL_RATIO and v["no_harm"])
-    return dict(status="done", spec=args.heldout or VARIANTS[args.variant].heldout,
-                params=str(tuned),
+    return dict(status="done", spec=heldout, params=str(tuned),
                 fall_rate_off=v["reference_fall_rate"], fall_rate_tuned=v["fall_rate"],
                 ratio=ratio, cells_checked=v["cells_checked"],
                 harmed_cells=len(v["harmed_cells"]), passed=passed, summary=res["summary"])
