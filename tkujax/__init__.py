@@ -42,7 +42,7 @@ _API = {
     "simulate_mujoco": "tkujax.sim.rollout_mujoco",
     "init": "tkujax.sim.setup", "SimSetup": "tkujax.sim.setup",
     "run_paper": "tkujax.studies.paper",
-    "run_sweep": "tkujax.studies.sweep", "load": "tkujax.studies.sweep",
+    "run_sweep": "tkujax.studies.sweep", "load": "tkujax.studies.export",
     "make_maps": "tkujax.studies.maps", "compare_runs": "tkujax.studies.compare",
     "replay": "tkujax.studies.replay",
     "run_tune": "tkujax.studies.tune",

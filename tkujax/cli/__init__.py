@@ -11,6 +11,7 @@ import argparse
 import sys
 
 from tkujax.cli.analysis import add_analysis_commands
+from tkujax.cli.export import add_export_command
 from tkujax.cli.robot import add_robot_commands
 from tkujax.cli.runtime import configure_runtime
 from tkujax.cli.studies import add_study_commands
@@ -28,6 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_analysis_commands(sub)
     add_bench_command(sub)
     add_study_commands(sub)
+    add_export_command(sub)
     return parser
 
 
