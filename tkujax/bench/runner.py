@@ -25,6 +25,7 @@ import numpy as np
 from tkujax.bench import profile, stages
 from tkujax.bench.controller_parts import profile_controller_parts
 from tkujax.bench.report import summary_markdown
+from tkujax.studies.progress import StatusLog
 from tkujax.studies.provenance import package_versions
 from tkujax.studies.sweep import SWEEP_UNROLL_SUBSTEPS
 
@@ -147,11 +148,11 @@ class Stages:
         self.done = frozenset(s["name"] for s in result.setdefault("stages", []))
         self.wall_before_s = result.get("total_wall_s", 0.0)
         self.t0 = time.perf_counter()
+        self.status = StatusLog(quiet, budget_s=budget_s, desc="bench ")
 
     def log(self, msg: str) -> None:
         if not self.quiet:
-            print(f"[bench {time.perf_counter() - self.t0:7.1f} s] {msg}", file=sys.stderr,
-                  flush=True)
+            self.status(f"[bench {time.perf_counter() - self.t0:7.1f} s] {msg}")
 
     def run(self, name: str, fn) -> None:
         if name in self.done:

@@ -17,13 +17,13 @@ import functools
 import json
 import math
 import os
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
 from tkujax.studies.calibrate import params as P
+from tkujax.studies.progress import StatusLog
 from tkujax.studies.calibrate.spec import CalibrateSpec, load_calibrate_spec
 from tkujax.studies.validation import SpecError
 from tkujax.studies.calibrate.scoring import (CRITERION_P, FAILED_LOSS, OBJECTIVE_ROWS, Evaluator,
@@ -141,7 +141,7 @@ def run_calibrate(spec: CalibrateSpec | str | Path, out: str | Path, *,
     archive = Archive(out / "archive.jsonl", spec.fit_digest())   # refuses another fit's
     (out / "spec.json").write_text(json.dumps(dataclasses.asdict(spec), indent=1) + "\n")
     n_cached = len(archive.records)
-    log = (lambda s: None) if quiet else (lambda s: print(s, file=sys.stderr, flush=True))
+    log = StatusLog(quiet, budget_s=spec.budget_s, desc="calibrate ")
     pool = None
     if spec.workers > 1 and evaluator is None and spec.backend == "mujoco":
         import multiprocessing as mp

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import sys
 import time
 from pathlib import Path
 
@@ -22,6 +21,7 @@ import jax
 import numpy as np
 
 from tkujax.control.params import ControllerParams
+from tkujax.studies.progress import StatusLog
 from tkujax.studies.tune.advice import EVIDENCE_NOTE, recommended_method
 from tkujax.studies.tune.compare import json_default
 from tkujax.studies.tune.evaluate import evaluate, harmed_directions, params_json, recommend
@@ -121,7 +121,7 @@ def _log_method(run: TuneRun, log) -> None:
 def _run_tune(spec: TuneSpec, out: Path, quiet: bool, compiler_options: dict | None,
               evaluation: bool, compare: bool, budget_s: float | None = None) -> dict:
     out.mkdir(parents=True, exist_ok=True)
-    log = (lambda s: None) if quiet else (lambda s: print(s, file=sys.stderr, flush=True))
+    log = StatusLog(quiet, desc="tune ")
     t_start = time.perf_counter()
     run = resolve_run(spec, budget_s)
     problem = make_problem(spec, run.reparam, compiler_options=compiler_options)
