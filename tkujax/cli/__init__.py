@@ -8,9 +8,9 @@ import.
 from __future__ import annotations
 
 import argparse
-import sys
 
 from tkujax.cli.analysis import add_analysis_commands
+from tkujax.cli.errors import OneLineParser, run_command
 from tkujax.cli.export import add_export_command
 from tkujax.cli.robot import add_robot_commands
 from tkujax.cli.runtime import configure_runtime
@@ -21,8 +21,9 @@ from tkujax.bench.cli import add_bench_command
 
 __all__ = ["build_parser", "configure_runtime", "main"]
 
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="tkujax", description=__doc__.splitlines()[0])
+    parser = OneLineParser(prog="tkujax", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
     add_robot_commands(sub)
     add_sweep_commands(sub)
@@ -34,10 +35,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one command: bad input or an OS error is one line on stderr and exit 2, Ctrl-C
+    exit 130 (`tkujax.cli.errors`)."""
     args = build_parser().parse_args(argv)
-    configure_runtime()
-    try:
+
+    def command() -> int:
+        configure_runtime()
         return args.func(args)
-    except (ValueError, FileNotFoundError) as err:   # bad input, a missing file: one line
-        print(f"tkujax {args.command}: error: {err}", file=sys.stderr)
-        return 2
+
+    return run_command(f"tkujax {args.command}", command)

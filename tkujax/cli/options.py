@@ -5,6 +5,12 @@ from __future__ import annotations
 
 import argparse
 
+from tkujax.cli.errors import bounded_int
+
+# Processes of one sweep (tkujax.studies.sweep_folder.MAX_PROCESSES) and chunks of one run.
+MAX_PROCESSES = 65_536
+MAX_CHUNKS = 1 << 30
+
 RENDER_HELP = ("Install EGL (apt-get install libegl1 libgl1-mesa-dri) and set MUJOCO_GL=egl, or "
                "OSMesa (apt-get install libosmesa6) and MUJOCO_GL=osmesa.")
 
@@ -50,8 +56,10 @@ def add_parallel_options(p: argparse.ArgumentParser) -> None:
     """--backend and the multi-process options of the sweep-running commands."""
     p.add_argument("--backend", choices=["auto", "mjx", "mujoco"], default="auto",
                    help="auto: MJX on a GPU, MuJoCo C on a CPU when the spec allows it")
-    p.add_argument("--process-id", type=int, default=None, help="multi-process: this process")
-    p.add_argument("--num-processes", type=int, default=None, help="multi-process: how many")
+    p.add_argument("--process-id", type=bounded_int(0, MAX_PROCESSES - 1), default=None,
+                   help="multi-process: this process, in [0, --num-processes)")
+    p.add_argument("--num-processes", type=bounded_int(1, MAX_PROCESSES), default=None,
+                   help="multi-process: how many")
     p.add_argument("--coordinator", default=None, help="multi-process: HOST:PORT of process 0")
 
 

@@ -5,9 +5,10 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from tkujax.cli.options import (RENDER_HELP, add_parallel_options, add_robot_check_option,
-                                controller_params_from_option, model_params_from_options,
-                                parallel_kwargs, policy_from_option)
+from tkujax.cli.errors import bounded_int
+from tkujax.cli.options import (MAX_CHUNKS, RENDER_HELP, add_parallel_options,
+                                add_robot_check_option, controller_params_from_option,
+                                model_params_from_options, parallel_kwargs, policy_from_option)
 
 
 def _cmd_sweep(args) -> int:
@@ -20,7 +21,8 @@ def _cmd_sweep(args) -> int:
                          model_params=model, max_chunks=args.max_chunks,
                          decisions=args.decisions, **parallel_kwargs(args))
     state = "complete" if manifest["complete"] else "incomplete (rerun the same command to resume)"
-    print(f"{manifest['n_pushes']} pushes in {args.out} ({manifest['backend']} backend): "
+    print(f"{manifest['n_pushes']} pushes in {args.out} ({manifest['this_run']['backend']} "
+          "backend): "
           f"{state}; {manifest['n_diverged']} diverged (numerical blow-up: counted neither as "
           f"fell nor as survived); wall {manifest['wall_s']} s")
     return 0
@@ -35,7 +37,7 @@ def _robot_option(args):
     if path is None:
         return None
     if args.model:
-        raise SystemExit("give --robot (or a spec's [robot] file) or --model, not both")
+        raise ValueError("--model: give --robot (or a spec's [robot] file) or --model, not both")
     return robot_setup(path)
 
 
@@ -123,7 +125,8 @@ def _cmd_map(args) -> int:
     from tkujax.robot.runs import robot_lip, sweep_robot
 
     robot = sweep_robot(args.dir, args.robot)
-    result = make_maps(args.dir, robot=robot, lip=None if robot is None else robot_lip(robot))
+    result = make_maps(args.dir, robot=robot, lip=None if robot is None else robot_lip(robot),
+                       allow_incomplete=args.allow_incomplete)
     print("\n".join(result["files"]))
     print(Path(result["summary"]).read_text())
     return 0
@@ -136,6 +139,9 @@ def add_sweep_commands(sub) -> None:
     _add_capture(sub)
     p = sub.add_parser("map", help="stability maps and capturability checks of a sweep folder")
     p.add_argument("dir")
+    p.add_argument("--allow-incomplete", action="store_true",
+                   help="draw an incomplete sweep's records, every figure and the summary "
+                        "marked 'incomplete: k of n chunks' (default: refused)")
     add_robot_check_option(p)
     p.set_defaults(func=_cmd_map)
 
@@ -153,7 +159,8 @@ def _add_sweep(sub) -> None:
     p.add_argument("--robot", default=None, metavar="FILE.toml",
                    help="a robot file (docs/robots.md): the sweep runs on that robot with "
                         "the controller scaled to it (default: the spec's [robot] file)")
-    p.add_argument("--max-chunks", type=int, default=None, help="stop after this many new chunks")
+    p.add_argument("--max-chunks", type=bounded_int(1, MAX_CHUNKS), default=None,
+                   help="stop after this many new chunks")
     p.add_argument("--decisions", choices=["full", "early"], default=None,
                    help="full: every push runs the spec's duration_s; early: a push leaves its "
                         "lane once fallen or settled and the next push takes it (MJX; default: "
@@ -190,6 +197,7 @@ def _add_capture(sub) -> None:
     p.add_argument("--robot", default=None, metavar="FILE.toml",
                    help="a robot file (docs/robots.md; default: the spec's [robot] file): its "
                         "measured geometry gives the theory and the reach (no --optimise)")
-    p.add_argument("--max-chunks", type=int, default=None, help="stop after this many new chunks")
+    p.add_argument("--max-chunks", type=bounded_int(1, MAX_CHUNKS), default=None,
+                   help="stop after this many new chunks")
     add_parallel_options(p)
     p.set_defaults(func=_cmd_capture)

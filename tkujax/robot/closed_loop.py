@@ -43,13 +43,19 @@ from tkujax.sim.setup import SETTLE_S, ModelIndex, RobotSetup, SimSetup
 
 
 def file_digest(path: str | Path) -> str:
-    """sha256 of a robot file and of the model file it names (hex), and of the collision mode
-    when it is not "model" (the default changes the model the file gives)."""
+    """sha256 of a robot file and of the model file it names (hex), of the collision mode
+    when it is not "model" (the default changes the model the file gives), and of every file
+    the model includes and every asset it references, by content
+    (`tkujax.studies.model_files`)."""
+    from tkujax.studies.model_files import model_files, model_files_digest
+
     desc = load_description(path)
     h = hashlib.sha256(Path(path).read_bytes())
     h.update(desc.mjcf_path.read_bytes())
     if desc.collision_mode != "model":
         h.update(f"collision mode {desc.collision_mode}".encode())
+    if model_files(desc.mjcf_path):   # included files and assets, by content
+        h.update(model_files_digest(desc.mjcf_path).encode())
     return h.hexdigest()
 
 

@@ -95,19 +95,35 @@ def locked(out: Path):
             fcntl.flock(fh, fcntl.LOCK_UN)
 
 
-def _atomic_write(path: Path, data: bytes, slow_s: float = 0.0) -> None:
+def _write_temporary(path: Path, data: bytes, slow_s: float = 0.0) -> Path:
+    """`data` written and fsynced to a temporary name beside `path` (private to this process);
+    removed again when anything (an OS error, Ctrl-C) interrupts the write."""
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as fh:
-        if slow_s > 0:                       # fault injection: a window with half a file
-            fh.write(data[:len(data) // 2])
+    try:
+        with open(tmp, "wb") as fh:
+            if slow_s > 0:                       # fault injection: a window with half a file
+                fh.write(data[:len(data) // 2])
+                fh.flush()
+                time.sleep(slow_s)
+                fh.write(data[len(data) // 2:])
+            else:
+                fh.write(data)
             fh.flush()
-            time.sleep(slow_s)
-            fh.write(data[len(data) // 2:])
-        else:
-            fh.write(data)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+            os.fsync(fh.fileno())
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
+    return tmp
+
+
+def _atomic_write(path: Path, data: bytes, slow_s: float = 0.0) -> None:
+    tmp = _write_temporary(path, data, slow_s)
+    try:
+        os.replace(tmp, path)
+    finally:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
 
 
 def read_manifest(out: Path) -> dict:
@@ -136,23 +152,47 @@ def sha256(path: Path) -> str:
     return h.hexdigest()
 
 
+# {path: (size, mtime_ns, inode, sha256)} of chunk files this process hashed or wrote: a file
+# whose size, mtime and inode are unchanged is not hashed again (`check_chunk`), so the checks
+# at the end of a run and while waiting for other writers cost a stat per chunk
+# (tests/test_hostile_records.py::test_a_noop_rerun_hashes_each_chunk_once).
+_VERIFIED: dict[str, tuple[int, int, int, str]] = {}
+
+
+def _stat_key(st: os.stat_result) -> tuple[int, int, int]:
+    return st.st_size, st.st_mtime_ns, st.st_ino
+
+
+def forget_verified() -> None:
+    """Hash every chunk file again at its next check (the verified-file cache emptied)."""
+    _VERIFIED.clear()
+
+
 def check_chunk(out: Path, i: int, entry: dict | None) -> str | None:
     """Why chunk i is not done (None when it is): missing file or entry, or a mismatch."""
     path = Path(out) / chunk_name(i)
-    if not path.exists():
+    try:
+        st = path.stat()
+    except FileNotFoundError:
         return f"{path} is missing"
     if not entry:
         return f"{path} is not recorded in the manifest (its writer was interrupted)"
-    if path.stat().st_size != entry.get("bytes", path.stat().st_size):
-        return (f"{path} is truncated or padded ({path.stat().st_size} bytes, "
+    if st.st_size != entry.get("bytes", st.st_size):
+        return (f"{path} is truncated or padded ({st.st_size} bytes, "
                 f"expected {entry['bytes']})")
-    if sha256(path) != entry["sha256"]:
+    known = _VERIFIED.get(str(path))
+    if known is not None and known[:3] == _stat_key(st) and known[3] == entry["sha256"]:
+        return None
+    digest = sha256(path)
+    _VERIFIED[str(path)] = (*_stat_key(st), digest)
+    if digest != entry["sha256"]:
         return f"{path} is corrupted (sha256 differs from the manifest)"
     return None
 
 
 def done_chunks(out: Path, n_chunks: int) -> set[int]:
-    """Chunks whose file matches its manifest entry (every file hashed)."""
+    """Chunks whose file matches its manifest entry (a file is hashed once per process while
+    its size, mtime and inode stay the same)."""
     entries = read_manifest(out).get("chunks", {})
     return {i for i in range(n_chunks) if check_chunk(out, i, entries.get(chunk_name(i))) is None}
 
@@ -166,8 +206,8 @@ def try_claim(out: Path, i: int) -> bool:
     # The claim's content is written first and hard-linked into place: link(2), like
     # O_CREAT|O_EXCL, fails when the name exists, and a claim is never seen half-written.
     tmp = claims / f".{path.name}.{me['pid']}.tmp"
-    tmp.write_text(json.dumps(dict(me, time=time.time())))
     try:
+        tmp.write_text(json.dumps(dict(me, time=time.time())))
         for _ in range(2):
             try:
                 os.link(tmp, path)
@@ -180,7 +220,8 @@ def try_claim(out: Path, i: int) -> bool:
                         path.unlink()
         return False
     finally:
-        tmp.unlink()
+        with contextlib.suppress(OSError):
+            tmp.unlink()
 
 
 def _stale_or_mine(path: Path, me: dict) -> bool:
@@ -207,22 +248,51 @@ def release(out: Path, i: int) -> None:
         (Path(out) / CLAIMS / f"{chunk_name(i)[:-4]}.claim").unlink()
 
 
-def write_chunk(out: Path, i: int, record: dict[str, np.ndarray]) -> dict:
-    """Write chunk i atomically, then record {sha256, rows, bytes, n_diverged} in the
-    manifest."""
+class ForeignFolderError(ValueError):
+    """The folder's manifest names another sweep than the writer's (see `owner_check`)."""
+
+
+def owner_check(out: Path, spec_hash: str | None) -> None:
+    """Under the lock: refuse to write into `out` unless its manifest is this sweep's."""
+    if spec_hash is None:
+        return
+    held = read_manifest(out).get("spec_hash")
+    if held != spec_hash:
+        raise ForeignFolderError(f"{out}: the folder now holds another sweep (spec hash {held}, "
+                                 f"this one {spec_hash}); nothing was written")
+
+
+def write_chunk(out: Path, i: int, record: dict[str, np.ndarray], extra: dict | None = None,
+                spec_hash: str | None = None) -> dict:
+    """Write chunk i atomically, then record {sha256, rows, bytes, n_diverged} (and `extra`,
+    e.g. who wrote it) in the manifest. With `spec_hash`, the rename and the entry happen only
+    while the folder's manifest is that sweep's (checked under the lock)."""
     out = Path(out)
     slow = float(os.environ.get("TKUJAX_TEST_SLOW_WRITE", 0) or 0)
     buf = io.BytesIO()
     np.savez(buf, **record)
     data = buf.getvalue()
-    _atomic_write(out / chunk_name(i), data, slow / 2)
+    path = out / chunk_name(i)
+    tmp = _write_temporary(path, data, slow / 2)
+    try:
+        with locked(out):
+            owner_check(out, spec_hash)
+            os.replace(tmp, path)
+    finally:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+    digest = hashlib.sha256(data).hexdigest()
+    with contextlib.suppress(OSError):
+        _VERIFIED[str(path)] = (*_stat_key(path.stat()), digest)
     if slow > 0:
         time.sleep(slow / 2)                  # fault injection: renamed, not yet recorded
     rows = len(next(iter(record.values())))
-    entry = dict(sha256=hashlib.sha256(data).hexdigest(), rows=rows, bytes=len(data),
-                 n_diverged=int(np.sum(record["diverged"])) if "diverged" in record else 0)
+    entry = dict(sha256=digest, rows=rows, bytes=len(data),
+                 n_diverged=int(np.sum(record["diverged"])) if "diverged" in record else 0,
+                 **(extra or {}))
 
     def add(manifest: dict) -> dict:
+        owner_check(out, spec_hash)
         manifest.setdefault("chunks", {})[chunk_name(i)] = entry
         return manifest
 

@@ -324,11 +324,35 @@ def _ensemble_outputs(rec: dict, controls: list[bool], maps: Path) -> tuple[dict
     return bands, [json_path, csv_path], text
 
 
+class _MarkedPyplot:
+    """pyplot whose every figure carries `mark` at its top (an incomplete sweep's figures)."""
+
+    def __init__(self, plt, mark: str):
+        self._plt, self._mark = plt, mark
+
+    def subplots(self, *args, **kwargs):
+        fig, axes = self._plt.subplots(*args, **kwargs)
+        fig.text(0.5, 0.995, self._mark.upper(), ha="center", va="top", color="red",
+                 fontsize=9, weight="bold")
+        return fig, axes
+
+    def __getattr__(self, name):
+        return getattr(self._plt, name)
+
+
+def completeness(out_dir: Path, manifest: dict) -> tuple[int, int]:
+    """(chunks done: the file matches its manifest entry, chunks the sweep has)."""
+    n_chunks = int(manifest.get("n_chunks", 0))
+    return len(chunks.done_chunks(out_dir, n_chunks)), n_chunks
+
+
 def make_maps(out_dir: str | Path, params: ControllerParams | None = None, robot=None,
-              lip: capturability.LipModel | None = None) -> dict:
+              lip: capturability.LipModel | None = None, allow_incomplete: bool = False) -> dict:
     """Write maps/*.png and maps/summary.md (+ .json) for the sweep in `out_dir`. A sweep on a
     robot file needs that robot (a RobotSetup, checked against the manifest's sha256) and its
-    LIP (`tkujax.robot.runs.robot_lip`), which the theory overlays use."""
+    LIP (`tkujax.robot.runs.robot_lip`), which the theory overlays use. An incomplete sweep is
+    refused (ValueError "incomplete: k of n chunks"); with allow_incomplete its figures and
+    summary are marked "incomplete: k of n chunks" (the result's `incomplete`)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -337,6 +361,13 @@ def make_maps(out_dir: str | Path, params: ControllerParams | None = None, robot
     manifest = chunks.read_manifest(out_dir)
     if not manifest:
         raise FileNotFoundError(f"{out_dir} holds no sweep ({chunks.MANIFEST} not found)")
+    done, n_chunks = completeness(out_dir, manifest)
+    mark = f"incomplete: {done} of {n_chunks} chunks" if done < n_chunks else ""
+    if mark and not allow_incomplete:
+        raise ValueError(f"{out_dir}: {mark}; pass --allow-incomplete to draw it marked (or "
+                         "rerun the sweep command to complete it)")
+    if mark:
+        plt = _MarkedPyplot(plt, mark)
     everything, rec, grid, n_diverged = _records(out_dir, manifest)
     params = params or controller_params_from_dict(
         manifest.get("controller_params", {}), f"{out_dir / 'manifest.json'}: controller_params",
@@ -365,8 +396,12 @@ def make_maps(out_dir: str | Path, params: ControllerParams | None = None, robot
                          rows, phase_md)
     if ensemble_md:
         text += "\n" + ensemble_md
+    if mark:
+        text = f"**{mark.upper()}**: the figures and tables below hold {done} of {n_chunks} " \
+            f"chunks' records.\n\n" + text
     files += ensemble_files
     (maps / "summary.md").write_text(text)
-    (maps / "summary.json").write_text(json.dumps(summary, indent=1))
+    (maps / "summary.json").write_text(json.dumps(
+        {"incomplete": mark, "rows": summary} if mark else summary, indent=1))
     return dict(files=[str(f) for f in files], summary=str(maps / "summary.md"),
-                n_diverged=n_diverged)
+                n_diverged=n_diverged, incomplete=mark)

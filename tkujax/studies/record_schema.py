@@ -23,6 +23,11 @@ Versions:
      "segment_ticks" when early); a manifest before it ran the full horizon. Early records
      carry a decided_s column.
   5  also records controller_params.cp_gain_lateral (the widening step; 1.0 before it).
+  6  also records "runs" (every run's id, backend, devices, commit; earlier entries never
+     rewritten), "inputs" (each input's digest, `tkujax.studies.sweep_hash.input_digests`) and
+     in each chunk's entry the run_id, backend, device and git_commit that wrote it; the
+     top-level backend, git_commit and devices are the first run's. Before it, the top level
+     named the last run's backend for every chunk (`tkujax.studies.replay.record_backend`).
 
 Adding a field to one of the three dataclasses: append an AddedField with `since` =
 SCHEMA_VERSION + 1 and the value that reproduces the code without it, and bump SCHEMA_VERSION
@@ -41,7 +46,7 @@ from tkujax.model.io import model_params_from_dict
 from tkujax.studies.spec import SweepSpec, parse_spec
 from tkujax.studies.spec_program import decisions_of
 
-SCHEMA_VERSION = 5
+SCHEMA_VERSION = 6
 UNVERSIONED = 1               # the version of a manifest that records none
 SCHEMA_KEY = "schema_version"
 # The sweep's passes over the body tree, recorded from version 3 on, and what ran before.

@@ -2,7 +2,8 @@
 
 Everything comes from the run folder: the spec (the push, the per-record controller-grid values
 and model randomisation, all re-expanded from it), the controller and model parameters, and the
-backend recorded in the manifest. The noise is the sweep's too:
+backend that wrote the record's chunk (its manifest entry; `record_backend`). The noise is the
+sweep's too:
 
   MuJoCo C: the whole chunk is re-run (seed = spec seed + chunk; the numpy noise of one robot
     depends on the batch it was drawn with), so the replay is the sweep's own computation.
@@ -49,6 +50,13 @@ def _stored_record(run_dir: Path, manifest: dict, chunk: int, pos: int) -> dict:
         raise chunks.ChunkError(f"{why}; rerun the sweep command to recompute it")
     with np.load(run_dir / chunks.chunk_name(chunk)) as z:
         return {k: z[k][pos] for k in z.files}
+
+
+def record_backend(manifest: dict, chunk: int) -> str:
+    """The backend that wrote `chunk`: its manifest entry's (record schema 6 on), else the
+    manifest's (one backend per folder before), else MJX (the first sweeps')."""
+    entry = manifest.get("chunks", {}).get(chunks.chunk_name(chunk)) or {}
+    return entry.get("backend") or manifest.get("backend", "mjx")
 
 
 def _differences(stored: dict, replayed: dict) -> dict:
@@ -107,7 +115,7 @@ def replay(run_dir: str | Path, index: int, robot=None, exact: bool = False) -> 
     recs = record_inputs(spec)
     lo, hi = chunk * size, min((chunk + 1) * size, n)
     inputs = {k: recs[k][lo:hi] for k in recs if k not in ("push_id", "from_grid")}
-    backend = manifest.get("backend", "mjx")
+    backend = record_backend(manifest, chunk)
     res = _rerun(spec, manifest, inputs, chunk, pos, base, model_params, schedule, backend)
     exact = exact and backend != "mujoco"      # MuJoCo C re-runs the whole chunk anyway
     replayed, differences = _compared(spec, manifest, stored, res, inputs, chunk, pos, base,

@@ -84,29 +84,22 @@ from tkujax.model.params import ModelParams
 from tkujax.sim.push import onset_from_phase, onset_phase
 from tkujax.studies.spec_program import (SWEEP_TREE_PASSES, Decisions, decisions_of,
                                          tree_passes_of)
+from tkujax.studies.spec_limits import (MAX_CHUNK_SIZE, MAX_RECORDS, MAX_SEED, PHASE_KEY,
+                                        PHASE_UNIT, PUSH_FIELDS, check_limits, record_count)
+from tkujax.studies.spec_steps import STEP_FIELDS, cross_steps, parse_step
 from tkujax.studies.spec_fpga import (ARITHMETIC, FPGA_COLUMN, FPGA_FIELDS, check_fixed_controller,
                                       fixed_point_config, parse_fpga)
 from tkujax.studies.validation import SpecError, number, read_toml, table, uniform, values
 
 # Re-exported: the names other modules import from here.
 __all__ = ["ARITHMETIC", "SWEEP_TREE_PASSES", "Decisions", "FPGA_COLUMN", "FPGA_FIELDS",
+           "STEP_FIELDS", "PUSH_FIELDS", "PHASE_KEY", "MAX_RECORDS", "MAX_CHUNK_SIZE", "MAX_SEED",
+           "record_count",
            "SpecError", "read_toml",
            "fixed_point_config", "parse_spec", "load_spec", "expand", "parse_randomize",
            "parse_ensemble", "controller_value", "controller_values", "EnsembleRef", "SweepSpec"]
 
 
-# name: (lo, hi, default, unit). Push fields in user units.
-PUSH_FIELDS = {
-    "impulse_ns": (0.0, 10.0, 0.5, "N·s"),
-    "azimuth_deg": (-360.0, 360.0, 0.0, "deg"),
-    "height_m": (0.25, 0.46, 0.36, "m"),
-    "onset_s": (0.05, 20.0, 0.75, "s"),
-    "duration_s": (0.002, 0.5, 0.02, "s"),
-}
-# The push's phase in the control period (see the module doc): its own key, not in PUSH_FIELDS
-# (the tune specs share PUSH_FIELDS and have no phase).
-PHASE_KEY = "onset_phase"
-PHASE_UNIT = "(fraction of the 30 ms control period; 1 excluded)"
 # ControllerParams fields a spec may set; *_deg fields are given in degrees. Their ranges are
 # ControllerParams.validate's (tkujax.control.io.checked_value), stated there once.
 CONTROLLER_FIELDS = (
@@ -130,19 +123,6 @@ RANDOMIZE_FIELDS = {
 }
 RANDOMIZE_DEFAULTS = {"link_mass_scale": 1.0, "torso_com_offset_x_m": 0.0, "floor_friction": None,
                       "servo_kp_scale": 1.0, "gyro_noise_std": 0.0, "accel_noise_std": 0.0}
-# [step.grid]: commanded steps (StepOverride fields); recorded as step_<name> columns.
-STEP_FIELDS = {
-    "x_m": (-0.3, 0.3, 0.0, "m"),
-    "y_m": (-0.3, 0.3, 0.0, "m"),
-    "start_delay_s": (0.0, 2.0, 0.0, "s"),
-    "from_detection": (0.0, 1.0, 0.0, "(0 = after onset, 1 = after detection)"),
-    "period_s": (0.0, 2.0, 0.0, "s (0 = the controller's step_period)"),
-    "steps": (1.0, 2.0, 1.0, "(1 = one commanded step, 2 = a second step of the other foot)"),
-    "x2_m": (-0.3, 0.3, 0.0, "m (second step; steps = 2)"),
-    "y2_m": (-0.3, 0.3, 0.0, "m (second step; steps = 2)"),
-    "delay2_s": (0.0, 2.0, 0.0, "s (first touchdown -> second step start)"),
-}
-SECOND_STEP_FIELDS = ("x2_m", "y2_m", "delay2_s")
 # [randomize] ensemble = "PATH": one member of an ensemble of robots per push (`EnsembleRef`);
 # recorded per record in ROBOT_ID_COLUMN. Not a RANDOMIZE_FIELDS entry: tune specs take it apart
 # (tkujax.studies.tune.spec), with another meaning of the column (a row of the tune's robot table).
@@ -277,25 +257,37 @@ def parse_randomize(data: dict) -> dict[str, Any]:
     return randomize
 
 
-def parse_spec(data: dict) -> SweepSpec:
-    """Validate a parsed TOML document."""
-    table("top level", data, {"sweep", "push", "controller", "randomize", "step", "fpga",
-                              "robot"})
-    sweep = table("sweep", data.get("sweep", {}), SWEEP_FIELDS)
+def _parse_sweep(data: dict) -> dict:
+    """The checked [sweep] table (with chunk_size, duration_s, control and seed filled in)."""
+    sweep = dict(table("sweep", data.get("sweep", {}), SWEEP_FIELDS))
     for k, types in SWEEP_FIELDS.items():
         if k in sweep and (isinstance(sweep[k], bool) or not isinstance(sweep[k], types)):
             raise SpecError(f"sweep.{k}: expected {getattr(types, '__name__', 'a number')}, "
                             f"got {sweep[k]!r}")
-    tree_passes = tree_passes_of(sweep)
-    chunk = sweep.get("chunk_size", 1024)
-    if not 1 <= chunk <= 1_048_576:
-        raise SpecError(f"sweep.chunk_size: {chunk} is out of range [1, 1048576]")
-    duration = number("sweep.duration_s", sweep.get("duration_s", 2.4), 0.1, 30.0, "s")
-    control = tuple(sweep.get("control", ["off", "on"]))
-    if (not control or any(c not in ("on", "off") for c in control)
+    chunk = sweep.setdefault("chunk_size", 1024)
+    if not 1 <= chunk <= MAX_CHUNK_SIZE:
+        raise SpecError(f"sweep.chunk_size: {chunk} is out of range [1, {MAX_CHUNK_SIZE}]")
+    seed = sweep.setdefault("seed", 0)
+    if not 0 <= seed <= MAX_SEED:
+        raise SpecError(f"sweep.seed: {seed} is out of range [0, {MAX_SEED}] (JAX's PRNGKey "
+                        "keeps 32 bits)")
+    sweep["duration_s"] = number("sweep.duration_s", sweep.get("duration_s", 2.4), 0.1, 30.0,
+                                 "s")
+    control = sweep.setdefault("control", ["off", "on"])
+    if (not control or any(not isinstance(c, str) or c not in ("on", "off") for c in control)
             or len(set(control)) != len(control)):
         raise SpecError(f"sweep.control: expected a list of distinct 'on'/'off', "
                         f"got {list(control)!r}")
+    return sweep
+
+
+def parse_spec(data: dict) -> SweepSpec:
+    """Validate a parsed TOML document."""
+    table("top level", data, {"sweep", "push", "controller", "randomize", "step", "fpga",
+                              "robot"})
+    sweep = _parse_sweep(data)
+    chunk, duration, control = sweep["chunk_size"], sweep["duration_s"], tuple(sweep["control"])
+    tree_passes = tree_passes_of(sweep)
 
     push = table("push", data.get("push", {}), {"grid", "random"})
     grid = table("push.grid", push.get("grid", {}), set(PUSH_FIELDS) | {PHASE_KEY})
@@ -342,13 +334,13 @@ def parse_spec(data: dict) -> SweepSpec:
     ensemble = parse_ensemble(rand[ENSEMBLE_KEY]) if ENSEMBLE_KEY in rand else None
     randomize = parse_randomize({"randomize": {k: v for k, v in rand.items()
                                                if k != ENSEMBLE_KEY}})
-    step_grid, step_reference = _parse_step(data)
+    step_grid, step_reference = parse_step(data)
     if arithmetic == "fixed" and step_grid:
         raise SpecError("[step]: commanded steps have no fixed-point controller twin; "
                         "use controller.arithmetic = \"float\"")
     if arithmetic == "fixed":
         check_fixed_controller(controller, controller_grid)
-    return SweepSpec(name=sweep.get("name", "sweep"), seed=sweep.get("seed", 0),
+    return check_limits(SweepSpec(name=sweep.get("name", "sweep"), seed=sweep["seed"],
                      chunk_size=chunk, duration_s=duration, control=control,
                      push_grid=push_grid, push_random=push_random, n_random=n_random,
                      controller=controller, controller_grid=controller_grid,
@@ -356,7 +348,7 @@ def parse_spec(data: dict) -> SweepSpec:
                      step_grid=step_grid,
                      step_reference=step_reference, arithmetic=arithmetic, fpga=fpga,
                      fpga_grid=fpga_grid, ensemble=ensemble, tree_passes=tree_passes,
-                     robot_file=_robot_file(data), decisions=decisions_of(sweep, chunk))
+                     robot_file=_robot_file(data), decisions=decisions_of(sweep, chunk)))
 
 
 def _robot_file(data: dict) -> str | None:
@@ -365,26 +357,6 @@ def _robot_file(data: dict) -> str | None:
     if path is not None and not (isinstance(path, str) and Path(path).is_file()):
         raise SpecError(f"robot.file: expected the path of a robot file, got {path!r}")
     return None if path is None else str(Path(path).resolve())
-
-
-def _parse_step(data: dict) -> tuple[dict[str, np.ndarray], bool]:
-    step = table("step", data.get("step", {}), {"grid", "reference"})
-    grid = table("step.grid", step.get("grid", {}), STEP_FIELDS)
-    reference = step.get("reference", True)
-    if not isinstance(reference, bool):
-        raise SpecError(f"step.reference: expected true or false, got {reference!r}")
-    out = {k: values(f"step.grid.{k}", v, *STEP_FIELDS[k][:2], STEP_FIELDS[k][3])
-           for k, v in grid.items()}
-    if "from_detection" in out and not np.isin(out["from_detection"], (0.0, 1.0)).all():
-        raise SpecError(f"step.grid.from_detection: expected 0 or 1, got {out['from_detection']}")
-    if "steps" in out and not np.isin(out["steps"], (1.0, 2.0)).all():
-        raise SpecError(f"step.grid.steps: expected 1 or 2, got {out['steps']}")
-    if "period_s" in out and ((out["period_s"] > 0) & (out["period_s"] < 0.05)).any():
-        raise SpecError(f"step.grid.period_s: expected 0 or a value in [0.05, 2.0] s, got "
-                        f"{out['period_s']}")
-    if step and not out:
-        raise SpecError("[step]: give a [step.grid] (e.g. x_m, y_m) or leave [step] out")
-    return out, reference
 
 
 def load_spec(path: str | Path) -> SweepSpec:
@@ -455,34 +427,6 @@ def expand(spec: SweepSpec) -> dict[str, np.ndarray]:
         out[k] = np.tile(draw, n_settings)
     if spec.ensemble is not None:   # drawn after the others: their values do not change
         out[ROBOT_ID_COLUMN] = np.tile(rng.integers(0, spec.ensemble.n, n_push), n_settings)
-    out = _cross_steps(spec, out)
+    out = cross_steps(spec, out)
     out["push_id"] = np.arange(len(out["control"]))
-    return out
-
-
-def _cross_steps(spec: SweepSpec, recs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """Cross every record with [step.grid] (step_active = 1), plus, with step.reference, one
-    copy with the controller's own step (step_active = 0). No [step]: unchanged. `case_id`
-    numbers the records before crossing (the push a step belongs to). Order: reference copy
-    first, then the step grid (outer) x records (inner)."""
-    if not spec.step_grid:
-        return recs
-    n = len(recs["control"])
-    cols = {k: spec.step_grid.get(k, np.array([STEP_FIELDS[k][2]])) for k in STEP_FIELDS}
-    mesh = [m.ravel() for m in np.meshgrid(*cols.values(), indexing="ij")]
-    if "steps" in spec.step_grid:
-        # One-step targets ignore the second step's fields: keep each once (at the grid's
-        # first x2_m, y2_m, delay2_s values), not once per second-step target.
-        m = dict(zip(cols, mesh))
-        first = np.all([m[k] == cols[k][0] for k in SECOND_STEP_FIELDS], 0)
-        keep = (m["steps"] > 1.5) | first
-        mesh = [v[keep] for v in mesh]
-    n_steps = len(mesh[0])
-    blocks = ([("ref", None)] if spec.step_reference else []) + [(i, i) for i in range(n_steps)]
-    out = {k: np.concatenate([v] * len(blocks)) for k, v in recs.items()}
-    out["case_id"] = np.tile(np.arange(n), len(blocks))
-    out["step_active"] = np.concatenate([np.full(n, float(j is not None)) for _, j in blocks])
-    for k, m in zip(STEP_FIELDS, mesh):
-        out[f"step_{k}"] = np.concatenate([np.full(n, STEP_FIELDS[k][2] if j is None else m[j])
-                                           for _, j in blocks])
     return out

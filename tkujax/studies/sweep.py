@@ -27,10 +27,10 @@ import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from tkujax.control.fixed import FixedPointConfig, check_supported
+from tkujax.control.fixed import check_supported
 from tkujax.control.io import controller_params_from
 from tkujax.control.params import ControllerParams
-from tkujax.control.policy import Schedule, schedule_to_dict
+from tkujax.control.policy import Schedule
 from tkujax.model import ModelParams
 from tkujax.sim.setup import RobotSetup
 from tkujax.studies import chunks
@@ -40,11 +40,12 @@ from tkujax.studies.early import make_lane_fns
 from tkujax.studies.lane_stream import LaneStream
 from tkujax.studies.mujoco_chunk import mujoco_chunk
 from tkujax.studies.progress import Progress
-from tkujax.studies.provenance import git_commit, versions
-from tkujax.studies.record_schema import SCHEMA_KEY, SCHEMA_VERSION, TREE_PASSES_KEY
+from tkujax.sim.push import CONTROL_PERIOD_S
 from tkujax.studies.spec import SpecError, SweepSpec, load_spec
 from tkujax.studies.spec_program import with_decisions
-from tkujax.studies.sweep_hash import spec_hash
+from tkujax.studies.sweep_folder import (chunk_provenance, claim_folder, describe, prepare_out,
+                                         processes, run_record)
+from tkujax.studies.sweep_hash import input_digests, spec_hash
 
 # Names other modules have imported from here; each lives in the module named.
 from tkujax.control.io import load_controller_params_json as load_params_json  # noqa: F401
@@ -52,6 +53,7 @@ from tkujax.studies.chunk_program import (OUTCOME_KEYS, SWEEP_COMPILER_OPTIONS, 
                                           SWEEP_LOOP, SWEEP_UNROLL_SUBSTEPS, outcome_keys,
                                           step_override)
 from tkujax.studies.sweep_hash import shares_robot_draws  # noqa: F401
+from tkujax.studies.sweep_folder import model_record  # noqa: F401
 
 MANIFEST = chunks.MANIFEST
 
@@ -78,21 +80,6 @@ def choose_backend(requested: str, spec: SweepSpec) -> str:
     return "mjx" if jax.default_backend() != "cpu" or needs_mjx else "mujoco"
 
 
-def _processes(process_id, num_processes, coordinator) -> tuple[int, int]:
-    """(process_id, num_processes) from the arguments or the TKUJAX_* environment variables;
-    several processes: jax.distributed is initialised here."""
-    process_id = int(os.environ.get("TKUJAX_PROCESS_ID", 0)) if process_id is None else process_id
-    num_processes = (int(os.environ.get("TKUJAX_NUM_PROCESSES", 1)) if num_processes is None
-                     else num_processes)
-    coordinator = coordinator or os.environ.get("TKUJAX_COORDINATOR")
-    if num_processes > 1:
-        if not coordinator:
-            raise SpecError("num_processes > 1 needs a coordinator address HOST:PORT")
-        jax.distributed.initialize(coordinator_address=coordinator, num_processes=num_processes,
-                                   process_id=process_id)
-    return process_id, num_processes
-
-
 @dataclasses.dataclass(frozen=True)
 class _ChunkJob:
     """Everything a chunk's computation needs (the same for every chunk of a sweep)."""
@@ -105,6 +92,12 @@ class _ChunkJob:
     schedule: Schedule | None
     padded: int
     sharding: NamedSharding
+    spec_hash: str = ""
+    provenance: dict = dataclasses.field(default_factory=dict)   # of the run (chunk entries)
+
+    def write(self, out: Path, i: int, record: dict) -> None:
+        """Chunk i written with this run's provenance, only while `out` holds this sweep."""
+        chunks.write_chunk(out, i, record, self.provenance, self.spec_hash or None)
 
     @property
     def input_keys(self) -> list[str]:
@@ -181,7 +174,7 @@ def _compute_pending(out: Path, job: _ChunkJob, pending: list[int], n_chunks: in
         try:
             if computed == 0:
                 progress.note("compiling the rollout (first chunk; minutes on a CPU) ...")
-            chunks.write_chunk(out, i, job.compute(i))
+            job.write(out, i, job.compute(i))
         finally:
             chunks.release(out, i)
         computed += 1
@@ -221,7 +214,7 @@ def _compute_early(out: Path, job: _ChunkJob, claims: chunks.Claims, progress: P
                                            v.dtype))[sel] = v
         if left[0] == 0:
             rows = slice(i * job.spec.chunk_size, hi)
-            chunks.write_chunk(out, i, {k: job.recs[k][rows] for k in job.recs} | left[1])
+            job.write(out, i, {k: job.recs[k][rows] for k in job.recs} | left[1])
             chunks.release(out, i)
             del held[i]
             written.append(i)
@@ -237,29 +230,6 @@ def _compute_early(out: Path, job: _ChunkJob, claims: chunks.Claims, progress: P
     return len(written)
 
 
-def _describe(spec: SweepSpec, digest: str, n: int, n_chunks: int, padded: int,
-              params: ControllerParams, model_params: ModelParams | None, num_processes: int,
-              backend: str, schedule: Schedule | None = None) -> dict:
-    """The manifest's description of the sweep (every writer restates it), in the record
-    schema's newest version (`tkujax.studies.record_schema`)."""
-    manifest = {SCHEMA_KEY: SCHEMA_VERSION} | dict(
-        name=spec.name, spec=spec.raw, spec_hash=digest, n_pushes=n,
-        chunk_size=spec.chunk_size, n_chunks=n_chunks, padded_chunk=padded,
-        controller_params=dataclasses.asdict(params),
-        model_params=model_record(model_params),
-        versions=versions(), git_commit=git_commit(),
-        devices=[str(d) for d in jax.devices()], num_processes=num_processes,
-        backend=backend, format="npz chunks, one record per push",
-        **{TREE_PASSES_KEY: spec.tree_passes}, **spec.decisions.describe())
-    if spec.arithmetic == "fixed":
-        manifest["fixed_point_defaults"] = dataclasses.asdict(FixedPointConfig())
-    if spec.ensemble is not None:
-        manifest["ensemble"] = spec.ensemble.describe()
-    if schedule is not None:
-        manifest["schedule"] = schedule_to_dict(schedule)
-    return manifest
-
-
 def _checked_inputs(spec: SweepSpec | str | Path, params: ControllerParams | None,
                     model_params: ModelParams | None, max_chunks: int | None,
                     schedule: Schedule | None) -> tuple[SweepSpec, ControllerParams]:
@@ -269,6 +239,7 @@ def _checked_inputs(spec: SweepSpec | str | Path, params: ControllerParams | Non
                                    or max_chunks < 1):
         raise ValueError(f"max_chunks must be an integer >= 1 (or None: all), got {max_chunks!r}")
     spec = spec if isinstance(spec, SweepSpec) else load_spec(spec)
+    check_control_period(params)
     if spec.ensemble is not None and model_params is not None:
         raise SpecError("[randomize] ensemble gives the sweep's robots: give either it or a "
                         "model (--model), not both")
@@ -284,12 +255,16 @@ def _checked_inputs(spec: SweepSpec | str | Path, params: ControllerParams | Non
     return spec, params or ControllerParams.paper()
 
 
-def model_record(model_params: ModelParams | RobotSetup | None) -> dict:
-    """The manifest's model: ModelParams' fields, or a robot file's name, path and sha256."""
-    if isinstance(model_params, RobotSetup):
-        return dict(robot=model_params.name, robot_file=model_params.source,
-                    robot_sha256=model_params.digest)
-    return dataclasses.asdict(model_params or ModelParams())
+def check_control_period(params: ControllerParams | None) -> None:
+    """Refuse parameters whose control_period is not the robot's: the rollout ticks at
+    RolloutConfig.control_period_s (CONTROL_PERIOD_S), the one source of the period, so a
+    parameter file's own value would be recorded but never run."""
+    if params is not None and not math.isclose(float(params.control_period), CONTROL_PERIOD_S,
+                                               rel_tol=0.0, abs_tol=1e-12):
+        raise SpecError(f"control_period: the controller parameters give {params.control_period!r}"
+                        f" s, but the robot's controller ticks every {CONTROL_PERIOD_S} s (the "
+                        f"rollout's one control period); allowed: {CONTROL_PERIOD_S} s or leave "
+                        "the key out")
 
 
 def check_robot_sweep(spec: SweepSpec, robot: RobotSetup) -> None:
@@ -310,15 +285,18 @@ def check_robot_sweep(spec: SweepSpec, robot: RobotSetup) -> None:
                         f"{h:.3f} m high; allowed {lo:.3f}-{hi:.3f} m)")
 
 
-def _finish(out: Path, n_chunks: int, wall: float, computed: int):
-    """The manifest update closing a run: complete or not, wall time, divergences."""
+def _finish(out: Path, n_chunks: int, wall: float, computed: int, run: dict):
+    """The manifest update closing a run: complete or not, wall time, divergences; this run's
+    entry of `runs` gets its chunks computed and wall time."""
     def finish(m: dict) -> dict:
         # Judged under the lock from the files themselves, so the last writer to finish
         # states the final truth.
         entries = m.get("chunks", {})
         recorded = [chunks.chunk_name(i) for i in range(n_chunks)
                     if chunks.check_chunk(out, i, entries.get(chunks.chunk_name(i))) is None]
-        return {**m, "complete": len(recorded) == n_chunks,
+        runs = [dict(r, chunks_computed=computed, wall_s=round(wall, 2))
+                if r.get("run_id") == run["run_id"] else r for r in m.get("runs", [])]
+        return {**m, "runs": runs, "complete": len(recorded) == n_chunks,
                 "wall_s": round(float(m.get("wall_s", 0.0)) + wall, 2),
                 "chunks_computed_last_run": computed,
                 "n_diverged": sum(entries[c].get("n_diverged", 0) for c in recorded)}
@@ -344,39 +322,37 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
     max_chunks: stop after computing this many new chunks (for tests and partial runs).
     Multi-process: process 0 waits up to `wait_for_others_s` for the other processes' chunks
     before writing the final manifest. backend: "auto" (see `choose_backend`), "mjx" or
-    "mujoco"; the manifest records which ran (the spec hash does not include it, so a sweep
-    can be resumed on another machine; outcomes agree across backends except near the fall
-    boundary). schedule: a scheduled policy's Schedule (`tkujax.control.io.load_policy_json`),
-    applied with `params` in every control-on run; the manifest and the spec hash record it.
+    "mujoco"; each chunk's manifest entry records the run, backend, device and commit that
+    wrote it, and `runs` every run (`tkujax.studies.sweep_folder`; the spec hash does not
+    include the backend, so a sweep can be resumed on another machine; outcomes agree across
+    backends except near the fall boundary). The returned manifest's `this_run` is this
+    run's entry of `runs`. schedule: a scheduled policy's Schedule
+    (`tkujax.control.io.load_policy_json`), applied with `params` in every control-on run;
+    the manifest and the spec hash record it.
     decisions: "full" or "early" in place of the spec's [sweep] decisions (None: the spec's);
     early decisions run on MJX (docs/sweeps.md).
     """
     spec, params = _checked_inputs(spec, params, model_params, max_chunks, schedule)
     spec = with_decisions(spec, decisions)
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    process_id, num_processes = _processes(process_id, num_processes, coordinator)
-
+    process_id, num_processes, coordinator = processes(process_id, num_processes, coordinator)
     backend = choose_backend(backend, spec)
+    out = prepare_out(Path(out))
+    if num_processes > 1:
+        jax.distributed.initialize(coordinator_address=coordinator, num_processes=num_processes,
+                                   process_id=process_id)
     digest = spec_hash(spec, params, model_params or ModelParams(), schedule)
-    old = chunks.read_manifest(out)
-    if old and old.get("spec_hash") != digest:
-        raise SpecError(f"{out} holds a different sweep (spec hash {old.get('spec_hash')} != "
-                        f"{digest}); choose another --out")
-
     recs = record_inputs(spec)
     n = len(recs["push_id"])
     n_chunks = math.ceil(n / spec.chunk_size)
     devices = jax.local_devices()
     # Pad every chunk to one shape (a multiple of the device count): one compile for all.
     padded = math.ceil(spec.chunk_size / len(devices)) * len(devices)
-    manifest = _describe(spec, digest, n, n_chunks, padded, params, model_params,
-                         num_processes, backend, schedule)
+    run = run_record(backend, process_id, num_processes)
+    # The check that the folder holds no other sweep and the claim of it: one locked update.
+    claim_folder(out, describe(spec, digest, n, n_chunks, padded, params, model_params,
+                               num_processes, backend, schedule),
+                 input_digests(spec, params, model_params or ModelParams(), schedule), run)
     chunks.clean_temporaries(out)
-    # Every writer (re)states the description; the chunk entries are kept (see chunks.py).
-    chunks.update_manifest(out, lambda m: {**manifest, "complete": False,
-                                           "wall_s": float(m.get("wall_s", 0.0)),
-                                           "chunks": m.get("chunks", {})})
     mine = [i for i in range(n_chunks) if i % num_processes == process_id]
     done = chunks.done_chunks(out, n_chunks)
     pending = [i for i in mine if i not in done]
@@ -387,7 +363,8 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
     job = _ChunkJob(spec=spec, recs=recs, base=base,
                     model_params=model_params, backend=backend, schedule=schedule, padded=padded,
                     sharding=NamedSharding(Mesh(np.array(devices), ("push",)),
-                                           PartitionSpec("push")))
+                                           PartitionSpec("push")),
+                    spec_hash=digest, provenance=chunk_provenance(run))
     progress = Progress(len(mine) * spec.chunk_size, (len(mine) - len(pending)) * spec.chunk_size,
                         open(os.devnull, "w") if quiet else sys.stderr)
     t_start = time.perf_counter()
@@ -397,7 +374,8 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
     wall = time.perf_counter() - t_start
     if process_id == 0 and num_processes > 1 and max_chunks is None:
         _wait_for_others(out, n_chunks, deadline)
-    return chunks.update_manifest(out, _finish(out, n_chunks, wall, computed))
+    return chunks.update_manifest(out, _finish(out, n_chunks, wall, computed, run)) | {
+        "this_run": run}
 
 
 def load(out: str | Path, as_frame: bool = False):

@@ -1,0 +1,69 @@
+"""How a command ends when it cannot go on: one line on stderr and an exit code.
+
+- bad input (a CLI value, a spec key, a parameter): "tkujax CMD: error: KEY: ... allowed ...",
+  exit 2 (argparse's own errors too, without the usage block: `OneLineParser`);
+- an OS error (a file in the way, no permission, a name too long): the path and what is wrong,
+  exit 2;
+- Ctrl-C: "interrupted; rerun the same command to resume", exit 130 (128 + SIGINT), no
+  traceback; the sweep's writers remove their temporary files on the way out
+  (`tkujax.studies.chunks`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+EXIT_BAD_INPUT = 2
+EXIT_INTERRUPTED = 130
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """An ArgumentParser whose errors are one line naming the option (exit 2)."""
+
+    def error(self, message: str):
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {one_line(message)} (see {self.prog} "
+                                  "-h)\n")
+
+
+def bounded_int(lo: int, hi: int):
+    """An argparse type: an integer in [lo, hi], else an error naming the range."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer in [{lo}, {hi}], "
+                                             f"got {text!r}") from None
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"expected an integer in [{lo}, {hi}], got {value}")
+        return value
+    parse.__name__ = f"integer in [{lo}, {hi}]"
+    return parse
+
+
+def one_line(text: str) -> str:
+    """`text` on one line (its line breaks as '; ')."""
+    return "; ".join(part.strip() for part in str(text).splitlines() if part.strip())
+
+
+def os_error_text(err: OSError) -> str:
+    """The path(s) of an OSError and what is wrong with them."""
+    if err.filename is None:
+        return one_line(str(err))
+    paths = f"{err.filename}" + (f" -> {err.filename2}" if err.filename2 else "")
+    return f"{paths}: {one_line(err.strerror or str(err))}"
+
+
+def run_command(name: str, command) -> int:
+    """`command()`'s exit code, or the one line and code of the error that ended it."""
+    try:
+        return command()
+    except KeyboardInterrupt:
+        print(f"{name}: interrupted; rerun the same command to resume", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except OSError as err:
+        print(f"{name}: error: {os_error_text(err)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except (ValueError, OverflowError) as err:   # bad input: the message names the key
+        print(f"{name}: error: {one_line(str(err))}", file=sys.stderr)
+        return EXIT_BAD_INPUT
