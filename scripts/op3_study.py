@@ -143,7 +143,7 @@ def step_picture(args, out: Path, deadline: float) -> dict:
 
 def step_map(args, out: Path, deadline: float) -> dict:
     from tkujax.robot.closed_loop import robot_setup
-    from tkujax.robot.runs import robot_lip
+    from tkujax.studies.robot_inputs import robot_lip
     from tkujax.studies.maps import make_maps
     from tkujax.studies.sweep import load
 

@@ -14,7 +14,7 @@ import pytest
 
 from tkujax.cli import main
 from tkujax.robot.builtin import GENERATED_SECOND, write_generated_robot
-from tkujax.robot.runs import capture_feet, capture_robot, robot_lip
+from tkujax.studies.robot_inputs import capture_feet, capture_robot, robot_lip
 from tkujax.studies.capturability import step_reach_m
 from tkujax.studies.capture import run_capture
 from tkujax.studies.capture.on_robot import check_capture_robot

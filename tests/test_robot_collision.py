@@ -84,7 +84,7 @@ def test_default_mode_is_primitives_and_bad_modes_are_refused(meshed, tmp_path):
     with pytest.raises(RobotFileError, match=r"collision\.mode: expected one of"):
         load_description(bad)
     bad.write_text(bad.read_text().replace('mode = "convex"', 'shape = "box"'))
-    with pytest.raises(RobotFileError, match=r"collision\.: unknown key"):
+    with pytest.raises(RobotFileError, match=r"collision: unknown key"):
         load_description(bad)
 
 

@@ -17,7 +17,7 @@ from tkujax.studies.capture import run_capture
 from tkujax.studies.compare import compare_runs
 from tkujax.studies.maps import make_maps
 from tkujax.studies.replay import replay
-from tkujax.robot.runs import robot_lip, sweep_robot, tune_robot
+from tkujax.studies.robot_inputs import robot_lip, sweep_robot, tune_robot
 from tkujax.studies.spec import SpecError, parse_spec
 from tkujax.studies.sweep import run_sweep
 from tkujax.studies.tune.robot import on_robot
@@ -140,7 +140,7 @@ def test_tkux_sweep_refuses_a_robot(setups, tmp_path):
 
 
 def test_capture_wants_a_robot_setup(files, tmp_path):
-    """capture on a robot takes its RobotSetup and geometry (tkujax.robot.runs.capture_robot),
+    """capture on a robot takes its RobotSetup and geometry (tkujax.studies.robot_inputs.capture_robot),
     not a path (tests/test_capture_robot.py runs it)."""
     with pytest.raises(SpecError, match="--robot: expected a RobotSetup"):
         run_capture(REPO / "specs" / "capture" / "capture_region_cpu.toml", tmp_path,

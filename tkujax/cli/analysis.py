@@ -8,7 +8,7 @@ from tkujax.cli.options import add_robot_check_option, controller_params_from_op
 
 
 def _cmd_compare(args) -> int:
-    from tkujax.robot.runs import sweep_robot
+    from tkujax.studies.robot_inputs import sweep_robot
     from tkujax.studies.compare import Bands, compare_runs, parse_run
 
     edges = (tuple(float(x) for x in args.impulse_edges.split(",")) if args.impulse_edges

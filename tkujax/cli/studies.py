@@ -41,7 +41,7 @@ def _cmd_refine(args) -> int:
 
 
 def _cmd_tune(args) -> int:
-    from tkujax.robot.runs import tune_robot
+    from tkujax.studies.robot_inputs import tune_robot
     from tkujax.studies.tune import run_tune
     from tkujax.studies.validation import read_toml
 

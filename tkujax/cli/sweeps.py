@@ -89,7 +89,7 @@ def _write_replay_video(result: dict, args) -> None:
 def _cmd_replay(args) -> int:
     from tkujax.studies.replay import replay
 
-    from tkujax.robot.runs import sweep_robot
+    from tkujax.studies.robot_inputs import sweep_robot
 
     result = replay(args.run_dir, args.index, robot=sweep_robot(args.run_dir, args.robot),
                     exact=args.exact)
@@ -103,7 +103,7 @@ def _cmd_replay(args) -> int:
 def _cmd_capture(args) -> int:
     from tkujax.studies.capture import run_capture
 
-    from tkujax.robot.runs import capture_robot
+    from tkujax.studies.robot_inputs import capture_robot
 
     robot, feet = capture_robot(args.spec, args.robot)
     res = run_capture(args.spec, args.out, params=controller_params_from_option(args.params),
@@ -122,7 +122,7 @@ def _cmd_capture(args) -> int:
 def _cmd_map(args) -> int:
     from tkujax.studies.maps import make_maps
 
-    from tkujax.robot.runs import robot_lip, sweep_robot
+    from tkujax.studies.robot_inputs import robot_lip, sweep_robot
 
     robot = sweep_robot(args.dir, args.robot)
     result = make_maps(args.dir, robot=robot, lip=None if robot is None else robot_lip(robot),

@@ -16,8 +16,10 @@ What it adds to `init_robot`'s SimSetup:
   vertices (the lowest vertex is the geom's lowest point);
 - MuJoCo's eulerdamp off (the C rollout chains the solver's warm start through
   qvel' = qvel + dt qacc, which holds only without it; MJX and C then step the same Euler);
-- the controller's parameters, `controller_params_for` the geometry at the stand, with the
-  standing lean read from the stand settled `SETTLE_S` in MuJoCo C (OP3: -2.3 deg).
+- the controller: the one the robot file names, else a conservative default
+  (tkujax.robot.own_controller) on `controller_params_for` the geometry at the stand, with the
+  standing lean read from the stand settled `SETTLE_S` in MuJoCo C (OP3: -2.3 deg); the leg
+  map is built on those scaled defaults.
 """
 
 from __future__ import annotations
@@ -35,7 +37,9 @@ from tkujax.control.controller import stand_leg_targets
 from tkujax.control.params import ControllerParams
 from tkujax.robot.description import RobotFileError, load_description
 from tkujax.robot.geometry import base_pitch_roll, controller_params_for, measure_geometry
+from tkujax.robot.leg_map import jacobian_map, sign_map
 from tkujax.robot.loader import RobotModel, load_robot
+from tkujax.robot.own_controller import robot_controller
 from tkujax.robot.simsetup import floor_geoms, robot_index, settled_data
 from tkujax.robot.stand import stand_pose
 from tkujax.sim.mjx_import import mjx
@@ -59,14 +63,17 @@ def file_digest(path: str | Path) -> str:
     return h.hexdigest()
 
 
-def leg_map(robot: RobotModel, stand_ctrl: np.ndarray,
-            params: ControllerParams) -> tuple[np.ndarray, np.ndarray]:
-    """(signs (12,), offsets (12,)) taking the controller's targets (slot order: right then
-    left, roles in order) to the robot's leg actuators, the controller's stand to `stand_ctrl`."""
-    signs = robot.axis_signs.reshape(-1).astype(float)
+def leg_map(robot: RobotModel, pose, params: ControllerParams) -> dict:
+    """ModelIndex's leg map fields taking the controller's targets (slot order: right then
+    left, roles in order) to the robot's leg actuators, the controller's stand to the pose's
+    (tkujax.robot.leg_map: signs for TKU-X's chain, a matrix for any other)."""
     q_stand = np.asarray(stand_leg_targets(params), np.float64)
-    stand = stand_ctrl[robot.leg_actuators.reshape(-1)]
-    return signs, stand - signs * q_stand
+    if robot.tkux_chain:
+        signs, offsets = sign_map(robot, pose.ctrl, q_stand)
+        return dict(leg_signs=signs, leg_offsets=offsets)
+    matrix, offsets = jacobian_map(robot, pose.qpos, pose.ctrl, q_stand,
+                                   float(params.thigh_length), float(params.calf_length))
+    return dict(leg_matrix=matrix, leg_offsets=offsets)
 
 
 def mesh_fall_geoms(robot: RobotModel) -> tuple[tuple[int, ...], tuple[np.ndarray, ...]]:
@@ -91,9 +98,8 @@ def _check_layout(robot: RobotModel) -> None:
 
 def closed_loop_index(robot: RobotModel, pose, params: ControllerParams) -> ModelIndex:
     """robot_index with the leg map and the mesh geoms of the fall test."""
-    signs, offsets = leg_map(robot, pose.ctrl, params)
     meshes, points = mesh_fall_geoms(robot)
-    return dataclasses.replace(robot_index(robot, pose), leg_signs=signs, leg_offsets=offsets,
+    return dataclasses.replace(robot_index(robot, pose), **leg_map(robot, pose, params),
                                mesh_geoms=meshes, mesh_points=points)
 
 
@@ -109,16 +115,16 @@ def _params(robot: RobotModel, pose, data: mujoco.MjData) -> ControllerParams:
 def _robot_setup(path: str, digest: str) -> RobotSetup:
     robot = load_robot(path)
     _check_layout(robot)
-    robot.model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP)
     pose = stand_pose(robot)
     data = settled_data(robot, pose, SETTLE_S)
-    params = _params(robot, pose, data)
+    scaled = _params(robot, pose, data)
+    params, controller = robot_controller(robot.description, scaled)
     device = jax.local_devices()[0]
     setup = SimSetup(robot.model, mjx.put_model(robot.model, device=device),
-                     closed_loop_index(robot, pose, params),
+                     closed_loop_index(robot, pose, scaled),
                      mjx.put_data(robot.model, data, device=device))
     return RobotSetup(setup=setup, settled=data, params=params, name=robot.name, digest=digest,
-                      source=path)
+                      source=path, controller=controller)
 
 
 def robot_setup(path: str | Path) -> RobotSetup:

@@ -13,6 +13,11 @@ roles given twice, the MJCF's existence); the names are checked against the comp
     [stand]                       # optional: keyframe = "home", or joints = {name = rad, ...},
                                   # or hip_height_frac = 0.93 for the computed stand
     [collision]                   # optional: mode = "primitives" (default) or "model"
+    controller = "robot.json"     # optional: the robot's tuned controller, relative to this file
+    [servo]                       # optional: PD servos on the leg joints (tkujax.robot.servos)
+
+Each leg names hip_yaw, hip_roll, hip_pitch (in whatever order the chain has them), knee,
+ankle_pitch and, optionally, ankle_roll (a five-joint leg has none).
 """
 
 from __future__ import annotations
@@ -23,12 +28,17 @@ import os
 import re
 from pathlib import Path
 
+from tkujax.model.files import SpecError, read_toml
 from tkujax.robot.collision import COLLISION_MODES, DEFAULT_COLLISION_MODE
-from tkujax.studies.validation import SpecError, read_toml
+from tkujax.robot.file_checks import RobotFileError, check_keys, string
+from tkujax.robot.servos import ServoTable, parse_servo_table
 
 LEG_ROLES = ("hip_yaw", "hip_roll", "hip_pitch", "knee", "ankle_pitch", "ankle_roll")
+OPTIONAL_ROLES = ("ankle_roll",)     # a five-joint leg (hip x 3, knee, ankle pitch) has none
+HIP_ROLES = LEG_ROLES[:3]
+ANKLE_ROLES = LEG_ROLES[4:]
 SIDES = ("left", "right")
-TOP_KEYS = ("mjcf", "imu", "legs", "stand", "name", "collision")
+TOP_KEYS = ("mjcf", "imu", "legs", "stand", "name", "collision", "controller", "servo")
 REQUIRED_TOP = ("mjcf", "imu", "legs")
 STAND_KEYS = ("keyframe", "joints", "hip_height_frac")
 COLLISION_KEYS = ("mode",)
@@ -36,19 +46,16 @@ HIP_HEIGHT_FRAC = 0.93        # computed stand: hip-to-ankle = this x (thigh + c
 _VAR = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)(?::-([^}]*))?\}")
 
 
-class RobotFileError(SpecError):
-    """A problem with a robot file or its model; the message names the key."""
-
-
 @dataclasses.dataclass(frozen=True)
 class LegDescription:
-    """One leg: a joint name per role (LEG_ROLES order) and the foot's body."""
+    """One leg: a joint name per role it has (`roles`, in LEG_ROLES order) and the foot's body."""
 
     joints: tuple[str, ...]
     foot: str
+    roles: tuple[str, ...] = LEG_ROLES
 
     def joint(self, role: str) -> str:
-        return self.joints[LEG_ROLES.index(role)]
+        return self.joints[self.roles.index(role)]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -72,6 +79,13 @@ class RobotDescription:
     stand: StandDescription
     source: str
     collision_mode: str = DEFAULT_COLLISION_MODE   # tkujax.robot.collision.COLLISION_MODES
+    controller_path: Path | None = None            # the robot's tuned controller (absolute)
+    servo: ServoTable | None = None                # [servo]: PD servos replacing the legs'
+
+    @property
+    def roles(self) -> tuple[str, ...]:
+        """The leg roles both legs have, in LEG_ROLES order."""
+        return self.left.roles
 
     def leg(self, side: str) -> LegDescription:
         return self.left if side == "left" else self.right
@@ -94,45 +108,27 @@ def expand_path(text: str, base: Path) -> Path:
 def load_description(path: str | Path) -> RobotDescription:
     """Read and check a robot file (its structure; names are checked by `load_robot`)."""
     path = Path(path)
-    if not path.is_file():
-        raise RobotFileError(f"robot file not found: {path}")
     try:
-        data = read_toml(path)
+        data = read_toml(path, "robot file")
     except SpecError as err:
         raise RobotFileError(str(err)) from err
     return parse_description(data, path.parent.resolve(), str(path))
-
-
-def _string(data: dict, key: str, where: str) -> str:
-    value = data.get(key)
-    if not isinstance(value, str) or not value:
-        raise RobotFileError(f"{where}{key}: expected a non-empty string, got {value!r}")
-    return value
-
-
-def _check_keys(data: dict, allowed, required, where: str) -> None:
-    unknown = sorted(set(data) - set(allowed))
-    if unknown:
-        raise RobotFileError(f"{where or 'top level'}: unknown key(s) {unknown}; allowed: "
-                             f"{list(allowed)}")
-    missing = [k for k in required if k not in data]
-    if missing:
-        raise RobotFileError(f"{where or 'top level'}: missing required key(s) "
-                             f"{[f'{where}{k}' for k in missing]}")
 
 
 def _leg(data, side: str) -> LegDescription:
     where = f"legs.{side}."
     if not isinstance(data, dict):
         raise RobotFileError(f"legs.{side}: expected a table of joint names, got {data!r}")
-    _check_keys(data, LEG_ROLES + ("foot",), LEG_ROLES + ("foot",), where)
-    joints = tuple(_string(data, role, where) for role in LEG_ROLES)
+    required = tuple(r for r in LEG_ROLES if r not in OPTIONAL_ROLES) + ("foot",)
+    check_keys(data, LEG_ROLES + ("foot",), required, f"legs.{side}")
+    roles = tuple(r for r in LEG_ROLES if r in data)
+    joints = tuple(string(data, role, f"legs.{side}") for role in roles)
     for i, name in enumerate(joints):
         if name in joints[:i]:
-            first = LEG_ROLES[joints.index(name)]
-            raise RobotFileError(f"{where}{LEG_ROLES[i]}: joint {name!r} is already given as "
+            first = roles[joints.index(name)]
+            raise RobotFileError(f"{where}{roles[i]}: joint {name!r} is already given as "
                                  f"{where}{first} (a role given twice)")
-    return LegDescription(joints=joints, foot=_string(data, "foot", where))
+    return LegDescription(joints=joints, foot=string(data, "foot", f"legs.{side}"), roles=roles)
 
 
 def _stand(data) -> StandDescription:
@@ -140,10 +136,10 @@ def _stand(data) -> StandDescription:
         return StandDescription()
     if not isinstance(data, dict):
         raise RobotFileError(f"stand: expected a table, got {data!r}")
-    _check_keys(data, STAND_KEYS, (), "stand.")
+    check_keys(data, STAND_KEYS, (), "stand")
     if "keyframe" in data and "joints" in data:
         raise RobotFileError("stand: give stand.keyframe or stand.joints, not both")
-    keyframe = _string(data, "keyframe", "stand.") if "keyframe" in data else None
+    keyframe = string(data, "keyframe", "stand") if "keyframe" in data else None
     joints = data.get("joints", {})
     if not isinstance(joints, dict):
         raise RobotFileError(f"stand.joints: expected a table of joint angles (rad), got "
@@ -167,7 +163,7 @@ def _collision_mode(data) -> str:
         return DEFAULT_COLLISION_MODE
     if not isinstance(data, dict):
         raise RobotFileError(f"collision: expected a table, got {data!r}")
-    _check_keys(data, COLLISION_KEYS, (), "collision.")
+    check_keys(data, COLLISION_KEYS, (), "collision")
     mode = data.get("mode", DEFAULT_COLLISION_MODE)
     if mode not in COLLISION_MODES:
         raise RobotFileError(f"collision.mode: expected one of {list(COLLISION_MODES)}, got "
@@ -177,15 +173,18 @@ def _collision_mode(data) -> str:
 
 def parse_description(data: dict, base: Path, source: str = "<robot file>") -> RobotDescription:
     """A RobotDescription from the TOML's dict; relative paths are relative to `base`."""
-    _check_keys(data, TOP_KEYS, REQUIRED_TOP, "")
-    mjcf = expand_path(_string(data, "mjcf", ""), base)
+    check_keys(data, TOP_KEYS, REQUIRED_TOP, "")
+    mjcf = expand_path(string(data, "mjcf", ""), base)
     if not mjcf.is_file():
         raise RobotFileError(f"mjcf: model file not found: {mjcf} (relative to {base})")
     legs = data["legs"]
     if not isinstance(legs, dict):
         raise RobotFileError(f"legs: expected [legs.left] and [legs.right] tables, got {legs!r}")
-    _check_keys(legs, SIDES, SIDES, "legs.")
+    check_keys(legs, SIDES, SIDES, "legs")
     left, right = _leg(legs["left"], "left"), _leg(legs["right"], "right")
+    if left.roles != right.roles:
+        raise RobotFileError(f"legs.right: roles {list(right.roles)} differ from legs.left's "
+                             f"{list(left.roles)} (both legs need the same joints)")
     shared = sorted(set(left.joints) & set(right.joints))
     if shared:
         raise RobotFileError(f"legs.right: joint(s) {shared} also given in legs.left "
@@ -193,6 +192,17 @@ def parse_description(data: dict, base: Path, source: str = "<robot file>") -> R
     name = data.get("name", mjcf.stem)
     if not isinstance(name, str):
         raise RobotFileError(f"name: expected a string, got {name!r}")
-    return RobotDescription(name=name, mjcf_path=mjcf, imu=_string(data, "imu", ""),
+    servo = parse_servo_table(data["servo"], roles=left.roles) if "servo" in data else None
+    return RobotDescription(name=name, mjcf_path=mjcf, imu=string(data, "imu", ""),
                             left=left, right=right, stand=_stand(data.get("stand")),
-                            source=source, collision_mode=_collision_mode(data.get("collision")))
+                            source=source, collision_mode=_collision_mode(data.get("collision")),
+                            controller_path=_controller_path(data, base), servo=servo)
+
+
+def _controller_path(data: dict, base: Path) -> Path | None:
+    if "controller" not in data:
+        return None
+    path = expand_path(string(data, "controller", ""), base)
+    if not path.is_file():
+        raise RobotFileError(f"controller: file not found: {path} (relative to {base})")
+    return path

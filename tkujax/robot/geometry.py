@@ -17,7 +17,8 @@ import mujoco
 import numpy as np
 
 from tkujax.control.params import ControllerParams
-from tkujax.robot.loader import LEG_ORDER, RobotModel, axis_point, zero_pose_data
+from tkujax.robot.description import ANKLE_ROLES, HIP_ROLES
+from tkujax.robot.loader import LEG_ORDER, RobotModel, ankle_point, axis_point, zero_pose_data
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,18 +50,20 @@ def _axis_gap(data: mujoco.MjData, j_from: int, j_to: int) -> float:
 def link_lengths(robot: RobotModel) -> tuple[float, float]:
     """(thigh, calf) in m, each the mean of both legs (pose independent)."""
     data = zero_pose_data(robot.model, robot.root_body)
+    pitch, knee, ankle = (robot.column(r) for r in ("hip_pitch", "knee", "ankle_pitch"))
     j = robot.leg_joints
-    thigh = np.mean([_axis_gap(data, row[2], row[3]) for row in j])
-    calf = np.mean([_axis_gap(data, row[3], row[4]) for row in j])
+    thigh = np.mean([_axis_gap(data, row[pitch], row[knee]) for row in j])
+    calf = np.mean([_axis_gap(data, row[knee], row[ankle]) for row in j])
     return float(thigh), float(calf)
 
 
 def hip_and_ankle_centres(robot: RobotModel, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
     """(hips (2, 3), ankles (2, 3)) in world coordinates of `data` (after kinematics)."""
     hips, ankles = [], []
+    hip_cols, ankle_cols = robot.columns(HIP_ROLES), robot.columns(ANKLE_ROLES)
     for row in robot.leg_joints:
-        hips.append(axis_point(data.xanchor[row[:3]], data.xaxis[row[:3]]))
-        ankles.append(axis_point(data.xanchor[row[4:]], data.xaxis[row[4:]]))
+        hips.append(axis_point(data.xanchor[row[hip_cols]], data.xaxis[row[hip_cols]]))
+        ankles.append(ankle_point(data, row[robot.column("knee")], list(row[ankle_cols])))
     return np.array(hips), np.array(ankles)
 
 
@@ -105,6 +108,62 @@ def _root_qpos(robot: RobotModel) -> int:
     return int(robot.model.jnt_qposadr[robot.model.body_jntadr[robot.root_body]])
 
 
+# The ranges of ControllerParams.validate() for the fields scaled from a robot's geometry,
+# closed a hair inside where validate's range is open; clamp_derived keeps each default in them.
+EPS = 1e-6
+DERIVED_RANGES = {
+    "step_period": (0.05, 2.0), "lift_height": (0.0, 0.1),
+    "cp_trigger_forward_m": (0.0, 0.5), "cp_trigger_backward_m": (0.0, 0.5),
+    "cp_trigger_lateral_m": (0.0, 0.5),
+    "standing_lean": (-math.pi / 2 + EPS, math.pi / 2 - EPS),
+    "cp_angle_offset": (-math.pi / 2 + EPS, math.pi / 2 - EPS),
+    "eps_forward": (0.0, math.pi / 2 - EPS), "eps_backward": (0.0, math.pi / 2 - EPS),
+    "hip_offset_y": (EPS, 2.0), "thigh_length": (EPS, 2.0), "calf_length": (EPS, 2.0),
+    "leg_length": (EPS, 2.0), "com_height": (EPS, 2.0),
+}
+
+
+def clamp_derived(values: dict) -> tuple[dict, tuple[str, ...]]:
+    """`values` with each derived field inside its range (DERIVED_RANGES, and hip_to_ankle_z
+    within the reach), and what was clamped and why, one line per field."""
+    out, notes = dict(values), []
+    for key, (lo, hi) in DERIVED_RANGES.items():
+        if key in out and not lo <= out[key] <= hi:
+            clamped = min(max(out[key], lo), hi)
+            notes.append(f"{key}: the scaled default {out[key]:.6g} is outside [{lo:.6g}, "
+                         f"{hi:.6g}]; clamped to {clamped:.6g}")
+            out[key] = clamped
+    reach = out["thigh_length"] + out["calf_length"]
+    if not 0 < out["hip_to_ankle_z"] <= reach:
+        clamped = min(max(out["hip_to_ankle_z"], EPS), reach)
+        notes.append(f"hip_to_ankle_z: {out['hip_to_ankle_z']:.6g} m is outside (0, "
+                     f"thigh + calf = {reach:.6g}] m; clamped to {clamped:.6g}")
+        out["hip_to_ankle_z"] = clamped
+    return out, tuple(notes)
+
+
+def scaled_defaults(geo: RobotGeometry,
+                    reference: ControllerParams | None = None) -> tuple[ControllerParams,
+                                                                        tuple[str, ...]]:
+    """`controller_params_for`, and the lines saying which derived defaults were clamped."""
+    ref = reference or ControllerParams.paper()
+    scale_t = math.sqrt(geo.com_height_m / ref.com_height)
+    scale_l = geo.reach_m / (ref.thigh_length + ref.calf_length)
+    lean = geo.stand_lean_rad
+    values, notes = clamp_derived(dict(
+        step_period=ref.step_period * scale_t, lift_height=ref.lift_height * scale_l,
+        cp_trigger_forward_m=ref.cp_trigger_forward_m * scale_l,
+        cp_trigger_backward_m=ref.cp_trigger_backward_m * scale_l,
+        cp_trigger_lateral_m=ref.cp_trigger_lateral_m * scale_l,
+        standing_lean=lean, cp_angle_offset=lean,
+        eps_forward=max(0.0, lean + (ref.eps_forward - ref.standing_lean)),
+        eps_backward=max(0.0, ref.eps_backward + ref.standing_lean - lean),
+        hip_offset_y=geo.hip_offset_y_m, hip_to_ankle_z=geo.hip_to_ankle_z_m,
+        thigh_length=geo.thigh_length_m, calf_length=geo.calf_length_m,
+        leg_length=geo.leg_length_m, com_height=geo.com_height_m))
+    return dataclasses.replace(ref, **values).validate(), notes
+
+
 def controller_params_for(geo: RobotGeometry,
                           reference: ControllerParams | None = None) -> ControllerParams:
     """The paper's controller with `geo`'s geometry and defaults scaled from TKU-X
@@ -115,20 +174,7 @@ def controller_params_for(geo: RobotGeometry,
     - the standing lean and the capture point's angle offset = the robot's stand lean, and the
       thresholds at the same angles from it as TKU-X's (12 deg = lean + 5 deg forward, -2 deg =
       lean - 9 deg backward; neither threshold can pass 0, where it is held: a robot leaning
-      more than 5 deg backward keeps the forward threshold at 0).
+      more than 5 deg backward keeps the forward threshold at 0);
+    - each inside its allowed range (`clamp_derived`; `scaled_defaults` says what it clamped).
     For TKU-X's own geometry this is the reference itself."""
-    ref = reference or ControllerParams.paper()
-    scale_t = math.sqrt(geo.com_height_m / ref.com_height)
-    scale_l = geo.reach_m / (ref.thigh_length + ref.calf_length)
-    lean = geo.stand_lean_rad
-    return dataclasses.replace(
-        ref, step_period=ref.step_period * scale_t, lift_height=ref.lift_height * scale_l,
-        cp_trigger_forward_m=ref.cp_trigger_forward_m * scale_l,
-        cp_trigger_backward_m=ref.cp_trigger_backward_m * scale_l,
-        cp_trigger_lateral_m=ref.cp_trigger_lateral_m * scale_l,
-        standing_lean=lean, cp_angle_offset=lean,
-        eps_forward=max(0.0, lean + (ref.eps_forward - ref.standing_lean)),
-        eps_backward=max(0.0, ref.eps_backward + ref.standing_lean - lean),
-        hip_offset_y=geo.hip_offset_y_m, hip_to_ankle_z=geo.hip_to_ankle_z_m,
-        thigh_length=geo.thigh_length_m, calf_length=geo.calf_length_m,
-        leg_length=geo.leg_length_m, com_height=geo.com_height_m).validate()
+    return scaled_defaults(geo, reference)[0]

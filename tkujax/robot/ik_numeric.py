@@ -76,7 +76,7 @@ def set_leg(robot: RobotModel, data: mujoco.MjData, side: str, q: np.ndarray) ->
 def solve_leg_ik(robot: RobotModel, side: str, target_pos: np.ndarray, target_rot: np.ndarray,
                  q_init: np.ndarray | None = None, data: mujoco.MjData | None = None,
                  max_iterations: int = 200, damping: float = 1e-4) -> LegIK:
-    """The six joint angles putting the leg's ankle centre at `target_pos` with the foot at
+    """The leg's joint angles (role order) putting the leg's ankle centre at `target_pos` with the foot at
     `target_rot`, both in the base frame (`base_data`). Damped least squares from `q_init`
     (default: the leg's angles in `data`, or zero), clipped to the joint ranges."""
     model, i = robot.model, _side(side)
@@ -101,7 +101,7 @@ def solve_leg_ik(robot: RobotModel, side: str, target_pos: np.ndarray, target_ro
         mujoco.mj_comPos(model, data)
         mujoco.mj_jacSite(model, data, jacp, jacr, site)
         jac = np.concatenate([jacp[:, dofs], jacr[:, dofs]])
-        step = jac.T @ np.linalg.solve(jac @ jac.T + damping ** 2 * np.eye(6), e)
+        step = jac.T @ np.linalg.solve(jac @ jac.T + damping ** 2 * np.eye(6), e)   # 6 x 6
         q = np.clip(q + step, lo, hi)
     return LegIK(q_rad=q, position_error_m=err_p, rotation_error_rad=err_r, iterations=iterations)
 
@@ -111,6 +111,9 @@ def analytic_ik_applies(robot: RobotModel, tol: float = 1e-6) -> tuple[bool, str
     joint axes exactly along z, x, y, y, y, x of the base with TKU-X's signs; hip axes meeting
     at a hip centre level with the base origin and straight above the ankle centre at the zero
     pose, where the two ankle axes meet."""
+    if not robot.tkux_chain:
+        orders = {side: list(order) for side, order in zip(LEG_ORDER, robot.chain_order)}
+        return False, f"the legs' chains from the base are {orders}, not TKU-X's six joints"
     model, data = robot.model, zero_pose_data(robot.model, robot.root_body)
     hips, ankles = hip_and_ankle_centres(robot, data)
     for i, side in enumerate(LEG_ORDER):

@@ -20,6 +20,7 @@ from tkujax.robot.description import RobotFileError
 from tkujax.robot.geometry import base_pitch_roll, floor_height_m, link_lengths
 from tkujax.robot.ik_numeric import base_data, foot_pose, solve_leg_ik
 from tkujax.robot.loader import LEG_ORDER, RobotModel, geom_points
+from tkujax.robot.stand_torques import explain_failed_stand
 
 COM_DRIFT_LIMIT_FRAC = 0.25     # of thigh + calf: the CoM may wander this far and still stand
 TILT_LIMIT_DEG = 20.0
@@ -54,6 +55,7 @@ class StandResult:
     sole_force_fraction: float        # sole touch sensors / (m g) at the end
     floor_contact_body: str | None    # the first body other than a foot to touch the floor
     floor_contact_time_s: float | None
+    servo_shortfalls: tuple[str, ...] = ()   # when it fell: the servos that fall short of it
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -100,13 +102,13 @@ def _on_floor(robot: RobotModel, qpos: np.ndarray) -> np.ndarray:
 
 
 def _bent_legs(robot: RobotModel, frac: float, forward_m: float, data) -> np.ndarray:
-    """Leg angles (2, 6) for soles flat under the hips, `frac` of the straight height,
+    """Leg angles (2, n) for soles flat under the hips, `frac` of the straight height,
     moved `forward_m` forward; raises when the IK does not converge."""
     straight = base_data(robot)
     out = []
     for i, side in enumerate(LEG_ORDER):
         pos, rot = foot_pose(robot, straight, side)
-        hip_z = straight.xanchor[robot.leg_joints[i][2]][2]
+        hip_z = straight.xanchor[robot.leg_joints[i][robot.column("hip_pitch")]][2]
         target = np.array([pos[0] + forward_m, pos[1], hip_z - frac * (hip_z - pos[2])])
         sol = solve_leg_ik(robot, side, target, rot, q_init=_knee_bend(robot, i), data=data)
         if not sol.converged:
@@ -120,9 +122,9 @@ def _bent_legs(robot: RobotModel, frac: float, forward_m: float, data) -> np.nda
 def _knee_bend(robot: RobotModel, i: int) -> np.ndarray:
     """A start for the IK with the knee bent 0.5 rad forward (the shin swung backward), the
     thigh forward and the ankle back by half that, in each joint's own sign."""
-    signs = robot.axis_signs[i]
-    q = np.array([0.0, 0.0, -0.25, 0.5, -0.25, 0.0])
-    return q * signs
+    bend = {"hip_pitch": -0.25, "knee": 0.5, "ankle_pitch": -0.25}
+    q = np.array([bend.get(role, 0.0) for role in robot.roles])
+    return q * robot.axis_signs[i]
 
 
 def computed_stand(robot: RobotModel, frac: float) -> np.ndarray:
@@ -214,12 +216,15 @@ def check_stand(robot: RobotModel, pose: StandPose, seconds: float = 5.0) -> Sta
         why = f"the base tilted {max_tilt:.1f} deg (limit {TILT_LIMIT_DEG:g})"
     elif drift > drift_limit:
         why = f"the CoM drifted {1e3 * drift:.1f} mm (limit {1e3 * drift_limit:.1f} mm)"
+    short = explain_failed_stand(robot, pose.qpos, pose.ctrl, seconds) if why else ()
+    if short:
+        why += "; " + "; ".join(short)
     return StandResult(
         seconds=seconds, stood=not why, why=why or "stood", base_height_start_m=z0,
         base_height_end_m=float(data.qpos[adr + 2]), pitch_end_deg=float(pitch),
         roll_end_deg=float(roll), max_tilt_change_deg=max_tilt, com_drift_m=drift,
         sole_force_fraction=sole / weight if weight > 0 else 0.0,
-        floor_contact_body=touched, floor_contact_time_s=touched_at)
+        floor_contact_body=touched, floor_contact_time_s=touched_at, servo_shortfalls=short)
 
 
 def _reach(robot: RobotModel) -> float:

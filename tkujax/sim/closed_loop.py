@@ -143,10 +143,16 @@ def controller_tick(idx: ModelIndex, episode: Episode, params: ControllerParams,
 
 def map_legs(idx: ModelIndex, legs: jax.Array) -> jax.Array:
     """The controller's leg targets (TKU-X's joint conventions) as the robot's: each slot's
-    sign and offset (ModelIndex.leg_signs, leg_offsets); TKU-X's model: unchanged."""
+    sign and offset (ModelIndex.leg_signs, leg_offsets), or another chain's linear map
+    (leg_matrix, tkujax.robot.leg_map); TKU-X's model: unchanged."""
+    dtype = legs.dtype
+    if idx.leg_matrix is not None:
+        # HIGHEST: no reduced-precision (TF32) matmul on GPUs for the servo targets.
+        return (jnp.matmul(legs, jnp.asarray(idx.leg_matrix.T, dtype),
+                           precision=jax.lax.Precision.HIGHEST)
+                + jnp.asarray(idx.leg_offsets, dtype))
     if idx.leg_signs is None:
         return legs
-    dtype = legs.dtype
     return legs * jnp.asarray(idx.leg_signs, dtype) + jnp.asarray(idx.leg_offsets, dtype)
 
 
@@ -155,7 +161,7 @@ def set_legs(idx: ModelIndex, ctrl: jax.Array, legs: jax.Array) -> jax.Array:
     `map_legs`). TKU-X's leg actuators are one block; a robot file's may be in any order (OP3
     lists its left leg first): one static slice per run of consecutive actuator ids."""
     legs = map_legs(idx, legs)
-    if idx.leg_signs is None:
+    if idx.leg_signs is None and idx.leg_matrix is None:
         return ctrl.at[legs_slice(idx)].set(legs)
     ids = [int(i) for i in idx.leg_actuators]
     k = 0

@@ -30,6 +30,8 @@ DEFAULT_HEIGHT_M = 0.36             # mid-chest of the stand pose [est]; the rig
 DEFAULT_DURATION_S = 0.020          # ball-on-robot contact time [est]
 CONTROL_PERIOD_S = 0.030            # paper Sec. 4; the controller ticks at t = k * period
 PHYSICS_DT_S = 0.002                # the model's time step (tkujax.model: 2 ms)
+MAX_IMPULSE_NS = 200.0              # a 50 kg robot's falls need tens of N s
+MIN_HEIGHT_M, MAX_HEIGHT_M = 0.05, 2.0
 
 
 @jax.tree_util.register_dataclass
@@ -47,7 +49,9 @@ class Push:
 def make_push(impulse_ns: float, azimuth_deg: float = 0.0, height_m: float = DEFAULT_HEIGHT_M,
               duration_s: float = DEFAULT_DURATION_S, onset_s: float = PAPER_ONSET_S) -> Push:
     """A Push from user units, validated (ValueError names the bad argument)."""
-    checks = [("impulse_ns", impulse_ns, 0.0, 10.0), ("height_m", height_m, 0.25, 0.46),
+    # Any humanoid: 0.5-1.8 m tall, 3-50 kg (a sweep also checks the height against its robot).
+    checks = [("impulse_ns", impulse_ns, 0.0, MAX_IMPULSE_NS),
+              ("height_m", height_m, MIN_HEIGHT_M, MAX_HEIGHT_M),
               ("duration_s", duration_s, 0.002, 0.5), ("onset_s", onset_s, 0.0, 30.0),
               ("azimuth_deg", azimuth_deg, -360.0, 360.0)]
     for name, value, lo, hi in checks:

@@ -323,8 +323,10 @@ class _Physics:
 
 
 def _mapped(idx: ModelIndex, legs) -> np.ndarray:
-    """(n, 12) actuator targets of the controller's leg targets (closed_loop.map_legs)."""
+    """(n, n_act) actuator targets of the controller's leg targets (closed_loop.map_legs)."""
     legs = np.asarray(legs, np.float64)
+    if idx.leg_matrix is not None:
+        return legs @ idx.leg_matrix.T + idx.leg_offsets
     if idx.leg_signs is None:
         return legs
     return legs * idx.leg_signs + idx.leg_offsets

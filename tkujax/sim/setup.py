@@ -60,6 +60,9 @@ class ModelIndex:
     # own model, the controller's targets as they are.
     leg_signs: np.ndarray | None = None
     leg_offsets: np.ndarray | None = None
+    # A robot whose leg chain is not TKU-X's (tkujax.robot.leg_map): the targets are
+    # leg_matrix (n_act, 12) @ q + leg_offsets; leg_signs is then None.
+    leg_matrix: np.ndarray | None = None
     # Non-foot collision meshes for the fall test: geom ids and each one's vertices in its
     # geom frame (the lowest vertex is the geom's lowest point).
     mesh_geoms: tuple[int, ...] = ()
@@ -148,6 +151,7 @@ class RobotSetup:
     name: str
     digest: str                    # sha256 of the robot file and its model file
     source: str                    # the robot file's path
+    controller: str = ""           # where `params` came from (tkujax.robot.own_controller)
 
 
 def init(model_params: ModelParams | None = None, settle_s: float = SETTLE_S,

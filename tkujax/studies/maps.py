@@ -350,7 +350,7 @@ def make_maps(out_dir: str | Path, params: ControllerParams | None = None, robot
               lip: capturability.LipModel | None = None, allow_incomplete: bool = False) -> dict:
     """Write maps/*.png and maps/summary.md (+ .json) for the sweep in `out_dir`. A sweep on a
     robot file needs that robot (a RobotSetup, checked against the manifest's sha256) and its
-    LIP (`tkujax.robot.runs.robot_lip`), which the theory overlays use. An incomplete sweep is
+    LIP (`tkujax.studies.robot_inputs.robot_lip`), which the theory overlays use. An incomplete sweep is
     refused (ValueError "incomplete: k of n chunks"); with allow_incomplete its figures and
     summary are marked "incomplete: k of n chunks" (the result's `incomplete`)."""
     import matplotlib
@@ -379,7 +379,7 @@ def make_maps(out_dir: str | Path, params: ControllerParams | None = None, robot
         lip = capturability.lip_model()
     elif lip is None:
         raise ValueError("make_maps: a robot sweep's maps need the robot's LIP (lip=, "
-                         "tkujax.robot.runs.robot_lip)")
+                         "tkujax.studies.robot_inputs.robot_lip)")
     ensemble = "robot_id" in rec and (np.asarray(rec["robot_id"]) >= 0).any()
     bands, ensemble_files, ensemble_md = (_ensemble_outputs(rec, controls, maps) if ensemble
                                           else ({}, [], ""))

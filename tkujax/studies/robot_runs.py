@@ -3,7 +3,7 @@ compare, replay): `check_robot(manifest, robot, where)`.
 
 A robot sweep's manifest records the robot file's path and sha256 (with its model file's and
 the collision mode's: `tkujax.robot.closed_loop.file_digest`) under model_params. The robot a
-reading command is given (a RobotSetup: `tkujax.robot.runs.sweep_robot` loads the manifest's
+reading command is given (a RobotSetup: `tkujax.studies.robot_inputs.sweep_robot` loads the manifest's
 file, or the --robot file) must be that robot, the same sha256, else a SpecError names both.
 """
 
@@ -29,7 +29,7 @@ def check_robot(manifest: dict, robot, where: str):
         return None
     if robot is None:
         raise SpecError(f"--robot: {where} ran on the robot file {recorded['robot_file']}: "
-                        "give its RobotSetup (tkujax.robot.runs.sweep_robot loads it)")
+                        "give its RobotSetup (tkujax.studies.robot_inputs.sweep_robot loads it)")
     if robot.digest != recorded["robot_sha256"]:
         raise SpecError(f"--robot: {where} ran on {recorded['robot_file']} (sha256 "
                         f"{recorded['robot_sha256'][:12]}...); --robot gives {robot.source} "

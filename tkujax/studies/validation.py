@@ -16,18 +16,26 @@ from pathlib import Path
 
 import numpy as np
 
-
-class SpecError(ValueError):
-    """A spec problem; the message names the key and what is allowed."""
+from tkujax.model.files import SpecError
 
 
-def read_toml(path: str | Path) -> dict:
-    """A TOML file as a dict; SpecError when it is missing or not valid TOML."""
+def read_toml(path: str | Path, what: str = "spec file") -> dict:
+    """A TOML file as a dict; SpecError naming the file when it is missing, a folder, not
+    UTF-8, unreadable or not valid TOML."""
     path = Path(path)
+    if path.is_dir():
+        raise SpecError(f"{what} {path} is a folder, not a file")
     if not path.is_file():
-        raise SpecError(f"spec file not found: {path}")
+        raise SpecError(f"{what} not found: {path}")
     try:
-        return tomllib.loads(path.read_text())
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as err:
+        raise SpecError(f"{what} {path}: not UTF-8 text (byte {err.start}); TOML files are "
+                        "UTF-8") from err
+    except OSError as err:
+        raise SpecError(f"{what} {path}: cannot be read: {err.strerror}") from err
+    try:
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise SpecError(f"{path}: not valid TOML: {err}") from err
 

@@ -6,7 +6,7 @@ robot's (`tkujax.robot.geometry.controller_params_for` its measured legs), its a
 gives TKU-X-convention joint targets and the robot's leg map (`tkujax.robot.closed_loop`) turns
 them into its actuators' targets, so the override needs nothing robot-specific. What differs is
 the geometry: the theory (LIP mass, CoM height, soles, ankles) and the leg reach l_max come from
-the robot (`tkujax.robot.runs.capture_feet`), and the targets must lie within that reach.
+the robot (`tkujax.studies.robot_inputs.capture_feet`), and the targets must lie within that reach.
 """
 
 from __future__ import annotations
@@ -61,18 +61,18 @@ def check_capture_robot(spec: SweepSpec, robot, feet, params: ControllerParams):
         if spec.robot_file is not None:
             raise SpecError(f"robot.file: the spec runs on {spec.robot_file}: give its "
                             "RobotSetup and capture geometry (robot=, feet=: "
-                            "tkujax.robot.runs.capture_robot loads both), or run `tkujax "
+                            "tkujax.studies.robot_inputs.capture_robot loads both), or run `tkujax "
                             "capture`")
         if feet is not None:
             raise SpecError("feet: a robot's capture geometry was given without its robot "
                             "(robot=, a RobotSetup)")
         return None
     if not isinstance(robot, RobotSetup):
-        raise SpecError(f"--robot: expected a RobotSetup (tkujax.robot.runs.capture_robot loads "
+        raise SpecError(f"--robot: expected a RobotSetup (tkujax.studies.robot_inputs.capture_robot loads "
                         f"a robot file), got {robot!r}")
     if feet is None:
         raise SpecError(f"--robot: capture regions on {robot.name} need its capture geometry "
-                        "(feet=, tkujax.robot.runs.capture_feet)")
+                        "(feet=, tkujax.studies.robot_inputs.capture_feet)")
     if spec.robot_file is not None and spec.robot_file != robot.source:
         raise SpecError(f"robot.file: the spec names {spec.robot_file}, --robot gives "
                         f"{robot.source}")

@@ -147,7 +147,7 @@ def run_capture(spec: SweepSpec | str | Path, out: str | Path,
     """Run (or resume) the [step] sweep, then write DIR/capture/: regions.json, j1.json,
     optimise.json, summary.md and the figures. optimise: how many pushes get a
     gradient-optimal step (0 skips it; TKU-X only). robot, feet: a robot file's RobotSetup and
-    its capture geometry (`tkujax.robot.runs.capture_robot` loads both; the spec's [robot]
+    its capture geometry (`tkujax.studies.robot_inputs.capture_robot` loads both; the spec's [robot]
     file needs them), None for TKU-X. sweep_kwargs go to run_sweep (backend, max_chunks,
     process ids, ...)."""
     spec = spec if isinstance(spec, SweepSpec) else load_spec(spec)

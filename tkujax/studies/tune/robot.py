@@ -1,6 +1,6 @@
 """Tuning on a robot file: `[robot] file` in a tune spec, or `tkujax tune --robot FILE`.
 
-`on_robot(spec, robot)` applies a robot once: its RobotSetup (tkujax.robot.runs.tune_robot
+`on_robot(spec, robot)` applies a robot once: its RobotSetup (tkujax.studies.robot_inputs.tune_robot
 loads it) becomes the problem's model, and the start is the robot's scaled controller defaults
 (`controller_params_for`) with the spec's [controller] applied. Refused, each a SpecError
 naming the key: a --robot other than the spec's [robot] file, [model] overrides, robot
@@ -50,13 +50,13 @@ def _same_file(a: str, b: str) -> bool:
 
 
 def on_robot(spec: TuneSpec, robot=None) -> TuneSpec:
-    """`spec` on `robot` (a RobotSetup: `tkujax.robot.runs.tune_robot` loads the spec's [robot]
+    """`spec` on `robot` (a RobotSetup: `tkujax.studies.robot_inputs.tune_robot` loads the spec's [robot]
     file or --robot's; None: TKU-X, refused when the spec names a robot file)."""
     own = robot_file_of(spec.raw)
     if robot is None:
         if own is not None:
             raise SpecError(f"robot.file: the spec names {own}: give its RobotSetup "
-                            "(tkujax.robot.runs.tune_robot loads it)")
+                            "(tkujax.studies.robot_inputs.tune_robot loads it)")
         return spec
     if own is not None and not _same_file(robot.source, own):
         raise SpecError(f"robot.file: the spec names {own}, --robot gives {robot.source}")

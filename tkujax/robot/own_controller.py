@@ -1,0 +1,58 @@
+"""The robot's controller: the one its robot file names, else a conservative default.
+
+`controller = "op3_controller.json"` in a robot file (relative to it) names a parameter file
+(`tkujax.control.io`); sweeps, maps, capture and compare use it, `--params` overrides it, and
+control off stays available. A robot without one gets `conservative_controller`: the paper's
+controller at the robot's scaled defaults with its steps switched off and the recommended
+controller's stance feedback (ankle and hip on pitch, ankle on roll) and accelerometer gate.
+Steps at scaled defaults doubled OP3's falls; stance feedback alone moves no foot, and
+`tests/test_robot_controller.py` checks that it harms none of TKU-X, OP3 and Booster T1 on
+a push set where control off falls.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+from tkujax.control.io import is_policy, load_controller_params_json
+from tkujax.control.params import RECOMMENDED, ControllerParams
+from tkujax.robot.description import RobotDescription
+from tkujax.robot.file_checks import RobotFileError
+
+NO_STEP_THRESHOLD_RAD = math.pi / 2 - 1e-6     # the lean thresholds no standing robot reaches
+STANCE_FIELDS = ("stance_ankle_kp", "stance_ankle_kd", "stance_hip_kp", "stance_hip_kd",
+                 "stance_roll_kp", "stance_roll_kd", "accel_gate")
+CONSERVATIVE_SOURCE = ("conservative default (no tuned controller: stance feedback and the "
+                       "accelerometer gate, no steps)")
+
+
+def conservative_controller(scaled: ControllerParams) -> ControllerParams:
+    """`scaled` (the robot's scaled defaults) without steps, with the recommended stance
+    feedback and accelerometer gate (module doc)."""
+    stance = {k: RECOMMENDED[k] for k in STANCE_FIELDS}
+    return dataclasses.replace(
+        scaled, eps_forward=NO_STEP_THRESHOLD_RAD, eps_backward=NO_STEP_THRESHOLD_RAD,
+        cp_trigger=0.0, lateral_steps=0.0, max_steps=1.0, **stance).validate()
+
+
+def robot_controller(desc: RobotDescription,
+                     scaled: ControllerParams) -> tuple[ControllerParams, str]:
+    """(the robot's controller, where it came from): the file its robot file names, else the
+    conservative default."""
+    if desc.controller_path is None:
+        return conservative_controller(scaled), CONSERVATIVE_SOURCE
+    import json
+    try:
+        data = json.loads(desc.controller_path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise RobotFileError(f"controller: {desc.controller_path} is not a readable JSON "
+                             f"parameter file: {err}") from err
+    if is_policy(data):
+        raise RobotFileError(f"controller: {desc.controller_path} is a scheduled policy; a "
+                             "robot file names a parameter file (pass a policy with --params)")
+    try:
+        params = load_controller_params_json(desc.controller_path)
+    except ValueError as err:
+        raise RobotFileError(f"controller: {err}") from err
+    return params, f"file {desc.controller_path.name}"
