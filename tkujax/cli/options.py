@@ -15,6 +15,15 @@ RENDER_HELP = ("Install EGL (apt-get install libegl1 libgl1-mesa-dri) and set MU
                "OSMesa (apt-get install libosmesa6) and MUJOCO_GL=osmesa.")
 
 
+def read_named(option: str, path, loader):
+    """`loader(path)`, a file that is not UTF-8 named with its option (a ValueError)."""
+    try:
+        return loader(path)
+    except UnicodeDecodeError as err:
+        raise ValueError(f"{option} {path}: not UTF-8 text (byte {err.start}); JSON files are "
+                         "UTF-8") from None
+
+
 def model_params_from_options(items: list[str], variant: str = "calibrated"):
     """--model: a model_params.json file (tkujax calibrate output) and/or KEY=VALUE overrides,
     applied in order to the variant's model; None when none is given (the variant's default)."""
@@ -28,7 +37,7 @@ def model_params_from_options(items: list[str], variant: str = "calibrated"):
     mp = ModelParams.estimated() if variant == "estimated" else ModelParams()
     for item in items:
         if item.endswith(".json"):
-            mp = load_model_params_json(item)
+            mp = read_named("--model", item, load_model_params_json)
         else:
             over = ModelParams.from_overrides([item])      # validates the key and the number
             key = item.split("=", 1)[0].strip()
@@ -41,7 +50,7 @@ def policy_from_option(path: str | None):
     (None, None) when none is given."""
     from tkujax.control.io import load_policy_json
 
-    return load_policy_json(path) if path else (None, None)
+    return read_named("--params", path, load_policy_json) if path else (None, None)
 
 
 def controller_params_from_option(path: str | None):
@@ -49,7 +58,7 @@ def controller_params_from_option(path: str | None):
     None."""
     from tkujax.control.io import load_controller_params_json
 
-    return load_controller_params_json(path) if path else None
+    return read_named("--params", path, load_controller_params_json) if path else None
 
 
 def add_parallel_options(p: argparse.ArgumentParser) -> None:

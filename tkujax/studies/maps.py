@@ -332,7 +332,7 @@ class _MarkedPyplot:
 
     def subplots(self, *args, **kwargs):
         fig, axes = self._plt.subplots(*args, **kwargs)
-        fig.text(0.5, 0.995, self._mark.upper(), ha="center", va="top", color="red",
+        fig.text(0.5, 0.995, self._mark, ha="center", va="top", color="red",
                  fontsize=9, weight="bold")
         return fig, axes
 
@@ -350,9 +350,10 @@ def make_maps(out_dir: str | Path, params: ControllerParams | None = None, robot
               lip: capturability.LipModel | None = None, allow_incomplete: bool = False) -> dict:
     """Write maps/*.png and maps/summary.md (+ .json) for the sweep in `out_dir`. A sweep on a
     robot file needs that robot (a RobotSetup, checked against the manifest's sha256) and its
-    LIP (`tkujax.studies.robot_inputs.robot_lip`), which the theory overlays use. An incomplete sweep is
-    refused (ValueError "incomplete: k of n chunks"); with allow_incomplete its figures and
-    summary are marked "incomplete: k of n chunks" (the result's `incomplete`)."""
+    LIP (`tkujax.studies.robot_inputs.robot_lip`), which the theory overlays use. An
+    incomplete sweep is refused (ValueError "incomplete: k of n chunks"); with
+    allow_incomplete its figures and summary are marked "incomplete: k of n chunks" (the
+    result's `incomplete`)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -397,7 +398,7 @@ def make_maps(out_dir: str | Path, params: ControllerParams | None = None, robot
     if ensemble_md:
         text += "\n" + ensemble_md
     if mark:
-        text = f"**{mark.upper()}**: the figures and tables below hold {done} of {n_chunks} " \
+        text = f"**{mark}**: the figures and tables below hold {done} of {n_chunks} " \
             f"chunks' records.\n\n" + text
     files += ensemble_files
     (maps / "summary.md").write_text(text)
