@@ -67,3 +67,18 @@ def run_command(name: str, command) -> int:
     except (ValueError, OverflowError) as err:   # bad input: the message names the key
         print(f"{name}: error: {one_line(str(err))}", file=sys.stderr)
         return EXIT_BAD_INPUT
+
+
+def bounded_float(lo: float, hi: float):
+    """An argparse type: a finite number in [lo, hi], else an error naming the range."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number in [{lo:g}, {hi:g}], "
+                                             f"got {text!r}") from None
+        if not lo <= value <= hi:      # NaN fails every comparison
+            raise argparse.ArgumentTypeError(f"expected a number in [{lo:g}, {hi:g}], got {text}")
+        return value
+    parse.__name__ = f"number in [{lo:g}, {hi:g}]"
+    return parse

@@ -6,6 +6,7 @@ import json
 import sys
 from pathlib import Path
 
+from tkujax.cli.errors import bounded_float, bounded_int
 from tkujax.cli.options import RENDER_HELP, model_params_from_options, policy_from_option
 
 
@@ -70,9 +71,9 @@ def _add_stand(sub) -> None:
     p.add_argument("--seconds", type=float, default=5.0)
     p.add_argument("--batch", type=int, default=8, help="robots simulated at once")
     p.add_argument("--engine", choices=["mjx", "mujoco"], default="mjx")
-    p.add_argument("--perturb-deg", type=float, default=1.0,
+    p.add_argument("--perturb-deg", type=bounded_float(0.0, 45.0), default=1.0,
                    help="initial joint perturbation, uniform +- this many degrees")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=bounded_int(0, (1 << 32) - 1), default=0)
     p.add_argument("--robot", default=None, metavar="FILE.toml",
                    help="a robot file (docs/robots.md): check it, make its stand and hold it "
                         "--seconds in MuJoCo C (--batch, --engine, --perturb-deg are TKU-X's)")

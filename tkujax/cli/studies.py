@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from tkujax.cli.errors import bounded_float, bounded_int
 from tkujax.cli.options import model_params_from_options
 
 
@@ -105,7 +106,7 @@ def _add_tune(sub) -> None:
     p.add_argument("--only", action="append", default=None, metavar="KEY=V1[,V2]",
                    help="[study] specs: run only these runs (KEY: policy, method or seed; "
                         "repeat for AND), e.g. --only policy=mlp --only seed=0,1")
-    p.add_argument("--deadline-s", type=float, default=None,
+    p.add_argument("--deadline-s", type=bounded_float(0.0, 30 * 86400.0), default=None,
                    help="[study] specs: start no run that would end after this many seconds "
                         "(finished runs are kept; rerun to resume)")
     p.add_argument("--budget-s", type=float, default=None,
@@ -158,12 +159,14 @@ def _add_islands(sub) -> None:
                                        "the hit phase (MuJoCo C)")
     p.add_argument("--out", required=True, help="output folder (islands.*, "
                                                  "phase_expectation.*)")
-    p.add_argument("--points", type=int, default=41, help="grid values per slice (3-1000)")
-    p.add_argument("--refine", type=int, default=4, help="bisections per island edge (0-20)")
+    p.add_argument("--points", type=bounded_int(3, 1000), default=41,
+                   help="grid values per slice (3-1000)")
+    p.add_argument("--refine", type=bounded_int(0, 20), default=4,
+                   help="bisections per island edge (0-20)")
     p.add_argument("--params", default=None, help="comma-separated parameters (default all)")
-    p.add_argument("--slice-phases", type=int, default=1,
+    p.add_argument("--slice-phases", type=bounded_int(1, 100), default=1,
                    help="hit phases per slice value (1: the fit's 0 ms)")
-    p.add_argument("--phases", type=int, default=15,
+    p.add_argument("--phases", type=bounded_int(0, 100), default=15,
                    help="phases of the default robot's expectation table (0 skips it)")
     p.add_argument("--window", type=float, default=1.0,
                    help="fraction of each parameter's bounds a slice spans, centred on the "
