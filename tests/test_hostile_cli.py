@@ -245,3 +245,35 @@ def test_the_params_file_control_period_message_names_both_periods(capsys, tmp_p
     params.write_text(json.dumps({"control_period": 0.02}))
     line = refused(capsys, "control_period", *_sweep(spec, tmp_path / "out", "--params", params))
     assert "0.02" in line and "0.03" in line
+
+
+# Robot files through the command line (a few: the robot loader has its own tests):
+# (case id, edit of specs/robots/op3.toml's text or a kind of file, key)
+ROBOT_FILES = [
+    ("missing_foot", lambda t: t.replace('foot = "l_ank_roll_link"', ""), "legs.left"),
+    ("role_twice", lambda t: t.replace('knee = "l_knee"', 'knee = "l_hip_yaw"'), "legs.left.knee"),
+    ("unknown_key", lambda t: t + "\nbogus = 1\n", "bogus"),
+    ("folder", "folder", "is a folder"),
+    ("latin1", "latin1", "not UTF-8"),
+]
+
+
+@pytest.mark.parametrize("edit, key", [c[1:] for c in ROBOT_FILES],
+                         ids=[c[0] for c in ROBOT_FILES])
+def test_a_bad_robot_file_is_named(capsys, tmp_path, spec, edit, key):
+    models = ROOT.parent / "shared" / "models"
+    if not (models / "robotis_op3").is_dir():
+        pytest.skip("the OP3 model (shared/models/robotis_op3) is not on this machine")
+    robot = tmp_path / "robot.toml"
+    text = (ROOT / "specs/robots/op3.toml").read_text().replace(
+        "${TKUJAX_MENAGERIE:-../../../shared/models}", str(models))
+    for beside in (ROOT / "specs/robots").glob("*.json"):      # files the robot file names
+        (tmp_path / beside.name).write_bytes(beside.read_bytes())
+    if edit == "folder":
+        robot.mkdir()
+    elif edit == "latin1":
+        robot.write_bytes(text.replace("robotis_op3", "robotis_\xe9").encode("latin-1"))
+    else:
+        robot.write_text(edit(text))
+    refused(capsys, key, *_sweep(spec, tmp_path / "out", "--robot", robot))
+    nothing_written(tmp_path / "out")

@@ -29,10 +29,11 @@ PHASE_UNIT = "(fraction of the 30 ms control period; 1 excluded)"
 # in PUSH_FIELDS (the tune specs share PUSH_FIELDS and have no phase).
 PHASE_KEY = "onset_phase"
 PHASE_UNIT = "(fraction of the 30 ms control period; 1 excluded)"
-# Limits of a sweep: records (a larger sweep is several sweeps; its columns would take GBs
-# before the first chunk: tests/test_hostile_spec.py), pushes per chunk, the seed (JAX's
-# PRNGKey keeps 32 bits: a larger seed would give another sweep's noise).
-MAX_RECORDS = 1 << 24
+# Limits of a sweep: records (a larger sweep is several sweeps: its input columns, expanded
+# before the first chunk, take about 0.25 GB per million records at peak, 2 s per 8 million;
+# tests/test_hostile_spec.py), pushes per chunk, the seed (JAX's PRNGKey keeps 32 bits: a
+# larger seed would give another sweep's noise).
+MAX_RECORDS = 1 << 23
 MAX_CHUNK_SIZE = 1 << 20
 MAX_SEED = (1 << 32) - 1
 # Slack of the horizon check: float sums of onsets and durations given to the microsecond.
