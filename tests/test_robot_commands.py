@@ -140,8 +140,9 @@ def test_tkux_sweep_refuses_a_robot(setups, tmp_path):
 
 
 def test_capture_wants_a_robot_setup(files, tmp_path):
-    """capture on a robot takes its RobotSetup and geometry (tkujax.studies.robot_inputs.capture_robot),
-    not a path (tests/test_capture_robot.py runs it)."""
+    """capture on a robot takes its RobotSetup and geometry
+    (tkujax.studies.robot_inputs.capture_robot), not a path (tests/test_capture_robot.py runs
+    it)."""
     with pytest.raises(SpecError, match="--robot: expected a RobotSetup"):
         run_capture(REPO / "specs" / "capture" / "capture_region_cpu.toml", tmp_path,
                     robot=files[0])

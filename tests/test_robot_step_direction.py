@@ -43,8 +43,8 @@ def _run(robot, impulse_ns: float, accel_gate_ms2: float):
     n = len(AZIMUTHS_DEG)
     f = lambda v: jnp.asarray(np.broadcast_to(v, (n,)), jnp.float32)  # noqa: E731
     pushes = Push(impulse_ns=f(impulse_ns), azimuth_rad=f(np.radians(AZIMUTHS_DEG)),
-                  height_m=f(robot.params.com_height), duration_s=f(0.02), onset_s=f(ONSET_S))
-    params = dataclasses.replace(robot.params, lateral_steps=1.0, accel_gate=accel_gate_ms2)
+                  height_m=f(robot.defaults.com_height), duration_s=f(0.02), onset_s=f(ONSET_S))
+    params = dataclasses.replace(robot.defaults, lateral_steps=1.0, accel_gate=accel_gate_ms2)
     return simulate_mujoco(pushes, np.ones(n), params, robot=robot,
                            config=RolloutConfig(duration_s=1.2))
 
@@ -64,7 +64,7 @@ def _check_directions(robot, impulse_ns: float) -> None:
     series, _ = _run(robot, impulse_ns, RECOMMENDED["accel_gate"])
     assert (series.step_weight[:, -1] > 0.5).all()          # every push makes it step
     x_sup, y_sup = series.x_sup[:, -1], series.y_sup[:, -1]
-    steps = np.array([_swing_ankle_step_m(series, i, robot.params.step_period)
+    steps = np.array([_swing_ankle_step_m(series, i, robot.defaults.step_period)
                       for i in range(len(AZIMUTHS_DEG))])
     behind, right, front, left = range(4)
     # The targets are cm long; the ankle's world displacement is smaller sideways (the stance

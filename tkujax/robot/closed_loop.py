@@ -39,6 +39,7 @@ from tkujax.robot.description import RobotFileError, load_description
 from tkujax.robot.geometry import base_pitch_roll, controller_params_for, measure_geometry
 from tkujax.robot.leg_map import jacobian_map, sign_map
 from tkujax.robot.loader import RobotModel, load_robot
+from tkujax.robot.model_files import model_files, model_files_digest
 from tkujax.robot.own_controller import robot_controller
 from tkujax.robot.simsetup import floor_geoms, robot_index, settled_data
 from tkujax.robot.stand import stand_pose
@@ -50,9 +51,7 @@ def file_digest(path: str | Path) -> str:
     """sha256 of a robot file and of the model file it names (hex), of the collision mode
     when it is not "model" (the default changes the model the file gives), and of every file
     the model includes and every asset it references, by content
-    (`tkujax.studies.model_files`)."""
-    from tkujax.studies.model_files import model_files, model_files_digest
-
+    (`tkujax.robot.model_files`)."""
     desc = load_description(path)
     h = hashlib.sha256(Path(path).read_bytes())
     h.update(desc.mjcf_path.read_bytes())
@@ -124,7 +123,7 @@ def _robot_setup(path: str, digest: str) -> RobotSetup:
                      closed_loop_index(robot, pose, scaled),
                      mjx.put_data(robot.model, data, device=device))
     return RobotSetup(setup=setup, settled=data, params=params, name=robot.name, digest=digest,
-                      source=path, controller=controller)
+                      source=path, controller=controller, defaults=scaled)
 
 
 def robot_setup(path: str | Path) -> RobotSetup:

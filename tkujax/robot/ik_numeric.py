@@ -76,8 +76,8 @@ def set_leg(robot: RobotModel, data: mujoco.MjData, side: str, q: np.ndarray) ->
 def solve_leg_ik(robot: RobotModel, side: str, target_pos: np.ndarray, target_rot: np.ndarray,
                  q_init: np.ndarray | None = None, data: mujoco.MjData | None = None,
                  max_iterations: int = 200, damping: float = 1e-4) -> LegIK:
-    """The leg's joint angles (role order) putting the leg's ankle centre at `target_pos` with the foot at
-    `target_rot`, both in the base frame (`base_data`). Damped least squares from `q_init`
+    """The leg's joint angles (role order) putting its ankle centre at `target_pos` with the
+    foot at `target_rot`, both in the base frame (`base_data`). Damped least squares from `q_init`
     (default: the leg's angles in `data`, or zero), clipped to the joint ranges."""
     model, i = robot.model, _side(side)
     data = data if data is not None else base_data(robot)

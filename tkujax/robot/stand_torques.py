@@ -102,7 +102,8 @@ def _joint_message(key: str, need: float, kp: float, limit: float | None,
     gives = kp * at
     role = key.rsplit(".", 1)[-1]
     if limit is not None and need > limit:
-        return True, (f"{role}: the stand needs {need:.1f} N m; the force limit is {limit:.1f} N m; "
+        return True, (f"{role}: the stand needs {need:.1f} N m; the force limit is "
+                      f"{limit:.1f} N m; "
                       "raise [servo] force_limit or choose a stand nearer the straight leg")
     if gives < need:
         return True, (f"{role}: the stand needs {need:.1f} N m; kp {kp:g} gives {gives:.1f} N m "

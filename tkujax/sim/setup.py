@@ -152,6 +152,7 @@ class RobotSetup:
     digest: str                    # sha256 of the robot file and its model file
     source: str                    # the robot file's path
     controller: str = ""           # where `params` came from (tkujax.robot.own_controller)
+    defaults: object = None        # the controller's scaled defaults (the leg map's)
 
 
 def init(model_params: ModelParams | None = None, settle_s: float = SETTLE_S,

@@ -3,8 +3,9 @@ compare, replay): `check_robot(manifest, robot, where)`.
 
 A robot sweep's manifest records the robot file's path and sha256 (with its model file's and
 the collision mode's: `tkujax.robot.closed_loop.file_digest`) under model_params. The robot a
-reading command is given (a RobotSetup: `tkujax.studies.robot_inputs.sweep_robot` loads the manifest's
-file, or the --robot file) must be that robot, the same sha256, else a SpecError names both.
+reading command is given (a RobotSetup: `tkujax.studies.robot_inputs.sweep_robot` loads the
+manifest's file, or the --robot file) must be that robot, the same sha256, else a SpecError
+names both.
 """
 
 from __future__ import annotations

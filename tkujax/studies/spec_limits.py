@@ -15,9 +15,11 @@ from tkujax.studies.validation import SpecError
 
 # name: (lo, hi, default, unit). Push fields in user units.
 PUSH_FIELDS = {
-    "impulse_ns": (0.0, 10.0, 0.5, "N·s"),
+    # Any humanoid's: 0.5-1.8 m, 3-50 kg (a sweep checks the heights against its robot:
+    # tkujax.studies.sweep.check_robot_sweep, check_tkux_pushes).
+    "impulse_ns": (0.0, 200.0, 0.5, "N·s"),
     "azimuth_deg": (-360.0, 360.0, 0.0, "deg"),
-    "height_m": (0.25, 0.46, 0.36, "m"),
+    "height_m": (0.05, 2.0, 0.36, "m"),
     "onset_s": (0.05, 20.0, 0.75, "s"),
     "duration_s": (0.002, 0.5, 0.02, "s"),
 }

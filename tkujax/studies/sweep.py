@@ -32,6 +32,7 @@ from tkujax.control.io import controller_params_from
 from tkujax.control.params import ControllerParams
 from tkujax.control.policy import Schedule
 from tkujax.model import ModelParams
+from tkujax.robot.closed_loop import robot_setup
 from tkujax.sim.setup import RobotSetup
 from tkujax.studies import chunks
 from tkujax.studies.chunk_program import (chunk_keys, fpga_groups, make_chunk_fn, record_inputs,
@@ -246,13 +247,25 @@ def _checked_inputs(spec: SweepSpec | str | Path, params: ControllerParams | Non
     if schedule is not None and spec.arithmetic == "fixed":
         raise SpecError("a scheduled policy (--params with a 'schedule') has no fixed-point "
                         "controller twin: use a plain parameter file with arithmetic = 'fixed'")
+    if model_params is None and spec.robot_file is not None:
+        model_params = robot_setup(spec.robot_file)      # [robot] file, as the command line
     if isinstance(model_params, RobotSetup):
         check_robot_sweep(spec, model_params)
-        return spec, params or model_params.params
-    if spec.robot_file is not None:
-        raise SpecError(f"robot.file: the sweep runs on {spec.robot_file}: run it with `tkujax "
-                        "sweep` or pass model_params=tkujax.robot.closed_loop.robot_setup(file)")
-    return spec, params or ControllerParams.paper()
+        return spec, params or model_params.params, model_params
+    check_tkux_pushes(spec)
+    return spec, params or ControllerParams.paper(), model_params
+
+
+TKUX_HEIGHT_M = (0.25, 0.46)   # TKU-X's trunk, from the hips to the shoulders
+
+
+def check_tkux_pushes(spec: SweepSpec) -> None:
+    """Refuse push heights off TKU-X (the spec's own limits hold any humanoid's)."""
+    heights = record_inputs(spec)["height_m"]
+    bad = heights[(heights < TKUX_HEIGHT_M[0]) | (heights > TKUX_HEIGHT_M[1])]
+    if bad.size:
+        raise SpecError(f"push.height_m: {float(bad[0]):g} m is off TKU-X (allowed "
+                        f"{TKUX_HEIGHT_M[0]}-{TKUX_HEIGHT_M[1]} m; another robot: [robot] file)")
 
 
 def check_control_period(params: ControllerParams | None) -> None:
@@ -332,7 +345,8 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
     decisions: "full" or "early" in place of the spec's [sweep] decisions (None: the spec's);
     early decisions run on MJX (docs/sweeps.md).
     """
-    spec, params = _checked_inputs(spec, params, model_params, max_chunks, schedule)
+    spec, params, model_params = _checked_inputs(spec, params, model_params, max_chunks,
+                                                 schedule)
     spec = with_decisions(spec, decisions)
     process_id, num_processes, coordinator = processes(process_id, num_processes, coordinator)
     backend = choose_backend(backend, spec)

@@ -68,8 +68,9 @@ def check_capture_robot(spec: SweepSpec, robot, feet, params: ControllerParams):
                             "(robot=, a RobotSetup)")
         return None
     if not isinstance(robot, RobotSetup):
-        raise SpecError(f"--robot: expected a RobotSetup (tkujax.studies.robot_inputs.capture_robot loads "
-                        f"a robot file), got {robot!r}")
+        raise SpecError(f"--robot: expected a RobotSetup "
+                        f"(tkujax.studies.robot_inputs.capture_robot loads a robot file), "
+                        f"got {robot!r}")
     if feet is None:
         raise SpecError(f"--robot: capture regions on {robot.name} need its capture geometry "
                         "(feet=, tkujax.studies.robot_inputs.capture_feet)")

@@ -50,8 +50,8 @@ def _same_file(a: str, b: str) -> bool:
 
 
 def on_robot(spec: TuneSpec, robot=None) -> TuneSpec:
-    """`spec` on `robot` (a RobotSetup: `tkujax.studies.robot_inputs.tune_robot` loads the spec's [robot]
-    file or --robot's; None: TKU-X, refused when the spec names a robot file)."""
+    """`spec` on `robot` (a RobotSetup: `tkujax.studies.robot_inputs.tune_robot` loads the
+    spec's [robot] file or --robot's; None: TKU-X, refused when the spec names a robot file)."""
     own = robot_file_of(spec.raw)
     if robot is None:
         if own is not None:
