@@ -38,7 +38,10 @@ def _robot_option(args):
         return None
     if args.model:
         raise ValueError("--model: give --robot (or a spec's [robot] file) or --model, not both")
-    return robot_setup(path)
+    robot = robot_setup(path)
+    if getattr(args, "params", None) is None:
+        print(f"{robot.name}: controller: {robot.controller}", file=sys.stderr)
+    return robot
 
 
 def _numbers(d: dict) -> str:

@@ -36,6 +36,7 @@ LEG_ORDER = ("right", "left")
 # The axis of each role in the base frame at the zero pose, up to sign (x forward, z up).
 ROLE_AXES = np.array([[0, 0, 1], [1, 0, 0], [0, 1, 0], [0, 1, 0], [0, 1, 0], [1, 0, 0]], float)
 GYRO, ACCEL, IMU_SITE = "tkujax_gyro", "tkujax_accel", "tkujax_imu"
+HELD_JOINT_TYPES = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
 TOUCH_MARGIN_M = 0.01          # the touch sites reach this far below and above the sole
 
 
@@ -290,7 +291,7 @@ def _apply_servos(spec, raw, desc: RobotDescription, legs: dict, waist: set[int]
     others = {int(raw.actuator_trnid[a, 0]) for a in range(raw.nu)
               if raw.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT} | waist
     for j in sorted(others - leg_ids):
-        if raw.jnt_type[j] in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE):
+        if int(raw.jnt_type[j]) in HELD_JOINT_TYPES:
             apply_servo(spec, raw, j, table.other.of("*"))
 
 

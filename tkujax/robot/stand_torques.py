@@ -3,11 +3,11 @@ against what the servos give.
 
 `stand_torques(robot, pose)` holds the stand with stiff, unlimited servos (MuJoCo C, a copy of
 the model) and reads the torque each leg joint's servo supplies once it has settled: what the
-stand needs. `servo_shortfalls` sets that against the robot's own servos: kp x the error the
-joint reached when the stand was held by them (`check_stand`'s run), and the force limit. A
-joint falls short when its servo, at that error or at `HOLD_ERROR_RAD`, gives less than the
-stand needs; the message says which way to go, e.g. "knee: the stand needs 9.1 N m; kp 1 gives
-0.4 N m at 0.4 rad of error; raise [servo] kp to at least 182". A robot on position servos is
+stand needs. `servo_shortfalls` sets that against the robot's own servos: kp x `HOLD_ERROR_RAD`, and the
+force limit; the message also says how far the joint sagged under them. A joint falls short
+when its servo gives less than the stand needs; the message says which way to go, e.g. "knee:
+the stand needs 0.6 N m; kp 1 gives 0.05 N m at 0.05 rad of error (the joint sagged 0.61 rad);
+raise [servo] kp to at least 12". A robot on position servos is
 also an inverted pendulum on its ankles: it creeps and falls when the two ankle-pitch servos
 together are softer than gravity's toppling stiffness m g h (h: the CoM above the ankles), the
 way Menagerie's Booster T1 (kp 75) falls from its own keyframe (`toppling_check`).
@@ -98,18 +98,19 @@ def held_errors(robot: RobotModel, qpos: np.ndarray, ctrl: np.ndarray,
 
 def _joint_message(key: str, need: float, kp: float, limit: float | None,
                    err: float) -> tuple[bool, str]:
-    at = max(err, HOLD_ERROR_RAD)
-    gives = kp * at
+    """(short, message): the servo falls short when kp x HOLD_ERROR_RAD is below the need (a
+    servo that needs a larger error has let the stand sag by then) or the force limit is."""
+    gives = kp * HOLD_ERROR_RAD
     role = key.rsplit(".", 1)[-1]
     if limit is not None and need > limit:
         return True, (f"{role}: the stand needs {need:.1f} N m; the force limit is "
-                      f"{limit:.1f} N m; "
-                      "raise [servo] force_limit or choose a stand nearer the straight leg")
+                      f"{limit:.1f} N m; raise [servo] force_limit or choose a stand nearer "
+                      "the straight leg")
     if gives < need:
-        return True, (f"{role}: the stand needs {need:.1f} N m; kp {kp:g} gives {gives:.1f} N m "
-                      f"at {at:.2f} rad of error; raise [servo] kp to at least "
-                      f"{need / HOLD_ERROR_RAD:.0f}")
-    return False, f"{role}: the stand needs {need:.1f} N m; kp {kp:g} gives {gives:.1f} N m"
+        return True, (f"{role}: the stand needs {need:.1f} N m; kp {kp:g} gives {gives:.2f} N m "
+                      f"at {HOLD_ERROR_RAD:g} rad of error (the joint sagged {err:.2f} rad); "
+                      f"raise [servo] kp to at least {need / HOLD_ERROR_RAD:.0f}")
+    return False, f"{role}: the stand needs {need:.1f} N m; kp {kp:g} gives {gives:.2f} N m"
 
 
 def servo_shortfalls(robot: RobotModel, qpos: np.ndarray, ctrl: np.ndarray,

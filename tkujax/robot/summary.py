@@ -6,9 +6,10 @@ import dataclasses
 import math
 from pathlib import Path
 
-from tkujax.robot.geometry import controller_params_for, measure_geometry
+from tkujax.robot.geometry import scaled_defaults, measure_geometry
 from tkujax.robot.ik_numeric import analytic_ik_applies
-from tkujax.robot.loader import load_robot
+from tkujax.robot.loader import LEG_ORDER, RobotModel, load_robot
+from tkujax.robot.own_controller import CONSERVATIVE_SOURCE
 from tkujax.robot.stand import check_stand, stand_pose
 
 SCALED_FIELDS = ("step_period", "lift_height", "standing_lean", "eps_forward", "eps_backward",
@@ -23,7 +24,7 @@ def robot_stand_summary(path: str | Path, seconds: float = 5.0) -> dict:
     robot = load_robot(path)
     pose = stand_pose(robot)
     geo = measure_geometry(robot, pose.qpos)
-    params = controller_params_for(geo)
+    params, clamped = scaled_defaults(geo)
     analytic, why = analytic_ik_applies(robot)
     result = check_stand(robot, pose, seconds)
     rounded = lambda v: round(v, 6) if isinstance(v, float) else v  # noqa: E731
@@ -34,6 +35,24 @@ def robot_stand_summary(path: str | Path, seconds: float = 5.0) -> dict:
                   for k, v in dataclasses.asdict(geo).items()},
         stand_lean_deg=round(math.degrees(geo.stand_lean_rad), 3),
         controller_defaults={k: round(float(getattr(params, k)), 6) for k in SCALED_FIELDS},
+        clamped_defaults=list(clamped),
+        controller=(f"file {robot.description.controller_path.name}"
+                    if robot.description.controller_path else CONSERVATIVE_SOURCE),
+        servos=servo_summary(robot),
         ik="analytic" if analytic else "numeric", ik_reason=why,
         stand={k: rounded(v) for k, v in result.as_dict().items()},
         fell=not result.stood)
+
+
+def servo_summary(robot: RobotModel) -> dict:
+    """Each leg joint's servo: kp (N m/rad), kv (N m s/rad), force limit (N m, None: none)."""
+    model, out = robot.model, {}
+    for i, side in enumerate(LEG_ORDER):
+        for k, role in enumerate(robot.roles):
+            a = int(robot.leg_actuators[i, k])
+            limit = (round(float(abs(model.actuator_forcerange[a]).max()), 3)
+                     if model.actuator_forcelimited[a] else None)
+            out[f"legs.{side}.{role}"] = dict(kp=round(float(model.actuator_gainprm[a, 0]), 3),
+                                              kv=round(float(-model.actuator_biasprm[a, 2]), 3),
+                                              force_limit=limit)
+    return out
