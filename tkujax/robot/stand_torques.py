@@ -3,8 +3,9 @@ against what the servos give.
 
 `stand_torques(robot, pose)` holds the stand with stiff, unlimited servos (MuJoCo C, a copy of
 the model) and reads the torque each leg joint's servo supplies once it has settled: what the
-stand needs. `servo_shortfalls` sets that against the robot's own servos: kp x `HOLD_ERROR_RAD`, and the
-force limit; the message also says how far the joint sagged under them. A joint falls short
+stand needs. `servo_shortfalls` sets that against the robot's own servos: kp x
+`HOLD_ERROR_RAD`, and the force limit; the message also says how far the joint sagged under
+them. A joint falls short
 when its servo gives less than the stand needs; the message says which way to go, e.g. "knee:
 the stand needs 0.6 N m; kp 1 gives 0.05 N m at 0.05 rad of error (the joint sagged 0.61 rad);
 raise [servo] kp to at least 12". A robot on position servos is
