@@ -16,6 +16,7 @@ from tkujax.cli.robot import add_robot_commands
 from tkujax.cli.runtime import configure_runtime
 from tkujax.cli.studies import add_study_commands
 from tkujax.cli.sweeps import add_sweep_commands
+from tkujax.cli.view import add_view_command
 
 from tkujax.bench.cli import add_bench_command
 
@@ -31,6 +32,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_bench_command(sub)
     add_study_commands(sub)
     add_export_command(sub)
+    add_view_command(sub)
     return parser
 
 

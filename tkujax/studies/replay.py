@@ -71,7 +71,8 @@ def _differences(stored: dict, replayed: dict) -> dict:
     return out
 
 
-def replay(run_dir: str | Path, index: int, robot=None, exact: bool = False) -> dict:
+def replay(run_dir: str | Path, index: int, robot=None, exact: bool = False,
+           backend: str | None = None) -> dict:
     """Re-simulate record `index` (its push_id) of the sweep in `run_dir`.
 
     Returns dict(index, chunk, backend, stored, replayed (outcome columns), same_outcome
@@ -82,7 +83,13 @@ def replay(run_dir: str | Path, index: int, robot=None, exact: bool = False) -> 
     manifest lacks, and the value used)). robot: the RobotSetup a robot sweep ran on (checked
     against the manifest's sha256; `tkujax.studies.robot_inputs.sweep_robot` loads it). exact (MJX):
     the outcomes by the sweep's own program (`tkujax.studies.replay_exact`); identical then
-    means equal bit for bit, in every outcome column the chunk stores."""
+    means equal bit for bit, in every outcome column the chunk stores. backend: None, the one
+    that wrote the record's chunk (`record_backend`); "mujoco" or "mjx" re-runs it there instead
+    (a record another backend wrote then gets this backend's floats and noise: its outcome may
+    differ near a fall boundary)."""
+    if backend not in (None, "mujoco", "mjx"):
+        raise ValueError(f"backend must be 'mujoco' or 'mjx' (None: the record's), "
+                         f"got {backend!r}")
     run_dir = Path(run_dir)
     manifest = chunks.read_manifest(run_dir)
     if not manifest:
@@ -115,7 +122,7 @@ def replay(run_dir: str | Path, index: int, robot=None, exact: bool = False) -> 
     recs = record_inputs(spec)
     lo, hi = chunk * size, min((chunk + 1) * size, n)
     inputs = {k: recs[k][lo:hi] for k in recs if k not in ("push_id", "from_grid")}
-    backend = record_backend(manifest, chunk)
+    backend = backend or record_backend(manifest, chunk)
     res = _rerun(spec, manifest, inputs, chunk, pos, base, model_params, schedule, backend)
     exact = exact and backend != "mujoco"      # MuJoCo C re-runs the whole chunk anyway
     replayed, differences = _compared(spec, manifest, stored, res, inputs, chunk, pos, base,
