@@ -154,8 +154,8 @@ def test_tune_starts_from_the_robots_defaults(files):
     spec = parse_tune_spec(raw)
     robot = tune_robot(raw)
     resolved = on_robot(spec, robot)
-    assert resolved.start.step_period == pytest.approx(robot.params.step_period)
-    assert resolved.start.thigh_length == pytest.approx(robot.params.thigh_length)
+    assert resolved.start.step_period == pytest.approx(robot.defaults.step_period)
+    assert resolved.start.thigh_length == pytest.approx(robot.defaults.thigh_length)
     assert resolved.start.cp_gain == pytest.approx(1.25)
     assert resolved.model_params() is robot
     with pytest.raises(SpecError, match="robot.file: the spec names .* give its RobotSetup"):

@@ -41,7 +41,27 @@ def _cmd_refine(args) -> int:
     return 0
 
 
+def _cmd_tune_robot(args) -> int:
+    from tkujax.studies.robot_tune import tune_robot_controller
+
+    record = tune_robot_controller(args.robot, args.out, budget_s=args.budget_s or 480.0,
+                                   heldout_n=args.heldout_n, write=not args.no_write)
+    ratio = "-" if record["ratio"] is None else f"{record['ratio']:.3f}"
+    print(f"{record['robot']}: {100 * record['on_fall']:.1f} % of {record['n_pushes']} held-out "
+          f"pushes fall with the tuned controller, {100 * record['off_fall']:.1f} % with control "
+          f"off (ratio {ratio}); {len(record['harmed_cells'])} harmed cell(s); {record['why']}")
+    if record.get("controller_file"):
+        print(f"controller written to {record['controller_file']} and named in {args.robot}")
+    print(f"verdict: {Path(args.out, 'verdict.json')}")
+    return 0 if record["passed"] else 1
+
+
 def _cmd_tune(args) -> int:
+    if args.spec is None:
+        if args.robot is None:
+            raise ValueError("tune: give a tune SPEC, or --robot FILE to tune that robot's "
+                             "controller without one")
+        return _cmd_tune_robot(args)
     from tkujax.studies.robot_inputs import tune_robot
     from tkujax.studies.tune import run_tune
     from tkujax.studies.validation import read_toml
@@ -93,7 +113,11 @@ def _add_tune(sub) -> None:
     p = sub.add_parser("tune", help="tune T, gamma, H_Sup, eps_1, eps_2 (...) by CMA-ES, "
                                     "gradients through MJX or their alpha-order mix; evaluate "
                                     "on held-out and shifted pushes")
-    p.add_argument("spec", help="tune spec, e.g. specs/tune/tune_cpu.toml")
+    p.add_argument("spec", nargs="?", default=None,
+                   help="tune spec, e.g. specs/tune/tune_cpu.toml; without one, --robot FILE "
+                        "tunes that robot's recovery controller from the robot alone (its "
+                        "pushes, the recovery structure, CMA-ES, the no-harm verdict on "
+                        "held-out pushes) and names it in the robot file when it passes")
     p.add_argument("--out", required=True, help="output folder (history.json, params_*.json, "
                                                  "loss_curve.png, summary.md)")
     p.add_argument("--iterations", type=int, default=None, help="override tune.iterations")
@@ -109,9 +133,14 @@ def _add_tune(sub) -> None:
     p.add_argument("--deadline-s", type=bounded_float(0.0, 30 * 86400.0), default=None,
                    help="[study] specs: start no run that would end after this many seconds "
                         "(finished runs are kept; rerun to resume)")
-    p.add_argument("--budget-s", type=float, default=None,
+    p.add_argument("--budget-s", type=bounded_float(1.0, 86_400.0), default=None,
                    help="override the search's wall-clock budget per run (s; [study] specs: "
-                        "study.budget_s)")
+                        "study.budget_s); without a spec: the whole command's budget "
+                        "(default 480 s), 60 %% of it for the search")
+    p.add_argument("--heldout-n", type=bounded_int(64, 1 << 20), default=8192,
+                   help="without a spec: held-out pushes of the verdict (default 8192)")
+    p.add_argument("--no-write", action="store_true",
+                   help="without a spec: judge, but leave the robot file as it is")
     p.set_defaults(func=_cmd_tune)
 
 

@@ -27,6 +27,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import hashlib
+import re
 from pathlib import Path
 
 import jax
@@ -47,13 +48,19 @@ from tkujax.sim.mjx_import import mjx
 from tkujax.sim.setup import SETTLE_S, ModelIndex, RobotSetup, SimSetup
 
 
+def _without_controller(text: bytes) -> bytes:
+    """The robot file without its `controller = ...` line: naming a controller is not another
+    robot (the controller's values enter a sweep's hash as its parameters)."""
+    return re.sub(rb"(?m)^[ \t]*controller[ \t]*=.*\n?", b"", text)
+
+
 def file_digest(path: str | Path) -> str:
-    """sha256 of a robot file and of the model file it names (hex), of the collision mode
-    when it is not "model" (the default changes the model the file gives), and of every file
-    the model includes and every asset it references, by content
-    (`tkujax.robot.model_files`)."""
+    """sha256 of a robot file (without its controller line) and of the model file it names
+    (hex), of the collision mode when it is not "model" (the default changes the model the
+    file gives), and of every file the model includes and every asset it references, by
+    content (`tkujax.robot.model_files`)."""
     desc = load_description(path)
-    h = hashlib.sha256(Path(path).read_bytes())
+    h = hashlib.sha256(_without_controller(Path(path).read_bytes()))
     h.update(desc.mjcf_path.read_bytes())
     if desc.collision_mode != "model":
         h.update(f"collision mode {desc.collision_mode}".encode())
@@ -111,7 +118,7 @@ def _params(robot: RobotModel, pose, data: mujoco.MjData) -> ControllerParams:
 
 
 @functools.lru_cache(maxsize=8)
-def _robot_setup(path: str, digest: str) -> RobotSetup:
+def _robot_setup(path: str, digest: str, controller: str) -> RobotSetup:
     robot = load_robot(path)
     _check_layout(robot)
     pose = stand_pose(robot)
@@ -129,4 +136,15 @@ def _robot_setup(path: str, digest: str) -> RobotSetup:
 def robot_setup(path: str | Path) -> RobotSetup:
     """The RobotSetup of a robot file (cached per file path and content)."""
     path = str(Path(path).resolve())
-    return _robot_setup(path, file_digest(path))
+    return _robot_setup(path, file_digest(path), controller_digest(path))
+
+
+def controller_digest(path: str | Path) -> str:
+    """sha256 of the robot file's controller line and of the file it names ("" without one):
+    with file_digest, what a loaded RobotSetup depends on."""
+    desc = load_description(path)
+    if desc.controller_path is None:
+        return ""
+    h = hashlib.sha256(str(desc.controller_path).encode())
+    h.update(desc.controller_path.read_bytes())
+    return h.hexdigest()

@@ -67,7 +67,9 @@ def on_robot(spec: TuneSpec, robot=None) -> TuneSpec:
                         "ensemble to tune on a robot file")
     if spec.float64:
         raise SpecError("tune.float64: a robot file's model runs in float32; set it false")
-    start = controller_params_from(robot.params, spec.controller).validate()
+    # The scaled defaults, not the robot file's controller: a tune starts from the robot.
+    base = robot.defaults if robot.defaults is not None else robot.params
+    start = controller_params_from(base, spec.controller).validate()
     spec = dataclasses.replace(spec, robot=robot, start=start)
     check_start(spec)
     return spec

@@ -1,0 +1,106 @@
+"""The no-harm verdict of a robot's controller on held-out pushes, and naming the controller
+in the robot file when it passes (`tkujax tune --robot`, tkujax.studies.robot_tune).
+
+`heldout_verdict` sweeps the held-out spec control off and on with the controller, compares
+them (`tkujax.studies.compare`: 4 directions x impulse bands x phase bands) and returns the
+record of `results/robots/<name>/verdict.json`: robot, n_pushes, off_fall, on_fall, ratio,
+harmed_cells, method, n_params, wall_s, device, passed and why.
+`name_controller` writes the controller next to the robot file and names it there.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import re
+import time
+from pathlib import Path
+
+import jax
+
+from tkujax.control.io import controller_params_from_dict, save_controller_params_json
+from tkujax.control.params import ControllerParams
+from tkujax.studies.compare import Bands, compare_runs
+from tkujax.studies.spec import parse_spec
+from tkujax.studies.sweep import run_sweep
+
+MIN_CELL_PUSHES, HARM_PP = 100, 2.0
+_CONTROLLER_LINE = re.compile(r"^\s*controller\s*=.*$", re.MULTILINE)
+
+
+def controller_params(params: dict) -> ControllerParams:
+    """A parameter file's dict (its notes, such as recommended_from, left out) as
+    ControllerParams."""
+    fields = {f.name for f in dataclasses.fields(ControllerParams)}
+    return controller_params_from_dict({k: v for k, v in params.items() if k in fields},
+                                       "the tuned controller")
+
+
+def device_name() -> str:
+    """The first device JAX computes on, in words (e.g. "NVIDIA H200" or "cpu")."""
+    d = jax.devices()[0]
+    return getattr(d, "device_kind", d.platform) or d.platform
+
+
+def _why(v: dict) -> str:
+    if v["cells_checked"] == 0:
+        return (f"too few held-out pushes: no direction x impulse x phase cell has "
+                f"{MIN_CELL_PUSHES}; raise --heldout-n")
+    if v["ratio_to_reference"] is None:
+        return "control off never fell on the held-out pushes: nothing to judge"
+    if v["fall_rate"] >= v["reference_fall_rate"]:
+        return (f"falls {100 * v['fall_rate']:.1f} % against {100 * v['reference_fall_rate']:.1f}"
+                " % with control off")
+    if v["harmed_cells"]:
+        worst = v["harmed_cells"][0]
+        return (f"{len(v['harmed_cells'])} harmed cell(s), the worst {worst.get('sector')} at "
+                f"{worst.get('impulse')} N s: +{worst.get('diff_pp', 0):.1f} points")
+    return "passed: fewer falls than control off and no harmed cell"
+
+
+def heldout_verdict(out: Path, robot, spec: dict, params: dict, method: str,
+                    n_params: int) -> dict:
+    """Sweep `spec` (a sweep spec's TOML dict) into out/heldout with `params` (a parameter
+    file's dict) and judge it (module doc). Resumable: the sweep resumes, the rest reruns."""
+    t0 = time.perf_counter()
+    (out / "heldout_spec.json").write_text(json.dumps(spec, indent=1) + "\n")
+    controller = controller_params(params)
+    manifest = run_sweep(parse_spec(spec), out / "heldout", params=controller,
+                         model_params=robot, quiet=True)
+    if not manifest["complete"]:
+        raise RuntimeError(f"{out / 'heldout'}: the held-out sweep is incomplete; rerun to "
+                           "resume")
+    res = compare_runs([f"{out / 'heldout'}:off", f"{out / 'heldout'}:on"], out / "compare",
+                       labels=["control off", "tuned"], bands=Bands(sectors=4),
+                       min_pushes=MIN_CELL_PUSHES, harm_pp=HARM_PP, robot=robot)
+    v = res["verdict"]["runs"]["tuned"]
+    ratio = v["ratio_to_reference"]
+    passed = bool(ratio is not None and ratio < 1.0 and v["no_harm"]
+                  and v["cells_checked"] > 0)
+    return dict(robot=robot.name, n_pushes=int(manifest["n_pushes"]) // 2,
+                off_fall=round(float(v["reference_fall_rate"]), 5),
+                on_fall=round(float(v["fall_rate"]), 5),
+                ratio=None if ratio is None else round(float(ratio), 4),
+                harmed_cells=v["harmed_cells"], cells_checked=int(v["cells_checked"]),
+                method=method, n_params=n_params,
+                wall_s=round(time.perf_counter() - t0, 1), device=device_name(),
+                passed=passed, why=_why(v))
+
+
+def name_controller(robot_file: str | Path, params: dict) -> Path:
+    """Write `params` as `<stem>_controller.json` beside the robot file and name it there
+    (replacing a `controller = ...` line, else after the top-level keys' first line)."""
+    robot_file = Path(robot_file)
+    path = robot_file.with_name(f"{robot_file.stem}_controller.json")
+    save_controller_params_json(controller_params(params), path)
+    line = f'controller = "{path.name}"'
+    text = robot_file.read_text()
+    if _CONTROLLER_LINE.search(text):
+        text = _CONTROLLER_LINE.sub(line, text, count=1)
+    else:
+        lines = text.splitlines()
+        first = next(i for i, s in enumerate(lines) if re.match(r"^\s*imu\s*=", s))
+        lines.insert(first + 1, line)
+        text = "\n".join(lines) + "\n"
+    robot_file.write_text(text)
+    return path
