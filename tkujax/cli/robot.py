@@ -1,4 +1,4 @@
-"""Commands about the robot itself: stand, render, paper."""
+"""Commands about the robot itself: stand, walk, render, paper."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ from pathlib import Path
 
 from tkujax.cli.errors import bounded_float, bounded_int
 from tkujax.cli.options import RENDER_HELP, model_params_from_options, policy_from_option
+from tkujax.cli.walk import add_walk_command
 
 
 def _cmd_stand(args) -> int:
@@ -60,8 +61,9 @@ def _cmd_paper(args) -> int:
 
 
 def add_robot_commands(sub) -> None:
-    """stand, render, paper."""
+    """stand, walk, render, paper."""
     _add_stand(sub)
+    add_walk_command(sub)
     _add_render(sub)
     _add_paper(sub)
 

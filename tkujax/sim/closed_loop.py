@@ -130,7 +130,7 @@ def controller_tick(idx: ModelIndex, episode: Episode, params: ControllerParams,
         if config.fixed is None:
             ctrl_state, legs, out = control_tick(ctrl_state, gyro, accel, params,
                                                  episode.enabled, config.quantise_targets,
-                                                 override, schedule)
+                                                 override, schedule, episode.walk)
         else:
             ctrl_state, legs, prev, out = control_tick_fx(ctrl_state, gyro, accel, params,
                                                           episode.enabled,
@@ -234,6 +234,16 @@ def record_row(model: mjx.Model, idx: ModelIndex, record_qpos: bool, d: mjx.Data
             ctrl_state=ctrl_state, qpos=d.qpos if record_qpos else None)
 
 
+def check_walk(config: RolloutConfig, override, schedule) -> None:
+    """Walking (Episode.walk) runs the float controller alone: no fixed-point twin, commanded
+    step or schedule."""
+    for name, value in (("a fixed-point controller (RolloutConfig.fixed)", config.fixed),
+                        ("commanded steps (override)", override),
+                        ("a scheduled policy (schedule)", schedule)):
+        if value is not None:
+            raise ValueError(f"walking (WalkCommand) does not run with {name}")
+
+
 def tick_pieces(model: mjx.Model, idx: ModelIndex, episode: Episode, params: ControllerParams,
                 config: RolloutConfig, override: StepOverride | None = None,
                 schedule=None) -> TickPieces:
@@ -248,6 +258,8 @@ def tick_pieces(model: mjx.Model, idx: ModelIndex, episode: Episode, params: Con
     if config.fixed is not None and override is not None:
         raise ValueError("commanded steps (override) have no fixed-point controller twin; "
                          "use RolloutConfig(fixed=None)")
+    if episode.walk is not None:
+        check_walk(config, override, schedule)
     substeps = int(round(config.control_period_s / idx.timestep_s))
     switch = 0 if config.fixed is None else servo_switch_substep(config.fixed, substeps)
     forward = tree_passes.forward if config.program.tree_passes == "compact" else mjx.forward

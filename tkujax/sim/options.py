@@ -7,7 +7,7 @@
                   changes gradients but never a forward value. It rides in
                   `RolloutConfig.program`;
   Episode         one robot's episode: its push, whether balance control is on, the sensor
-                  noise key and levels (a pytree: batch it by stacking).
+                  noise key and levels, and an optional walk (a pytree: batch it by stacking).
 
 Both configs are static (frozen, hashable: changing them recompiles) and check their values
 when built: a ValueError names the field, the allowed values and the bad value.
@@ -22,6 +22,7 @@ import numbers
 import jax
 
 from tkujax.control.fixed import FixedPointConfig
+from tkujax.control.gait import WalkCommand
 from tkujax.sim.push import CONTROL_PERIOD_S, Push
 
 # jax.checkpoint (less memory under grad): False / "none": off; True / "tick": each control
@@ -113,13 +114,16 @@ class Episode:
 
     push: the Push. enabled: 1 = balance control on, 0 = off. key: the PRNG key of the sensor
     noise. gyro_noise_std (rad/s), accel_noise_std (m/s^2): Gaussian noise on the IMU
-    reading at each control tick."""
+    reading at each control tick. walk: a `tkujax.control.gait.WalkCommand` (the robot walks,
+    `tkujax.control.walking`); None: it stands, and the program is the standing one (an empty
+    subtree, a Python branch on None at trace time)."""
 
     push: Push
     enabled: jax.Array
     key: jax.Array
     gyro_noise_std: jax.Array = 0.0
     accel_noise_std: jax.Array = 0.0
+    walk: WalkCommand | None = None
 
 
 def checkpoints(remat: bool | str):

@@ -30,7 +30,9 @@ import numpy as np
 
 from tkujax.control.controller import StepOverride, controller_init
 from tkujax.control.fixed import check_supported, controller_init_fx
+from tkujax.control.gait import WalkCommand, batch_walk
 from tkujax.control.params import ControllerParams
+from tkujax.control.walking import walking_init
 from tkujax.model import ModelParams
 from tkujax.sim.closed_loop import TickPieces, imu_read, tick_pieces
 from tkujax.sim.loops import flat_loop, flat_loop_carry, nested_loop
@@ -104,8 +106,10 @@ def run_tick_pieces(pieces: TickPieces, state: mjx.Data, episode: Episode,
     dtype = state.qpos.dtype
     init_ctrl = (controller_init(params, dtype) if config.fixed is None else
                  controller_init_fx(params, config.fixed, dtype))
+    if episode.walk is not None:
+        init_ctrl = walking_init(params, episode.walk, dtype)
     seeds = (episode.push, params, schedule, episode.enabled, episode.gyro_noise_std,
-             episode.accel_noise_std)
+             episode.accel_noise_std, episode.walk)
     tick_keys = jax.random.split(episode.key, n_ticks)
     carry = (state, imu_read(index, state), init_ctrl)
     if config.program.loop == "nested":
@@ -119,35 +123,37 @@ def batched_rollout(model_params: ModelParams | None = None,
                     config: RolloutConfig = RolloutConfig(), settle_s: float = 1.0):
     """jit(vmap(rollout)) over episodes (push, enabled, key) for one model, plus outcomes.
 
-    Returns f(pushes, enabled, keys, params, gyro_noise_std, accel_noise_std, schedule=None)
-    -> (series, outcomes), batched along axis 0; params (and a scheduled policy's Schedule,
-    `tkujax.control.policy`) shared by the batch. Compiled once per batch shape (and schedule
-    layout); cached per model and config.
+    Returns f(pushes, enabled, keys, params, gyro_noise_std, accel_noise_std, schedule=None,
+    walk=None) -> (series, outcomes), batched along axis 0; params (and a scheduled policy's
+    Schedule, `tkujax.control.policy`) shared by the batch; walk (a WalkCommand, batched
+    along axis 0; None: standing). Compiled once per batch shape (and schedule layout, and
+    walking or not); cached per model and config.
     """
     from tkujax.sim.metrics import outcomes
 
     _, model, index, state = init(model_params, settle_s)
 
-    def one(push, enabled, key, params, gyro_std, accel_std, schedule):
-        series = rollout(model, state, Episode(push, enabled, key, gyro_std, accel_std),
+    def one(push, enabled, key, params, gyro_std, accel_std, schedule, walk):
+        series = rollout(model, state, Episode(push, enabled, key, gyro_std, accel_std, walk),
                          params, config, index, schedule=schedule)
         return series, outcomes(series, push.onset_s)
 
-    f = jax.jit(jax.vmap(one, in_axes=(0, 0, 0, None, None, None, None)))
-    return lambda pushes, enabled, keys, params, gyro, accel, schedule=None: f(
-        pushes, enabled, keys, params, gyro, accel, schedule)
+    f = jax.jit(jax.vmap(one, in_axes=(0, 0, 0, None, None, None, None, 0)))
+    return lambda pushes, enabled, keys, params, gyro, accel, schedule=None, walk=None: f(
+        pushes, enabled, keys, params, gyro, accel, schedule, walk)
 
 
 def simulate(pushes: Push, enabled, params: ControllerParams, seed: int = 0,
              gyro_noise_std: float = 0.0, accel_noise_std: float = 0.0,
              model_params: ModelParams | None = None,
              config: RolloutConfig = RolloutConfig(), schedule=None,
-             robot=None) -> tuple[Series, Outcomes]:
+             robot=None, walk: WalkCommand | None = None) -> tuple[Series, Outcomes]:
     """Run a batch of pushes (stacked Push, leading axis) and return numpy (series, outcomes).
     schedule: a scheduled policy's Schedule (`tkujax.recommended_policy()` gives one with its
     params); None: the plain controller. robot: a robot file's `RobotSetup`
     (`tkujax.robot.closed_loop.robot_setup`; its `params` are the controller's for it) in place
-    of model_params."""
+    of model_params. walk: the robots walk (`tkujax.control.gait.WalkCommand`, one for the
+    batch or stacked along axis 0); None: they stand."""
     if robot is not None:   # a robot file's RobotSetup (tkujax.robot.closed_loop)
         model_params = robot
     if config.fixed is not None:   # options the fixed-point twin lacks: refused, not ignored
@@ -156,6 +162,8 @@ def simulate(pushes: Push, enabled, params: ControllerParams, seed: int = 0,
     enabled = jnp.broadcast_to(jnp.asarray(enabled, jnp.float32), (n,))
     keys = jax.random.split(jax.random.PRNGKey(seed), n)
     f = batched_rollout(model_params, config)
+    if walk is not None:
+        walk = batch_walk(walk, n)
     out = f(pushes, enabled, keys, params, jnp.float32(gyro_noise_std),
-            jnp.float32(accel_noise_std), schedule)
+            jnp.float32(accel_noise_std), schedule, walk)
     return jax.tree_util.tree_map(np.asarray, out)

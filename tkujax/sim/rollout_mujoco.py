@@ -69,9 +69,12 @@ import numpy as np
 from tkujax.control.controller import StepOverride, controller_init
 from tkujax.control.fixed import (FixedPointConfig, check_supported, controller_init_fx,
                                   servo_switch_substep)
+from tkujax.control.gait import WalkCommand, batch_walk
 from tkujax.control.params import ControllerParams
+from tkujax.control.walking import walking_init
 from tkujax.model import ModelParams
 from tkujax.sim import physics, recording
+from tkujax.sim.closed_loop import check_walk
 from tkujax.sim.metrics import outcomes as _outcomes
 from tkujax.sim.push import Push
 from tkujax.sim.records import SERIES_FIELDS, Outcomes, Series
@@ -132,11 +135,25 @@ def _rollout_pool(nthread: int) -> mujoco.rollout.Rollout:
 
 @functools.partial(jax.jit, static_argnames=("quantise",))
 def _control_tick(states, gyro, accel, params, enabled, quantise: bool, overrides=None,
-                  schedule=None):
-    """controller_step over the batch (states, gyro, accel, enabled, overrides batched; params
-    and schedule shared)."""
-    step = jax.vmap(control_tick, in_axes=(0, 0, 0, None, 0, None, 0, None))
-    return step(states, gyro, accel, params, enabled, quantise, overrides, schedule)
+                  schedule=None, walk=None):
+    """controller_step over the batch (states, gyro, accel, enabled, overrides, walk batched;
+    params and schedule shared)."""
+    step = jax.vmap(control_tick, in_axes=(0, 0, 0, None, 0, None, 0, None, 0))
+    return step(states, gyro, accel, params, enabled, quantise, overrides, schedule, walk)
+
+
+def _init_states(params: ControllerParams, config: RolloutConfig, n: int,
+                 walk: WalkCommand | None, overrides, schedule):
+    """(the batch's initial controller states, walk broadcast to the batch): standing (float or
+    fixed point), or walking (one state per robot's command; refused with a fixed-point
+    controller, overrides or a schedule)."""
+    if walk is not None:
+        check_walk(config, overrides, schedule)
+        walk = batch_walk(walk, n)
+        return jax.vmap(lambda c: walking_init(params, c, jnp.float32))(walk), walk
+    init = (controller_init(params, jnp.float32) if config.fixed is None else
+            controller_init_fx(params, config.fixed, jnp.float32))
+    return jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (n,) + x.shape), init), None
 
 
 @functools.partial(jax.jit, static_argnames=("quantise", "fixed"))
@@ -362,14 +379,16 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
                     model_params: ModelParams | None = None,
                     config: RolloutConfig = RolloutConfig(), n_threads: int | None = None,
                     push_wrench: str = "exact", overrides: StepOverride | None = None,
-                    schedule=None, robot=None) -> tuple[Series, Outcomes]:
+                    schedule=None, robot=None,
+                    walk: WalkCommand | None = None) -> tuple[Series, Outcomes]:
     """Run a batch of pushes with MuJoCo C physics; returns numpy (series, outcomes).
 
     Same arguments, keys and shapes as `tkujax.sim.rollout_mjx.simulate`, plus n_threads (physics
     threads; default: the CPUs this process may use) and push_wrench ("exact" or
     "period_start", see the module doc) and overrides (stacked StepOverride, leading axis n;
     their onset_s is taken from the pushes) and schedule (a scheduled policy's
-    `tkujax.control.policy.Schedule`, shared by the batch; not with a fixed-point controller).
+    `tkujax.control.policy.Schedule`, shared by the batch; not with a fixed-point controller)
+    and walk (a `tkujax.control.gait.WalkCommand`, one or stacked; None: standing).
     """
     if robot is not None:   # a robot file's RobotSetup (tkujax.robot.closed_loop)
         model_params = robot
@@ -394,10 +413,7 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
         raise ValueError("scheduled parameters have no fixed-point controller twin; "
                          "use RolloutConfig(fixed=None)")
     switch = 0 if fixed is None else servo_switch_substep(fixed, substeps)
-
-    init = (controller_init(params, jnp.float32) if fixed is None else
-            controller_init_fx(params, fixed, jnp.float32))
-    ctrl_state = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (n,) + x.shape), init)
+    ctrl_state, walk = _init_states(params, config, n, walk, overrides, schedule)
     state = np.tile(setup.state0, (n, 1))                 # current state
     pose_state = state.copy()     # whose kinematics MJX's d.xpos holds (before the last step)
     warm = np.tile(setup.warmstart0, (n, 1))
@@ -413,7 +429,7 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
         if fixed is None:
             ctrl_state, legs, out = _control_tick(ctrl_state, gyro_j, accel_j, params,
                                                   enabled_j, config.quantise_targets, overrides,
-                                                  schedule)
+                                                  schedule, walk)
         else:
             ctrl_state, legs, prev, out = _control_tick_fx(ctrl_state, gyro_j, accel_j, params,
                                                            enabled_j, config.quantise_targets,

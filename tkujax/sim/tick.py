@@ -25,6 +25,7 @@ from tkujax.control.controller import (NOT_STARTED_S, ControllerOutput, Controll
                                       StepOverride, land_time, controller_step)
 from tkujax.control.fixed import FixedControllerState, FixedPointConfig, controller_step_fx
 from tkujax.control.params import ControllerParams
+from tkujax.control.walking import walking_step
 
 SERVO_RESOLUTION_RAD = math.radians(360.0 / 4096.0)   # 0.088 deg, Dynamixel MX [paper Table 1]
 
@@ -36,14 +37,20 @@ def quantise_targets(q: jax.Array) -> jax.Array:
 
 def control_tick(ctrl_state: ControllerState, gyro: jax.Array, accel: jax.Array,
                  params: ControllerParams, enabled, quantise: bool,
-                 override: StepOverride | None = None, schedule=None):
+                 override: StepOverride | None = None, schedule=None, walk=None):
     """One controller update for one robot from its (noisy) IMU reading. `schedule`: an
-    optional `tkujax.control.policy.Schedule` (None: the plain controller).
+    optional `tkujax.control.policy.Schedule` (None: the plain controller). `walk`: a
+    `tkujax.control.gait.WalkCommand` (ctrl_state then a `walking.WalkingState`; the rollouts
+    refuse it with an override or a schedule); None: the standing controller (a Python branch
+    on None at trace time, so its program is unchanged).
 
     Returns (new controller state, leg targets (12,) rad as the servos receive them, the
     controller's output)."""
-    ctrl_state, out = controller_step(ctrl_state, Sensors(gyro, accel), params, enabled,
-                                      override, schedule)
+    if walk is not None:
+        ctrl_state, out = walking_step(ctrl_state, Sensors(gyro, accel), params, walk, enabled)
+    else:
+        ctrl_state, out = controller_step(ctrl_state, Sensors(gyro, accel), params, enabled,
+                                          override, schedule)
     legs = quantise_targets(out.leg_targets) if quantise else out.leg_targets
     return ctrl_state, legs, out
 

@@ -1,0 +1,108 @@
+"""The controller while walking: Kalman -> capture point -> the gait's CPG -> IK.
+
+`walking_step` is `controller.controller_step` with the standing robot's one recovery step
+replaced by the gait (`tkujax.control.gait`): the Kalman filter, the push detection and the
+capture point run as when standing, the feet follow the walking CPG, the legs' IK and the stance
+feedback are the standing controller's. Recovery while walking (command.recovery = 1, and
+`enabled`) moves the next footstep instead of adding a step (Adiwahono et al. 2013: push
+recovery by walking-phase modification): when a step starts while a push is detected (the
+standing controller's gate: its thresholds, or its capture-point trigger), the swing foot's
+target moves by the controller's step x_new, y_new (`controller.detect_push`: the capture
+point with cp_gain, and cp_gain_lateral sideways with lateral steps), clipped to
+MAX_FOOTSTEP_OFFSET_FRAC of the leg (thigh + calf). The offset is latched for that step and
+recorded as x_sup_m, y_sup_m (step_weight 1 from the first one).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+
+from tkujax.control.controller import (ControllerOutput, ControllerState, Sensors,
+                                       controller_init, detect_push, stance_offsets)
+from tkujax.control.gait import GaitState, WalkCommand, advance, gait_feet, gait_init, \
+    touchdown_time
+from tkujax.control.kalman import accel_to_angle, accel_variance, gyro_to_rates, kalman_step
+from tkujax.control.params import ControllerParams
+from tkujax.control.solve import solve_legs
+
+# The footstep offset's bound per axis, as a fraction of thigh + calf (TKU-X: 0.22 m -> 8.8 cm,
+# about twice the paper's longest recovery step, 4.15 cm).
+MAX_FOOTSTEP_OFFSET_FRAC = 0.4
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class WalkingState:
+    """The standing controller's state (its Kalman filter and clock; x_sup_m / y_sup_m: the
+    last footstep offset; step_weight: 1 once one was applied) and the gait's."""
+
+    controller: ControllerState
+    gait: GaitState
+
+    @property
+    def x_sup_m(self):
+        return self.controller.x_sup_m
+
+    @property
+    def y_sup_m(self):
+        return self.controller.y_sup_m
+
+    @property
+    def step_weight(self):
+        return self.controller.step_weight
+
+    @property
+    def time_s(self):
+        return self.controller.time_s
+
+
+def walking_init(params: ControllerParams, command: WalkCommand,
+                 dtype=jnp.float32) -> WalkingState:
+    """The robot standing in its stand keyframe, the gait before its first step."""
+    return WalkingState(controller=controller_init(params, dtype),
+                        gait=gait_init(command, dtype))
+
+
+def footstep_offset(det, gate, command: WalkCommand, params: ControllerParams, enabled):
+    """(2,) the swing foot's offset (m): the controller's step (x_new, y_new) where the gate is
+    on, with recovery and enabled, clipped per axis (MAX_FOOTSTEP_OFFSET_FRAC)."""
+    reach = MAX_FOOTSTEP_OFFSET_FRAC * (params.thigh_length + params.calf_length)
+    on = gate * enabled * command.recovery
+    step = jnp.stack([det.x_new, params.lateral_steps * det.y_new], -1)
+    return jnp.clip(on * step, -reach, reach)
+
+
+def walking_step(state: WalkingState, sensors: Sensors, params: ControllerParams,
+                 command: WalkCommand, enabled: jax.Array = 1.0
+                 ) -> tuple[WalkingState, ControllerOutput]:
+    """One control period while walking. `enabled` (0 or 1) switches the balance strategy on:
+    push detection, stance feedback and (with command.recovery) the footstep offsets; the gait
+    runs either way."""
+    ctrl = state.controller
+    kalman = kalman_step(ctrl.kalman, gyro_to_rates(sensors.gyro), accel_to_angle(sensors.accel),
+                         params, accel_variance(sensors.accel, params))
+    phi = kalman.phi[..., 0]
+    psi = -kalman.phi[..., 1]
+    rates = gyro_to_rates(sensors.gyro)
+    pitch_rate, psi_rate = rates[..., 0], -rates[..., 1]
+    enabled = jnp.asarray(enabled, phi.dtype)
+    det = detect_push(phi, psi, pitch_rate, psi_rate, params)
+    gate = enabled * (1.0 - (1.0 - det.pitch_gate) * (1.0 - det.lateral_gate))
+    offset = footstep_offset(det, gate, command, params, enabled).astype(phi.dtype)
+    gait, started = advance(state.gait, ctrl.time_s, command, offset)
+    moved = started & (jnp.max(jnp.abs(offset)) > 0.0)
+    p_right, p_left = gait_feet(gait, ctrl.time_s, command, params)
+    targets, reachable = solve_legs(p_right, p_left, params)
+    targets = targets + enabled * stance_offsets(phi - params.standing_lean, pitch_rate,
+                                                 kalman.phi[..., 1], rates[..., 1], params)
+    new_ctrl = dataclasses.replace(
+        ctrl, kalman=kalman, time_s=ctrl.time_s + params.control_period,
+        step_weight=jnp.where(moved, 1.0, ctrl.step_weight).astype(ctrl.step_weight.dtype),
+        x_sup_m=jnp.where(moved, offset[0], ctrl.x_sup_m).astype(ctrl.x_sup_m.dtype),
+        y_sup_m=jnp.where(moved, offset[1], ctrl.y_sup_m).astype(ctrl.y_sup_m.dtype))
+    out = ControllerOutput(targets, phi, kalman.phi[..., 1], gate, reachable,
+                           touchdown_time(gait, command))
+    return WalkingState(controller=new_ctrl, gait=gait), out
