@@ -48,7 +48,7 @@ def _cmd_view(args) -> int:
     viewer = ReplayViewer(scenes, host=args.host, port=args.port)
     try:
         for s in scenes:
-            print(s.label)
+            print(s.label.replace("\n", ", "))
         moved = ("" if viewer.server.get_port() == args.port or args.port == 0
                  else f" (port {args.port} was taken)")
         print(f"serving {len(scenes)} replays at {viewer.url}{moved}; Ctrl-C stops", flush=True)

@@ -22,6 +22,8 @@ from tkujax.viewer.playback import PushScene
 ARROW_RGB = (220, 40, 40)
 CAPTURE_RGB = (255, 160, 0)
 TARGET_RGB = (40, 170, 60)
+HEMISPHERE_INTENSITY = 2.0
+CAMERA_AZIMUTH_DEG = 60.0   # the first view: from the front-right of the row (+x, -y)
 
 
 def rgb255(rgba) -> tuple[int, int, int]:
@@ -31,7 +33,8 @@ def rgb255(rgba) -> tuple[int, int, int]:
 class ReplayViewer:
     """A viser server showing `scenes` side by side. Attributes: server (viser.ViserServer),
     slider (time, s), play (button), speed (slider), geoms[k][j] (scene k's shape j's handle),
-    capture[k], arrows[k], targets[k] (None without a step), labels[k]; time_s: the time shown."""
+    capture[k], arrows[k], targets[k] (None without a step), labels[k]; time_s: the time shown
+    (set once every node is posed for it)."""
 
     def __init__(self, scenes: list[PushScene], host: str = "127.0.0.1", port: int = 8080,
                  verbose: bool = False):
@@ -44,7 +47,8 @@ class ReplayViewer:
         self._verbose = verbose
         with self._quiet():
             self.server = viser.ViserServer(host=host, port=port, verbose=verbose)
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()          # one pose update at a time
+        self._play_lock = threading.Lock()     # play/pause against a step of the player
         self._playing = threading.Event()
         self._closed = threading.Event()
         self.time_s = float(self.t[0])
@@ -74,9 +78,16 @@ class ReplayViewer:
         span = row + 4.0 * height
         cell = max(0.05, round(height / 5.0, 2))
         scene.add_grid("/floor", width=span, height=span, cell_size=cell, section_size=5 * cell)
+        # No image-based lighting (its start-up costs a software-rendered browser seconds): the
+        # default lights plus a sky/ground hemisphere.
+        scene.configure_environment_map(None)
+        scene.add_light_hemisphere("/sky", sky_color=(255, 255, 255), ground_color=(120, 120, 130),
+                                   intensity=HEMISPHERE_INTENSITY)
+        dist = 0.5 * row + 1.4 * height
+        az = np.radians(CAMERA_AZIMUTH_DEG)
         self.server.initial_camera.look_at = (0.0, 0.0, 0.4 * height)
-        self.server.initial_camera.position = (0.7 * row + 1.4 * height, -0.35 * row - 0.5 * height,
-                                               0.25 * row + 0.9 * height)
+        self.server.initial_camera.position = (dist * np.cos(az), -dist * np.sin(az),
+                                               0.4 * height + 0.4 * dist)
         self.geoms, self.capture, self.arrows, self.targets, self.labels = [], [], [], [], []
         for k, s in enumerate(self.scenes):
             root = f"/push{k}"
@@ -88,11 +99,11 @@ class ReplayViewer:
                 for sh in s.shapes])
             self.labels.append(scene.add_label(f"{root}/label", s.label,
                                                position=s.offset + (0.0, 0.0, 1.2 * s.height_m)))
-            r = 0.025 * s.height_m
+            r = 0.03 * s.height_m
             self.capture.append(scene.add_icosphere(f"{root}/capture_point", radius=r,
                                                     color=CAPTURE_RGB))
             self.arrows.append(scene.add_arrows(f"{root}/push", s.arrow[None], ARROW_RGB,
-                                                shaft_radius=0.4 * r, head_radius=r,
+                                                shaft_radius=0.5 * r, head_radius=1.2 * r,
                                                 head_length=2.5 * r))
             self.targets.append(None if s.step_target is None else scene.add_cylinder(
                 f"{root}/step_target", radius=1.6 * r, height=0.1 * r, color=TARGET_RGB,
@@ -110,17 +121,17 @@ class ReplayViewer:
 
     def toggle(self) -> None:
         """Play when paused, pause when playing (the button's label says which comes next)."""
-        if self._playing.is_set():
-            self._playing.clear()
-            self.play.label = "Play"
-        else:
-            self._playing.set()
-            self.play.label = "Pause"
+        with self._play_lock:
+            if self._playing.is_set():
+                self._playing.clear()
+                self.play.label = "Play"
+            else:
+                self._playing.set()
+                self.play.label = "Pause"
 
     def show(self, time_s: float) -> None:
         """Pose every node as at time_s."""
         with self._lock, self.server.atomic():
-            self.time_s = float(time_s)
             for k, s in enumerate(self.scenes):
                 f = s.frame(time_s)
                 if self._shown.get(k) == f["k"]:
@@ -132,14 +143,15 @@ class ReplayViewer:
                 self.arrows[k].visible = f["arrow_visible"]
                 if self.targets[k] is not None:
                     self.targets[k].visible = f["target_visible"]
+            self.time_s = float(time_s)
 
     def _play_loop(self) -> None:
         last = time.monotonic()
         while not self._closed.wait(0.02):
             now = time.monotonic()
-            if self._playing.is_set():
-                nxt = self.slider.value + (now - last) * float(self.speed.value)
-                self._advance(nxt)
+            with self._play_lock:
+                if self._playing.is_set():
+                    self._advance(self.slider.value + (now - last) * float(self.speed.value))
             last = now
 
     def _advance(self, time_s: float) -> None:
