@@ -257,6 +257,21 @@ def _wait(cond, timeout_s: float, what: str):
     raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
 
 
+def _click(browser, label: str) -> None:
+    """Click the page's button reading `label` once it shows (React may redraw it meanwhile)."""
+    from selenium.common.exceptions import WebDriverException
+    from selenium.webdriver.common.by import By
+
+    def attempt():
+        try:
+            browser.find_element(By.XPATH, f"//button[normalize-space()='{label}']").click()
+            return True
+        except WebDriverException:
+            return False
+
+    _wait(attempt, 10, f"a {label} button to click")
+
+
 def _scene_pixels(png: bytes) -> np.ndarray:
     from PIL import Image
 
@@ -296,10 +311,10 @@ def test_browser_slider_moves_the_robots(scenes):
         time.sleep(1.5)
         last = _scene_pixels(browser.get_screenshot_as_png())
         assert np.mean(np.any(first != last, axis=-1)) > 0.002     # the robots moved on screen
-        browser.find_element(By.XPATH, "//button[normalize-space()='Play']").click()
+        _click(browser, "Play")
         _wait(lambda: viewer.time_s < float(scenes[0].t[-1]), 20, "playing to loop to the start")
         assert viewer.play.label == "Pause"
-        browser.find_element(By.XPATH, "//button[normalize-space()='Pause']").click()
+        _click(browser, "Pause")
         _wait(lambda: viewer.play.label == "Play", 10, "the pause")
         paused = viewer.time_s
         time.sleep(0.3)
