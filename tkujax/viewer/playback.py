@@ -257,7 +257,7 @@ def host_model_of(model_params):
 
 def replay_scenes(run_dir: str | Path, indices, robot=None, progress=None) -> list[PushScene]:
     """Re-simulate each record (push id) of the sweep in run_dir on MuJoCo C and lay the
-    scenes out in a row, sideways, 2 robot heights apart; the arrows share one scale (the
+    scenes out in a row, sideways, 1.5 robot heights apart; the arrows share one scale (the
     largest impulse's is ARROW_FRACTION of the robot's height). progress(i, n, index) is
     called before each replay."""
     from tkujax.studies.replay import replay
@@ -274,4 +274,4 @@ def replay_scenes(run_dir: str | Path, indices, robot=None, progress=None) -> li
     height = max(s.height_m for s in scenes)
     per_ns = ARROW_FRACTION * height / (max(s.impulse_ns for s in scenes) or 1.0)
     return [s.with_arrow_scale(per_ns).shifted(o)
-            for s, o in zip(scenes, row_offsets(len(scenes), 2.0 * height))]
+            for s, o in zip(scenes, row_offsets(len(scenes), 1.5 * height))]

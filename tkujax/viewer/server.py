@@ -23,7 +23,9 @@ ARROW_RGB = (220, 40, 40)
 CAPTURE_RGB = (255, 160, 0)
 TARGET_RGB = (40, 170, 60)
 HEMISPHERE_INTENSITY = 2.0
-CAMERA_AZIMUTH_DEG = 60.0   # the first view: from the front-right of the row (+x, -y)
+CAMERA_AZIMUTH_DEG = 45.0   # the first view: from the front-right (+x, -y), from above
+CAMERA_ELEVATION_DEG = 30.0
+CAMERA_FOV_DEG = 40.0       # vertical; viser's 75 deg default makes a row of robots recede
 
 
 def rgb255(rgba) -> tuple[int, int, int]:
@@ -83,11 +85,13 @@ class ReplayViewer:
         scene.configure_environment_map(None)
         scene.add_light_hemisphere("/sky", sky_color=(255, 255, 255), ground_color=(120, 120, 130),
                                    intensity=HEMISPHERE_INTENSITY)
-        dist = 0.5 * row + 1.4 * height
-        az = np.radians(CAMERA_AZIMUTH_DEG)
+        dist = 0.8 * row + 2.8 * height
+        az, el = np.radians(CAMERA_AZIMUTH_DEG), np.radians(CAMERA_ELEVATION_DEG)
+        self.server.initial_camera.fov = np.radians(CAMERA_FOV_DEG)
         self.server.initial_camera.look_at = (0.0, 0.0, 0.4 * height)
-        self.server.initial_camera.position = (dist * np.cos(az), -dist * np.sin(az),
-                                               0.4 * height + 0.4 * dist)
+        self.server.initial_camera.position = (
+            dist * np.cos(el) * np.cos(az), -dist * np.cos(el) * np.sin(az),
+            0.4 * height + dist * np.sin(el))
         self.geoms, self.capture, self.arrows, self.targets, self.labels = [], [], [], [], []
         for k, s in enumerate(self.scenes):
             root = f"/push{k}"
