@@ -93,6 +93,7 @@ def test_drawn_geoms_kinds_colours_and_mesh(shapes_model):
     assert shapes["box"].rgba == (0.0, 0.0, 1.0, 1.0)                               # material
     assert shapes["ball"].rgba == (1.0, 0.0, 0.0, 1.0)
     assert shapes["tet"].kind == "mesh" and len(shapes["tet"].faces) == 4
+    assert [s.name for s in geom_shapes(shapes_model, groups=(3,))] == ["hidden"]
     assert abs(_volume(shapes["tet"].vertices, shapes["tet"].faces)) == pytest.approx(
         0.1 ** 3 / 6, rel=1e-4)
 
@@ -185,6 +186,8 @@ def test_view_command_refuses_bad_options(tmp_path, capsys):
     with pytest.raises(SystemExit) as stop:
         main(["view", str(tmp_path), "--fell", "--survived"])
     assert stop.value.code == 2
+    assert main(["view", str(tmp_path), "--geom-groups", "0,7"]) == 2
+    assert "--geom-groups must be MuJoCo geom groups in [0, 5]" in capsys.readouterr().err
 
 
 @pytest.fixture(scope="module")

@@ -24,12 +24,25 @@ def selection_from_args(args):
         indices=tuple(args.index or ()), max_pushes=args.max)
 
 
+def geom_groups(text: str) -> tuple[int, ...]:
+    """'0,1,2' -> (0, 1, 2): MuJoCo geom groups, each in [0, 5]."""
+    try:
+        groups = tuple(int(g) for g in str(text).split(","))
+    except ValueError:
+        groups = ()
+    if not groups or not all(0 <= g <= 5 for g in groups):
+        raise ValueError(f"--geom-groups must be MuJoCo geom groups in [0, 5] separated by "
+                         f"commas, got {text!r}")
+    return groups
+
+
 def _cmd_view(args) -> int:
     from tkujax.studies.robot_inputs import sweep_robot
     from tkujax.studies.sweep import load
     from tkujax.viewer.playback import replay_scenes, select_records
 
     selection = selection_from_args(args)
+    groups = geom_groups(args.geom_groups)
     if importlib.util.find_spec("viser") is None:
         print("tkujax view: error: the viewer needs viser: pip install 'tkujax[view]'",
               file=sys.stderr)
@@ -42,7 +55,7 @@ def _cmd_view(args) -> int:
         print(f"replaying record {index} on MuJoCo C ({i + 1}/{n})", file=sys.stderr, flush=True)
 
     scenes = replay_scenes(args.dir, indices, robot=sweep_robot(args.dir, args.robot),
-                           progress=progress)
+                           progress=progress, groups=groups)
     from tkujax.viewer.server import ReplayViewer
 
     viewer = ReplayViewer(scenes, host=args.host, port=args.port)
@@ -88,5 +101,8 @@ def add_view_command(sub) -> None:
                    help="port (default 8080; the next free one when taken; 0: any free port)")
     p.add_argument("--serve-s", type=bounded_float(0.0, 1e7), default=None, metavar="S",
                    help="stop after S seconds (default: serve until Ctrl-C)")
+    p.add_argument("--geom-groups", default="0,1,2", metavar="G,G",
+                   help="geom groups to draw (default 0,1,2, as MuJoCo's viewer; a robot with "
+                        "heavy visual meshes draws lighter with its collision group, often 3)")
     add_robot_check_option(p)
     p.set_defaults(func=_cmd_view)

@@ -24,8 +24,8 @@ import numpy as np
 
 from tkujax.sim import physics
 from tkujax.sim.setup import RobotSetup, model_index
-from tkujax.viewer.geometry import (GeomShape, com_positions, geom_poses, geom_shapes,
-                                    site_positions)
+from tkujax.viewer.geometry import (VISIBLE_GROUPS, GeomShape, com_positions, geom_poses,
+                                    geom_shapes, site_positions)
 
 ARROW_SHOW_S = 0.25         # the push's arrow stays this long after its onset
 ARROW_FRACTION = 0.5        # the largest shown impulse's arrow is this fraction of the robot
@@ -218,13 +218,16 @@ def standing_height(shapes, positions: np.ndarray, wxyz: np.ndarray) -> float:
     return top
 
 
-def scene_from_replay(result: dict, model, ankle_sites) -> PushScene:
+def scene_from_replay(result: dict, model, ankle_sites, groups=VISIBLE_GROUPS) -> PushScene:
     """The PushScene of one `tkujax.studies.replay.replay` result on the MuJoCo model it ran
-    (ankle_sites: the right and left ankle site ids); its arrow is ARROW_FRACTION of the robot's
-    height long (`PushScene.with_arrow_scale` sets a scale shared by several pushes)."""
+    (ankle_sites: the right and left ankle site ids; groups: the geom groups drawn); its arrow
+    is ARROW_FRACTION of the robot's height long (`PushScene.with_arrow_scale` sets a scale
+    shared by several pushes)."""
     qpos, stored = np.asarray(result["qpos"], np.float64), result["stored"]
     t = (np.arange(len(qpos)) + 1.0) * float(result["control_period_s"])
-    shapes = tuple(geom_shapes(model))
+    shapes = tuple(geom_shapes(model, groups))
+    if not shapes:
+        raise ValueError(f"the robot has no geom to draw in geom groups {list(groups)}")
     positions, wxyz = geom_poses(model, qpos, [s.geom for s in shapes])
     com = com_positions(model, qpos)
     gravity = float(np.linalg.norm(model.opt.gravity))
@@ -255,11 +258,12 @@ def host_model_of(model_params):
     return physics.host_model(model_params)
 
 
-def replay_scenes(run_dir: str | Path, indices, robot=None, progress=None) -> list[PushScene]:
+def replay_scenes(run_dir: str | Path, indices, robot=None, progress=None,
+                  groups=VISIBLE_GROUPS) -> list[PushScene]:
     """Re-simulate each record (push id) of the sweep in run_dir on MuJoCo C and lay the
     scenes out in a row, sideways, 1.5 robot heights apart; the arrows share one scale (the
     largest impulse's is ARROW_FRACTION of the robot's height). progress(i, n, index) is
-    called before each replay."""
+    called before each replay; groups: the geom groups drawn."""
     from tkujax.studies.replay import replay
 
     results = []
@@ -270,7 +274,8 @@ def replay_scenes(run_dir: str | Path, indices, robot=None, progress=None) -> li
     if not results:
         return []
     scenes = [scene_from_replay(r, host_model_of(r["model_params"]),
-                                model_index(r["model_params"]).ankle_sites) for r in results]
+                                model_index(r["model_params"]).ankle_sites, groups)
+              for r in results]
     height = max(s.height_m for s in scenes)
     per_ns = ARROW_FRACTION * height / (max(s.impulse_ns for s in scenes) or 1.0)
     return [s.with_arrow_scale(per_ns).shifted(o)
