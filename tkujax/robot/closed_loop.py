@@ -38,7 +38,7 @@ from tkujax.control.controller import stand_leg_targets
 from tkujax.control.params import ControllerParams
 from tkujax.robot.description import RobotFileError, load_description
 from tkujax.robot.geometry import base_pitch_roll, controller_params_for, measure_geometry
-from tkujax.robot.leg_map import jacobian_map, sign_map
+from tkujax.robot.leg_map import leg_chain, sign_map
 from tkujax.robot.loader import RobotModel, load_robot
 from tkujax.robot.model_files import model_files, model_files_digest
 from tkujax.robot.own_controller import robot_controller
@@ -72,14 +72,14 @@ def file_digest(path: str | Path) -> str:
 def leg_map(robot: RobotModel, pose, params: ControllerParams) -> dict:
     """ModelIndex's leg map fields taking the controller's targets (slot order: right then
     left, roles in order) to the robot's leg actuators, the controller's stand to the pose's
-    (tkujax.robot.leg_map: signs for TKU-X's chain, a matrix for any other)."""
+    (tkujax.robot.leg_map: signs for TKU-X's chain, the robot's IK for any other)."""
     q_stand = np.asarray(stand_leg_targets(params), np.float64)
     if robot.tkux_chain:
         signs, offsets = sign_map(robot, pose.ctrl, q_stand)
         return dict(leg_signs=signs, leg_offsets=offsets)
-    matrix, offsets = jacobian_map(robot, pose.qpos, pose.ctrl, q_stand,
-                                   float(params.thigh_length), float(params.calf_length))
-    return dict(leg_matrix=matrix, leg_offsets=offsets)
+    chain = leg_chain(robot, pose.qpos, pose.ctrl, q_stand, float(params.thigh_length),
+                      float(params.calf_length))
+    return dict(leg_matrix=chain.matrix, leg_offsets=chain.offsets, leg_chain=chain)
 
 
 def mesh_fall_geoms(robot: RobotModel) -> tuple[tuple[int, ...], tuple[np.ndarray, ...]]:

@@ -26,6 +26,7 @@ import numpy as np
 from tkujax.control.controller import StepOverride
 from tkujax.control.fixed import servo_switch_substep
 from tkujax.control.params import ControllerParams
+from tkujax.sim.leg_chain import chain_targets
 from tkujax.sim import physics, recording, tree_passes
 from tkujax.sim.mjx_import import mjx
 from tkujax.sim.options import Episode, RolloutConfig, checkpoints
@@ -144,8 +145,10 @@ def controller_tick(idx: ModelIndex, episode: Episode, params: ControllerParams,
 def map_legs(idx: ModelIndex, legs: jax.Array) -> jax.Array:
     """The controller's leg targets (TKU-X's joint conventions) as the robot's: each slot's
     sign and offset (ModelIndex.leg_signs, leg_offsets), or another chain's linear map
-    (leg_matrix, tkujax.robot.leg_map); TKU-X's model: unchanged."""
+    (leg_chain: its IK; tkujax.sim.leg_chain); TKU-X's model: unchanged."""
     dtype = legs.dtype
+    if idx.leg_chain is not None:
+        return chain_targets(idx.leg_chain, legs)
     if idx.leg_matrix is not None:
         # HIGHEST: no reduced-precision (TF32) matmul on GPUs for the servo targets.
         return (jnp.matmul(legs, jnp.asarray(idx.leg_matrix.T, dtype),

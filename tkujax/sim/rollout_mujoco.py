@@ -73,6 +73,7 @@ from tkujax.control.gait import WalkCommand, batch_walk
 from tkujax.control.params import ControllerParams
 from tkujax.control.walking import walking_init
 from tkujax.model import ModelParams
+from tkujax.sim.leg_chain import chain_targets_host
 from tkujax.sim import physics, recording
 from tkujax.sim.closed_loop import check_walk
 from tkujax.sim.metrics import outcomes as _outcomes
@@ -342,6 +343,8 @@ class _Physics:
 def _mapped(idx: ModelIndex, legs) -> np.ndarray:
     """(n, n_act) actuator targets of the controller's leg targets (closed_loop.map_legs)."""
     legs = np.asarray(legs, np.float64)
+    if idx.leg_chain is not None:
+        return chain_targets_host(idx.leg_chain, legs)
     if idx.leg_matrix is not None:
         return legs @ idx.leg_matrix.T + idx.leg_offsets
     if idx.leg_signs is None:

@@ -63,6 +63,9 @@ class ModelIndex:
     # A robot whose leg chain is not TKU-X's (tkujax.robot.leg_map): the targets are
     # leg_matrix (n_act, 12) @ q + leg_offsets; leg_signs is then None.
     leg_matrix: np.ndarray | None = None
+    # ... and the robot's IK of the foot pose the controller asks for, started from that
+    # linear map (tkujax.sim.leg_chain.LegChain); when set, the targets are its solution.
+    leg_chain: object = None
     # Non-foot collision meshes for the fall test: geom ids and each one's vertices in its
     # geom frame (the lowest vertex is the geom's lowest point).
     mesh_geoms: tuple[int, ...] = ()

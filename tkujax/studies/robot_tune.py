@@ -3,12 +3,11 @@
 Stages, each kept in DIR and skipped when done (rerun the command to resume):
 
 1. `pushes.json`: the robot's push distributions (`tkujax.studies.robot_pushes`).
-2. `tune/`: the recovery structure the evidence chose (`STRUCTURE`: the accelerometer gate,
-   capture-point triggers, the widening sideways step, stance feedback, one step; on OP3 each
-   of these lowered falls, a second step and a step toward the capture point sideways added
-   them: docs/robots.md), started at the robot's scaled defaults with the conservative
-   default's stance gains, tuned by CMA-ES (`tkujax.studies.tune`) over `TUNED` on the tuning
-   pushes (seed `TUNE_SEED`) with the no-harm weight, for the budget's tuning share.
+2. `structure.json`: the recovery structure, chosen on the robot
+   (`tkujax.studies.robot_structure`): OP3's (the accelerometer gate, capture-point triggers,
+   the widening sideways step, stance feedback, one step) or stance feedback without a step.
+   `tune/`: its start tuned by CMA-ES (`tkujax.studies.tune`) on the tuning pushes (seed
+   `TUNE_SEED`) with the no-harm weight, for the budget's tuning share.
 3. `heldout/`: a sweep of held-out pushes (seed `HELDOUT_SEED`, other onsets, longer
    rollouts), control off and on with the recommended set.
 4. `compare/` and `verdict.json`: `tkujax compare` of the two; the controller passes when it
@@ -26,69 +25,55 @@ import time
 from pathlib import Path
 
 from tkujax.robot.closed_loop import robot_setup
-from tkujax.robot.own_controller import STANCE_GAINS, STANCE_SCALE
-from tkujax.control.params import RECOMMENDED
 from tkujax.studies.progress import StatusLog
 from tkujax.studies.robot_pushes import robot_pushes
+from tkujax.studies.robot_structure import STRUCTURES, choose_structure, structure_start
 from tkujax.studies.robot_verdict import heldout_verdict, name_controller
 
 TUNE_SEED, HELDOUT_SEED = 0, 11
 TUNE_BATCH, TUNE_HORIZON_S, POPSIZE = 256, 1.5, 13
 HELDOUT_HORIZON_S = 2.0
-# The structure (module doc): flags and fixed values; the robot's geometry and scaled defaults
-# (step period, lift, lean) stay underneath.
-STRUCTURE = dict(accel_gate=RECOMMENDED["accel_gate"], cp_trigger=1.0, max_steps=1.0,
-                 lateral_steps=1.0, cp_rate_blend=1.0, cp_gain_lateral=-1.0,
-                 double_support_ratio=0.05, cp_gain=1.5)
-TUNED = ("step_period", "double_support_ratio", "lift_height", "cp_gain",
-         "cp_trigger_forward_m", "cp_trigger_backward_m", "cp_trigger_lateral_m",
-         "cp_gain_lateral", "accel_gate") + STANCE_GAINS
 TUNE_SHARE = 0.6                     # of --budget-s for the search's generations
+DEGREE_KEYS = ("eps_forward", "eps_backward")
 
 
-def start_controller(robot) -> dict:
-    """The tune's start on `robot`: STRUCTURE on its scaled defaults, the conservative
-    default's stance gains, triggers at 15 % of the leg's reach (OP3's 3 cm)."""
+def ranges_for(robot, start: dict, tuned: tuple[str, ...]) -> dict:
+    """Search ranges of the tuned fields scaled to the robot, each holding the start strictly
+    inside (the stance gains keep the tune's default ranges)."""
     d = robot.defaults
     reach = float(d.thigh_length + d.calf_length)
-    start = dict(STRUCTURE, step_period=float(d.step_period), lift_height=float(d.lift_height))
-    start |= {k: STANCE_SCALE * RECOMMENDED[k] for k in STANCE_GAINS}
-    start |= {k: round(0.15 * reach, 4) for k in ("cp_trigger_forward_m",
-                                                   "cp_trigger_backward_m",
-                                                   "cp_trigger_lateral_m")}
-    return start
-
-
-def ranges_for(robot, start: dict) -> dict:
-    """Search ranges scaled to the robot, each holding the start strictly inside."""
-    d = robot.defaults
-    reach = float(d.thigh_length + d.calf_length)
-    t = start["step_period"]
-    return dict(step_period=[round(0.5 * t, 4), round(min(2.0, 2.0 * t), 4)],
-                lift_height=[round(0.2 * start["lift_height"], 4),
-                             round(min(0.1, 2.5 * start["lift_height"]), 4)],
-                cp_gain=[0.3, 4.0], cp_gain_lateral=[-2.0, 0.5], accel_gate=[0.01, 1.0],
-                cp_trigger_forward_m=[0.0, round(min(0.5, 0.6 * reach), 4)],
-                cp_trigger_backward_m=[0.0, round(min(0.5, 0.6 * reach), 4)],
-                cp_trigger_lateral_m=[0.0, round(min(0.5, 0.6 * reach), 4)])
+    ranges = dict(cp_gain=[0.3, 4.0], cp_gain_lateral=[-2.0, 0.5], accel_gate=[0.01, 1.0],
+                  cp_trigger_forward_m=[0.0, round(min(0.5, 0.6 * reach), 4)],
+                  cp_trigger_backward_m=[0.0, round(min(0.5, 0.6 * reach), 4)],
+                  cp_trigger_lateral_m=[0.0, round(min(0.5, 0.6 * reach), 4)])
+    if "step_period" in start:
+        t, lift = start["step_period"], start["lift_height"]
+        ranges |= dict(step_period=[round(0.5 * t, 4), round(min(2.0, 2.0 * t), 4)],
+                       lift_height=[round(0.2 * lift, 4), round(min(0.1, 2.5 * lift), 4)])
+    return {k: v for k, v in ranges.items() if k in tuned}
 
 
 def _uniform(pair) -> dict:
     return {"uniform": [float(pair[0]), float(pair[1])]}
 
 
-def tune_spec(robot_file: str, robot, pushes: dict, iterations: int) -> dict:
-    """The tune spec (as its TOML dict) of the robot's controller (module doc)."""
-    start = start_controller(robot)
+def tune_spec(robot_file: str, robot, pushes: dict, structure: str, iterations: int) -> dict:
+    """The tune spec (as its TOML dict) of the robot's controller in `structure` (module doc)."""
+    start = structure_start(robot, structure)
+    tuned = STRUCTURES[structure]["tuned"]
+    # The spec dialect gives the lean thresholds in degrees.
+    controller = {(f"{k}_deg" if k in DEGREE_KEYS else k): (math.degrees(v) if k in DEGREE_KEYS
+                                                            else v)
+                  for k, v in start.items()}
     return {
         "robot": {"file": robot_file},
         "tune": {"name": f"{robot.name}_controller", "seed": TUNE_SEED, "method": "cma",
                  "popsize": POPSIZE, "iterations": iterations, "batch": TUNE_BATCH,
-                 "duration_s": TUNE_HORIZON_S, "params": list(TUNED), "float64": False,
-                 "remat": True, "ranges": ranges_for(robot, start),
+                 "duration_s": TUNE_HORIZON_S, "params": list(tuned), "float64": False,
+                 "remat": True, "ranges": ranges_for(robot, start, tuned),
                  # OP3's loss: a harmed push costs twice a saved one (results/op3/).
                  "loss": dict(w_fall=1.0, w_recovery=1.0, w_step=0.1, w_harm=2.0)},
-        "controller": start,
+        "controller": controller,
         "push": {"impulse_ns": _uniform(pushes["impulse_ns"]), "azimuth_deg": _uniform((0, 360)),
                  "height_m": _uniform(pushes["height_m"]), "onset_s": _uniform((0.25, 0.4)),
                  "duration_s": _uniform(pushes["duration_s"])},
@@ -119,15 +104,27 @@ def _stage_pushes(out: Path, robot, log) -> dict:
     return pushes
 
 
-def _stage_tune(out: Path, robot_file: str, robot, pushes: dict, budget_s: float, log) -> dict:
+def _stage_structure(out: Path, robot, pushes: dict, log) -> dict:
+    path = out / "structure.json"
+    if path.is_file():
+        return json.loads(path.read_text())
+    log("structure: a step or stance feedback alone, on the robot's pushes (MuJoCo C)")
+    record = choose_structure(robot, pushes)
+    path.write_text(json.dumps(record, indent=1) + "\n")
+    return record
+
+
+def _stage_tune(out: Path, robot_file: str, robot, pushes: dict, structure: str,
+                budget_s: float, log) -> dict:
     from tkujax.studies.tune import run_tune
 
     record_path = out / "tune" / "params_after.json"
     if record_path.is_file():
         return json.loads(record_path.read_text())
-    spec = tune_spec(robot_file, robot, pushes, iterations=10_000)
+    spec = tune_spec(robot_file, robot, pushes, structure, iterations=10_000)
     (out / "tune_spec.json").write_text(json.dumps(spec, indent=1) + "\n")
-    log(f"tune: CMA-ES over {len(TUNED)} parameters, {budget_s:.0f} s of generations")
+    log(f"tune: CMA-ES over {len(spec['tune']['params'])} parameters ({structure}), "
+        f"{budget_s:.0f} s of generations")
     run_tune(spec, out / "tune", quiet=True, compare=False, budget_s=budget_s, robot=robot)
     return json.loads(record_path.read_text())
 
@@ -149,10 +146,13 @@ def tune_robot_controller(robot_file: str | Path, out: str | Path, budget_s: flo
     robot_file = str(Path(robot_file).resolve())
     robot = robot_setup(robot_file)
     pushes = _stage_pushes(out, robot, log)
-    tuned = _stage_tune(out, robot_file, robot, pushes, TUNE_SHARE * budget_s, log)
+    structure = _stage_structure(out, robot, pushes, log)
+    name = structure["chosen"]
+    tuned = _stage_tune(out, robot_file, robot, pushes, name, TUNE_SHARE * budget_s, log)
     log("verdict: held-out pushes, control off and with the tuned controller")
     record = heldout_verdict(out, robot, heldout_spec(robot_file, robot, pushes, heldout_n),
-                             tuned, method="cma", n_params=len(TUNED))
+                             tuned, method="cma", n_params=len(STRUCTURES[name]["tuned"]))
+    record["structure"] = dict(chosen=name, why=structure["why"])
     record["wall_s"] = round(time.perf_counter() - t0, 1)     # this run of the command
     if record["passed"] and write:
         record["controller_file"] = str(name_controller(robot_file, tuned))
