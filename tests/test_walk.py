@@ -1,11 +1,15 @@
-"""Walking from the controller's CPG (tkujax.control.gait, walking; docs/walking.md).
+"""Walking from the controller's CPG (tkujax.control.gait, walking, walk_recovery;
+docs/walking.md).
 
 The gait against closed forms (step, lift, double support, the first step = the paper's recovery
 step, the gait phase); walking that has not started = standing, bit for bit; TKU-X (and OP3 when
 its Menagerie model is there) stepping in place and walking forward on MuJoCo C; `tkujax walk`;
-MJX against MuJoCo C on a short walk (slow: an MJX compile).
+pushes placed by gait phase; the footstep recovery: silent on an undisturbed walk (bit for bit),
+a forward footstep after a push from behind; MJX against MuJoCo C on a short walk (slow: an MJX
+compile).
 """
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -16,12 +20,15 @@ import pytest
 
 from tkujax.control.cpg import cpg_feet
 from tkujax.control.gait import (GaitState, WalkCommand, advance, gait_feet, gait_init,
-                                 gait_phase, planned_feet, step_vector, time_at_phase)
+                                 gait_phase, move_footstep, planned_feet, step_vector,
+                                 time_at_phase)
+from tkujax.control.walk_recovery import PHASE_BINS, RecoveryState, phase_weights, step_offset
 from tkujax.control.params import ControllerParams
 from tkujax.sim.options import RolloutConfig
 from tkujax.sim.push import make_push, stack_pushes
 from tkujax.sim.rollout_mujoco import simulate_mujoco
 from tkujax.studies.walk import run_walk, walk_metrics, walker
+from tkujax.studies.walk_push import push_at_gait_phase
 
 PARAMS = ControllerParams.paper()
 OP3_FILE = Path(__file__).resolve().parent.parent / "specs" / "robots" / "op3.toml"
@@ -184,6 +191,54 @@ def test_walk_command_line(capsys):
     for key in ("distance_m", "mean_speed_mps", "heading_drift_deg", "step_period_s",
                 "step_length_m"):
         assert key in out
+
+
+def test_push_at_gait_phase():
+    cmd = WalkCommand.for_params(PARAMS, 0.1)
+    for phase in (0.0, 0.3, 0.5, 0.875):
+        push = push_at_gait_phase(cmd, phase, 0.8, 90.0, cycle=4)
+        assert abs(float(gait_phase(push.onset_s, cmd)) - phase) < 1e-4
+        assert float(push.onset_s) > float(cmd.start_s) + 4 * 2 * 0.3
+    with pytest.raises(ValueError, match="gait_phase must be in"):
+        push_at_gait_phase(cmd, 1.0, 0.8)
+    with pytest.raises(ValueError, match="cycle must be an integer"):
+        push_at_gait_phase(cmd, 0.5, 0.8, cycle=1.5)
+
+
+def test_footstep_offsets_centred_and_outward():
+    """A footstep offset grows the step by it, centred on the waist; sideways only outward for
+    the swing foot; the phase bins' weights interpolate and sum to 1."""
+    state = GaitState(count=jnp.asarray(3.0), start_s=jnp.asarray(1.0),
+                      swing_left=jnp.asarray(1.0), feet_from=jnp.zeros(4),
+                      feet_to=jnp.array([-0.015, 0.0, 0.015, 0.0]))
+    moved = move_footstep(state, jnp.array([0.02, 0.01]))
+    np.testing.assert_allclose(np.asarray(moved.feet_to), [-0.025, -0.005, 0.025, 0.005])
+    rec = dataclasses.replace(RecoveryState.init(), pending=jnp.array([0.03, -0.02]),
+                              armed=jnp.asarray(1.0))
+    np.testing.assert_allclose(np.asarray(step_offset(rec, 1.0)), [0.03, 0.0])   # left: +y only
+    np.testing.assert_allclose(np.asarray(step_offset(rec, 0.0)), [0.03, -0.02])
+    for phase in (0.0, 0.01, 0.5, 0.97):
+        w = np.asarray(phase_weights(phase))
+        assert w.shape == (PHASE_BINS,) and abs(w.sum() - 1.0) < 1e-6 and np.count_nonzero(w) <= 2
+        centres = (np.arange(PHASE_BINS) + 0.5) / PHASE_BINS
+        d = (centres - phase + 0.5) % 1.0 - 0.5                  # periodic distance
+        assert abs(float(w @ d)) < 1e-6                          # the weights' centre is phase
+
+
+def test_footstep_recovery_silent_without_push_and_steps_after_one():
+    """TKU-X at 0.1 m/s on MuJoCo C, 5.5 s: without a push the recovery never triggers (the
+    walk is bit-identical to recovery off); after 1.2 N s from behind in mid-swing (gait phase
+    0.25 of the 7th cycle) it moves a footstep forward, where recovery off moves none."""
+    who = walker(None)
+    off, on = (WalkCommand.for_params(who.gait_params, 0.1, recovery=r) for r in (0.0, 1.0))
+    push = push_at_gait_phase(off, 0.25, 1.2, 0.0)
+    pushes = stack_pushes([make_push(0.0), make_push(0.0), push, push])
+    series, _ = run_walk(who, [off, on, off, on], float(push.onset_s) + 0.6, "mujoco",
+                         pushes=pushes)
+    for key, value in series.items():
+        np.testing.assert_array_equal(np.asarray(value)[1], np.asarray(value)[0], err_msg=key)
+    x_sup = np.asarray(series.x_sup)
+    assert not np.any(x_sup[2]) and np.max(x_sup[3]) > 0.01, np.max(x_sup[3])
 
 
 @pytest.mark.slow

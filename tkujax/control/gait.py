@@ -39,6 +39,7 @@ from tkujax.control.params import ControllerParams
 WALK_START_S = 0.3     # the stand is held this long before the first step (the filter settles)
 SWAY_FRAC = 1.0 / 3.0  # the default sway, a fraction of d_y (docs/walking.md: the scan)
 RAMP_STEPS = 4.0       # the default ramp (docs/walking.md: the speed range with and without)
+BAND_FRAC = 0.07       # the default recovery band, a fraction of thigh + calf (walk_recovery)
 
 
 @jax.tree_util.register_dataclass
@@ -52,8 +53,9 @@ class WalkCommand:
     gamma. sway_m: the waist's lateral sway toward the support foot (0: none, the paper's
     Table 2 amplitude). start_s: when the first step starts (controller clock). ramp_steps:
     the step grows linearly over this many steps (0: the full step from the first).
-    recovery: 1 = the capture point moves the next footstep (`walking.walking_step`), 0 = the
-    nominal gait. The defaults are TKU-X's (`for_params(ControllerParams.paper())`)."""
+    recovery: 1 = the capture point moves the next footstep (`walk_recovery`), 0 = the nominal
+    gait; recovery_band_m: how far the capture point must leave the undisturbed gait's for
+    that. The defaults are TKU-X's (`for_params(ControllerParams.paper())`)."""
 
     speed_mps: jax.Array = 0.0
     lateral_mps: jax.Array = 0.0
@@ -64,16 +66,19 @@ class WalkCommand:
     start_s: jax.Array = WALK_START_S
     ramp_steps: jax.Array = RAMP_STEPS
     recovery: jax.Array = 0.0
+    recovery_band_m: jax.Array = 0.0154
 
     @classmethod
     def for_params(cls, params: ControllerParams, speed_mps: float = 0.0,
                    lateral_mps: float = 0.0, **fields) -> WalkCommand:
         """The robot's walk: step period, lift and gamma from its controller (T, H_Sup and
         gamma, scaled to the robot by `tkujax.robot.geometry.controller_params_for`), the sway
-        SWAY_FRAC of its d_y, the rest of the fields as given (keyword) or their defaults."""
+        SWAY_FRAC of its d_y, the recovery band BAND_FRAC of its thigh + calf, the rest of the
+        fields as given (keyword) or their defaults."""
         base = dict(step_period_s=float(params.step_period), lift_m=float(params.lift_height),
                     double_support_ratio=float(params.double_support_ratio),
-                    sway_m=SWAY_FRAC * float(params.hip_offset_y))
+                    sway_m=SWAY_FRAC * float(params.hip_offset_y),
+                    recovery_band_m=BAND_FRAC * float(params.thigh_length + params.calf_length))
         base.update(fields)
         return cls(speed_mps=float(speed_mps), lateral_mps=float(lateral_mps), **base)
 
@@ -82,7 +87,8 @@ class WalkCommand:
         limits = dict(speed_mps=(-1.0, 1.0), lateral_mps=(-0.5, 0.5), step_period_s=(0.1, 2.0),
                       lift_m=(0.0, 0.1), double_support_ratio=(0.0, 0.8),
                       sway_m=(-0.05, 0.05), start_s=(0.0, 100.0),
-                      ramp_steps=(0.0, 20.0), recovery=(0.0, 1.0))
+                      ramp_steps=(0.0, 20.0), recovery=(0.0, 1.0),
+                      recovery_band_m=(0.0, 0.5))
         for name, (lo, hi) in limits.items():
             v = float(getattr(self, name))
             if not lo <= v <= hi:       # also refuses NaN
@@ -164,6 +170,24 @@ def advance(state: GaitState, time_s, command: WalkCommand,
                     feet_from=jnp.where(due, state.feet_to, state.feet_from),
                     feet_to=jnp.where(due, feet_to, state.feet_to))
     return new, due
+
+
+def swing_in_reach(state: GaitState, time_s, command: WalkCommand, margin_s) -> jax.Array:
+    """Whether the current step's swing foot can still be moved: a step has started and its
+    touchdown (`touchdown_time`) is more than margin_s away."""
+    return (state.count > -0.5) & (time_s < touchdown_time(state, command) - margin_s)
+
+
+def move_footstep(state: GaitState, offset) -> GaitState:
+    """The current step lengthened by `offset` (2,): its swing foot lands offset / 2 further
+    and its support foot ends offset / 2 further back, relative to the waist (the feet end
+    offset further apart, centred on the waist: the body travels d + offset / 2 in this step
+    and in the next, not d now and d + offset next). In the air the rest of the swing goes
+    there (`gait_feet` interpolates from feet_from by the CPG's quarter sine)."""
+    half = 0.5 * jnp.asarray(offset, state.feet_to.dtype)
+    add = jnp.where(state.swing_left > 0.5, jnp.concatenate([-half, half], -1),
+                    jnp.concatenate([half, -half], -1))
+    return dataclasses.replace(state, feet_to=state.feet_to + add)
 
 
 def walk_params(params: ControllerParams, command: WalkCommand) -> ControllerParams:

@@ -2,15 +2,11 @@
 
 `walking_step` is `controller.controller_step` with the standing robot's one recovery step
 replaced by the gait (`tkujax.control.gait`): the Kalman filter, the push detection and the
-capture point run as when standing, the feet follow the walking CPG, the legs' IK and the stance
-feedback are the standing controller's. Recovery while walking (command.recovery = 1, and
-`enabled`) moves the next footstep instead of adding a step (Adiwahono et al. 2013: push
-recovery by walking-phase modification): when a step starts while a push is detected (the
-standing controller's gate: its thresholds, or its capture-point trigger), the swing foot's
-target moves by the controller's step x_new, y_new (`controller.detect_push`: the capture
-point with cp_gain, and cp_gain_lateral sideways with lateral steps), clipped to
-MAX_FOOTSTEP_OFFSET_FRAC of the leg (thigh + calf). The offset is latched for that step and
-recorded as x_sup_m, y_sup_m (step_weight 1 from the first one).
+capture point run as when standing (the detection gate is recorded), the feet follow the walking
+CPG, the legs' IK and the stance feedback are the standing controller's. Recovery while walking
+(command.recovery = 1, and `enabled`) moves the next footstep instead of adding a step
+(`tkujax.control.walk_recovery`: the capture point against the undisturbed gait's at the same
+phase); the offset a step took is recorded as x_sup_m, y_sup_m (step_weight 1 from the first).
 """
 
 from __future__ import annotations
@@ -22,25 +18,23 @@ import jax.numpy as jnp
 
 from tkujax.control.controller import (ControllerOutput, ControllerState, Sensors,
                                        controller_init, detect_push, stance_offsets)
-from tkujax.control.gait import GaitState, WalkCommand, advance, gait_feet, gait_init, \
-    touchdown_time
+from tkujax.control.gait import (GaitState, WalkCommand, advance, gait_feet, gait_init,
+                                 touchdown_time)
 from tkujax.control.kalman import accel_to_angle, accel_variance, gyro_to_rates, kalman_step
 from tkujax.control.params import ControllerParams
 from tkujax.control.solve import solve_legs
-
-# The footstep offset's bound per axis, as a fraction of thigh + calf (TKU-X: 0.22 m -> 8.8 cm,
-# about twice the paper's longest recovery step, 4.15 cm).
-MAX_FOOTSTEP_OFFSET_FRAC = 0.4
-
+from tkujax.control.walk_recovery import (RecoveryState, move_footsteps, recovery_update,
+                                          walking_capture_point)
 
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class WalkingState:
     """The standing controller's state (its Kalman filter and clock; x_sup_m / y_sup_m: the
-    last footstep offset; step_weight: 1 once one was applied) and the gait's."""
+    last footstep offset; step_weight: 1 once one was applied), the gait's and the recovery's."""
 
     controller: ControllerState
     gait: GaitState
+    recovery: RecoveryState
 
     @property
     def x_sup_m(self):
@@ -63,16 +57,7 @@ def walking_init(params: ControllerParams, command: WalkCommand,
                  dtype=jnp.float32) -> WalkingState:
     """The robot standing in its stand keyframe, the gait before its first step."""
     return WalkingState(controller=controller_init(params, dtype),
-                        gait=gait_init(command, dtype))
-
-
-def footstep_offset(det, gate, command: WalkCommand, params: ControllerParams, enabled):
-    """(2,) the swing foot's offset (m): the controller's step (x_new, y_new) where the gate is
-    on, with recovery and enabled, clipped per axis (MAX_FOOTSTEP_OFFSET_FRAC)."""
-    reach = MAX_FOOTSTEP_OFFSET_FRAC * (params.thigh_length + params.calf_length)
-    on = gate * enabled * command.recovery
-    step = jnp.stack([det.x_new, params.lateral_steps * det.y_new], -1)
-    return jnp.clip(on * step, -reach, reach)
+                        gait=gait_init(command, dtype), recovery=RecoveryState.init(dtype))
 
 
 def walking_step(state: WalkingState, sensors: Sensors, params: ControllerParams,
@@ -91,9 +76,14 @@ def walking_step(state: WalkingState, sensors: Sensors, params: ControllerParams
     enabled = jnp.asarray(enabled, phi.dtype)
     det = detect_push(phi, psi, pitch_rate, psi_rate, params)
     gate = enabled * (1.0 - (1.0 - det.pitch_gate) * (1.0 - det.lateral_gate))
-    offset = footstep_offset(det, gate, command, params, enabled).astype(phi.dtype)
-    gait, started = advance(state.gait, ctrl.time_s, command, offset)
-    moved = started & (jnp.max(jnp.abs(offset)) > 0.0)
+    xi = walking_capture_point(phi, psi, pitch_rate, psi_rate, params)
+    on = enabled * jnp.asarray(command.recovery, phi.dtype)
+    steady = state.gait.count >= jnp.asarray(command.ramp_steps, phi.dtype)
+    recovery, _ = recovery_update(state.recovery, xi, ctrl.time_s, command, params, on, steady)
+    gait, started = advance(state.gait, ctrl.time_s, command)
+    recovery, gait, moved = move_footsteps(recovery, gait, started, ctrl.time_s, command,
+                                           params.control_period)
+    offset = recovery.applied
     p_right, p_left = gait_feet(gait, ctrl.time_s, command, params)
     targets, reachable = solve_legs(p_right, p_left, params)
     targets = targets + enabled * stance_offsets(phi - params.standing_lean, pitch_rate,
@@ -105,4 +95,4 @@ def walking_step(state: WalkingState, sensors: Sensors, params: ControllerParams
         y_sup_m=jnp.where(moved, offset[1], ctrl.y_sup_m).astype(ctrl.y_sup_m.dtype))
     out = ControllerOutput(targets, phi, kalman.phi[..., 1], gate, reachable,
                            touchdown_time(gait, command))
-    return WalkingState(controller=new_ctrl, gait=gait), out
+    return WalkingState(controller=new_ctrl, gait=gait, recovery=recovery), out
