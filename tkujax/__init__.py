@@ -23,6 +23,7 @@ MUJOCO_GL and XLA options first):
   tkujax.run_tune                            controller tuning (CMA-ES, gradients, ...)
   tkujax.run_calibrate                       fit the model to the paper's Tables 4-5
   tkujax.run_capture, tkujax.StepOverride    capture regions, commanded recovery steps
+  tkujax.WalkCommand, tkujax.simulate_walk   walking from the controller's CPG (docs/walking.md)
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ _API = {
     "run_tune": "tkujax.studies.tune",
     "run_calibrate": "tkujax.studies.calibrate",
     "run_capture": "tkujax.studies.capture", "StepOverride": "tkujax.control",
+    "WalkCommand": "tkujax.control.gait", "simulate_walk": "tkujax.studies.walk",
 }
 __all__ = [*_API, "__version__"]
 
