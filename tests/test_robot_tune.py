@@ -1,0 +1,101 @@
+"""`tkujax tune --robot` (tkujax.studies.robot_tune): the pushes from the robot, the structure
+chosen on it, the verdict on held-out pushes and the controller named in the robot file when it
+passes. On TKU-X's generated robot file and MuJoCo C; the search itself (MJX) is given by its
+output file, as a resumed run finds it."""
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from tkujax.cli import main
+from tkujax.robot.builtin import write_generated_robot
+from tkujax.robot.closed_loop import file_digest, robot_setup
+from tkujax.robot.description import load_description
+from tkujax.studies.robot_pushes import FALL_TARGET, IMPULSE_LO_FRAC, robot_pushes
+from tkujax.studies.robot_structure import STRUCTURES, choose_structure, structure_start
+from tkujax.studies.robot_tune import tune_robot_controller
+from tkujax.studies.robot_verdict import name_controller
+
+
+@pytest.fixture(scope="module")
+def robot_file(tmp_path_factory):
+    return write_generated_robot(tmp_path_factory.mktemp("robot"), name="gen")
+
+
+@pytest.fixture(scope="module")
+def pushes(robot_file):
+    return robot_pushes(robot_setup(robot_file))
+
+
+def test_pushes_reach_where_standing_still_falls(pushes):
+    fell = np.array(pushes.ladder_fell)
+    top = pushes.ladder_ns.index(pushes.fall80_ns)
+    assert fell[top] >= FALL_TARGET and (fell[:top] < FALL_TARGET).all()
+    assert fell[0] == 0.0                     # the ladder starts below any fall
+    assert pushes.impulse_ns == pytest.approx((IMPULSE_LO_FRAC * pushes.fall80_ns,
+                                               pushes.fall80_ns), rel=1e-3)
+    assert pushes.height_m[0] < pushes.height_m[1]
+
+
+def test_structure_is_chosen_by_the_harm_weighted_loss(robot_file, pushes):
+    robot = robot_setup(robot_file)
+    record = choose_structure(robot, pushes.as_dict())
+    losses = {k: v["loss"] for k, v in record["structures"].items()}
+    assert record["chosen"] == min(losses, key=losses.get)
+    for v in record["structures"].values():
+        assert v["loss"] == v["falls"] + 2.0 * v["harmed"]
+    stance = structure_start(robot, "stance")
+    assert stance["cp_trigger"] == 0.0 and stance["lateral_steps"] == 0.0
+    assert set(STRUCTURES["stance"]["tuned"]) < set(STRUCTURES["step"]["tuned"])
+
+
+def _resumable_run(out, robot_file, pushes, params: dict):
+    """An output folder as a run that has finished its search leaves it."""
+    (out / "tune").mkdir(parents=True)
+    (out / "pushes.json").write_text(json.dumps(pushes.as_dict()))
+    (out / "structure.json").write_text(json.dumps(dict(chosen="stance", why="given")))
+    (out / "tune" / "params_after.json").write_text(json.dumps(
+        dict(params, recommended_from="start")))
+
+
+def test_a_passing_controller_is_written_and_named(tmp_path, robot_file, pushes):
+    folder = tmp_path / "robot"
+    folder.mkdir()
+    copy = write_generated_robot(folder, name="gen")
+    robot = robot_setup(copy)
+    params = dataclasses.asdict(dataclasses.replace(
+        robot.defaults, **structure_start(robot, "stance")))
+    _resumable_run(tmp_path / "run", copy, pushes, params)
+    before = file_digest(copy)
+    record = tune_robot_controller(copy, tmp_path / "run", budget_s=30, heldout_n=512)
+    assert set(record) >= {"robot", "n_pushes", "off_fall", "on_fall", "ratio", "harmed_cells",
+                           "method", "n_params", "wall_s", "device"}
+    assert record["n_pushes"] == 512 and record["n_params"] == 7
+    assert record["passed"] == (record["on_fall"] < record["off_fall"]
+                                and not record["harmed_cells"] and record["cells_checked"] > 0)
+    if record["passed"]:
+        assert load_description(copy).controller_path == folder / "gen_controller.json"
+        assert robot_setup(copy).controller == "file gen_controller.json"
+        assert file_digest(copy) == before          # naming a controller is the same robot
+    else:
+        assert load_description(copy).controller_path is None
+    saved = json.loads((tmp_path / "run" / "verdict.json").read_text())
+    assert saved["ratio"] == record["ratio"]
+
+
+def test_name_controller_replaces_an_existing_line(tmp_path):
+    copy = write_generated_robot(tmp_path, name="gen")
+    params = dataclasses.asdict(robot_setup(copy).defaults)
+    name_controller(copy, params)
+    text = copy.read_text().replace('"gen_controller.json"', '"old.json"')
+    copy.write_text(text)
+    name_controller(copy, params)
+    assert copy.read_text().count("controller =") == 1
+    assert 'controller = "gen_controller.json"' in copy.read_text()
+
+
+def test_tune_without_spec_or_robot_is_refused(capsys):
+    assert main(["tune", "--out", "unused"]) == 2
+    assert "--robot FILE" in capsys.readouterr().err
