@@ -175,11 +175,4 @@ def load(path: str | Path, as_frame: bool = False):
     if not is_parquet(path):
         return sweep_records.load(path, as_frame=as_frame)
     cols, _ = read_parquet(path)
-    if not as_frame:
-        return cols
-    try:
-        import pandas as pd
-    except ImportError as err:
-        raise ImportError("load(..., as_frame=True) needs pandas, which tkujax does not "
-                          "install: pip install pandas") from err
-    return pd.DataFrame(cols)
+    return sweep_records.as_frame_if(cols, as_frame)

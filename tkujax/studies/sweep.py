@@ -403,6 +403,11 @@ def load(out: str | Path, as_frame: bool = False):
     if not parts:
         raise FileNotFoundError(f"no sweep chunks in {out}")
     cols = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    return as_frame_if(cols, as_frame)
+
+
+def as_frame_if(cols: dict, as_frame: bool):
+    """`cols`, or with as_frame=True the same as a pandas DataFrame (pandas is optional)."""
     if not as_frame:
         return cols
     try:

@@ -10,34 +10,11 @@ that names the key, what is allowed (the range, with its unit) and the bad value
 from __future__ import annotations
 
 import math
-import tomllib
 from collections.abc import Iterable
-from pathlib import Path
 
 import numpy as np
 
-from tkujax.model.files import SpecError
-
-
-def read_toml(path: str | Path, what: str = "spec file") -> dict:
-    """A TOML file as a dict; SpecError naming the file when it is missing, a folder, not
-    UTF-8, unreadable or not valid TOML."""
-    path = Path(path)
-    if path.is_dir():
-        raise SpecError(f"{what} {path} is a folder, not a file")
-    if not path.is_file():
-        raise SpecError(f"{what} not found: {path}")
-    try:
-        text = path.read_bytes().decode("utf-8")
-    except UnicodeDecodeError as err:
-        raise SpecError(f"{what} {path}: not UTF-8 text (byte {err.start}); TOML files are "
-                        "UTF-8") from err
-    except OSError as err:
-        raise SpecError(f"{what} {path}: cannot be read: {err.strerror}") from err
-    try:
-        return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as err:
-        raise SpecError(f"{path}: not valid TOML: {err}") from err
+from tkujax.model.files import SpecError, read_toml  # noqa: F401  (the dialects read with it)
 
 
 def number(key: str, value, lo: float, hi: float, unit: str = "") -> float:
