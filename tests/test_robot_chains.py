@@ -334,3 +334,21 @@ def test_a_waist_without_a_servo_is_refused(tmp_path):
     (tmp_path / "t1.toml").write_text(robot_file.replace('keyframe = "home"', "")
                                       + "\n[servo.other]\nkp = 200.0\nkv = 5.0\n")
     assert load_robot(tmp_path / "t1.toml").waist_joints
+
+
+@pytest.mark.slow
+def test_five_joint_leg_mjx_agrees_with_mujoco_c(tmp_path):
+    """The robot's IK in the MJX loop (tkujax.sim.leg_chain, traced) against the same IK
+    called from MuJoCo C's loop: the same falls, and pitch and ankles alike before any."""
+    from tkujax.sim.rollout_mjx import simulate
+
+    setup = robot_setup(_five_joint_robot(tmp_path))
+    pushes = tkujax.stack_pushes([
+        tkujax.make_push(j, azimuth_deg=a, height_m=float(setup.defaults.com_height),
+                         onset_s=0.3) for j, a in ((0.3, 0.0), (0.6, 90.0), (6.0, 180.0))])
+    enabled, config = np.array([1.0, 1.0, 0.0]), tkujax.RolloutConfig(duration_s=1.2)
+    series, out = simulate_mujoco(pushes, enabled, setup.params, robot=setup, config=config)
+    mjx_series, mjx_out = simulate(pushes, enabled, setup.params, robot=setup, config=config)
+    assert out.fell.tolist() == mjx_out.fell.tolist() == [False, False, True]
+    np.testing.assert_allclose(mjx_series.pitch[:2], series.pitch[:2], atol=2e-3)
+    np.testing.assert_allclose(mjx_series.l_ankle[:2], series.l_ankle[:2], atol=2e-3)

@@ -242,7 +242,7 @@ def test_interrupted_sweep_resumes_identically(full_run, tmp_path):
     assert again["chunks_computed_last_run"] == 0
     other = load_spec(TINY)
     other.raw["sweep"]["seed"] = 1
-    with pytest.raises(SpecError, match="holds a different sweep"):
+    with pytest.raises(SpecError, match="holds another spec's sweep"):
         run_sweep(other, tmp_path, quiet=True, backend="mjx")
 
 
