@@ -78,7 +78,7 @@ def test_interrupted_early_run_resumes_identically(early_run, tmp_path):
     second = run_sweep(_spec(), tmp_path, quiet=True, backend="mjx")
     assert second["complete"] and second["chunks_computed_last_run"] == 1
     _assert_identical(load(tmp_path), reference)
-    with pytest.raises(SpecError, match="holds a different sweep"):   # full is another sweep
+    with pytest.raises(SpecError, match="holds another spec's sweep"):   # full is another sweep
         run_sweep(_spec(), tmp_path, quiet=True, backend="mjx", decisions="full")
 
 

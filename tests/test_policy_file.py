@@ -121,7 +121,7 @@ def test_mujoco_sweep_runs_the_schedule(tmp_path):
     assert np.nanmax(np.abs(s["step_length_m"] - p["step_length_m"])) > 5e-3
     manifest = json.loads((tmp_path / "sched" / "manifest.json").read_text())
     assert manifest["schedule"]["kind"] == "mlp" and manifest["schedule"]["b2"] == list(B2)
-    with pytest.raises(SpecError, match="holds a different sweep"):
+    with pytest.raises(SpecError, match="holds another spec's sweep"):
         run_sweep(spec, tmp_path / "sched", params=base, schedule=_constant_mlp(base, (0.5, 0.5)),
                   quiet=True, backend="mujoco")
     fixed = parse_spec(_spec() | {"controller": {"arithmetic": "fixed"}})
