@@ -17,7 +17,7 @@ and `autodiff_data`: the whole MJX state (mjx.Data) as the carry, as in the clos
 One program per process, into an empty persistent cache: trace + lower and XLA's compile timed
 apart, the run time (median of 3), and the gradient (to compare the two).
 """
-# ruff: noqa: E501   (research script, kept as run)
+# ruff: noqa: E501   (research script)
 
 import json
 import statistics

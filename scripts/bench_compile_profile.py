@@ -17,7 +17,7 @@ cache, cleared in-process caches, trace, lower and compile timed apart, the comp
 Per variant it writes the self time (wall time on a thread, minus nested events) per event
 name, summed over threads, and the busy time per thread: $OUT/compile_profile_BATCH.json.
 """
-# ruff: noqa: E501   (research script, kept as run)
+# ruff: noqa: E501   (research script)
 
 import collections
 import concurrent.futures

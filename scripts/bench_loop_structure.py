@@ -1,6 +1,6 @@
 """Where the closed loop's time goes at batch 1,024: the physics step's variants in one flat
 scan, the closed loop's (tkujax.bench.profile names), and how the optimised HLO splits each
-while body (kernels, copies, loops); kept as run (it produced results/bench/
+while body (kernels, copies, loops) (it produced results/bench/
 h100_loop_structure.json, one process per XLA_FLAGS setting):
 
     [XLA_FLAGS=...] python scripts/bench_loop_structure.py 1024 'rawstep;rawfwd;rawimu;...'
@@ -13,7 +13,7 @@ its "full", "physics_only", "no_*" rows were the nested loop then ("loop=nested"
 "loop=flat" the flat one, and the XLA option came from XLA_FLAGS, not the program.
 Writes $OUT/cbuf_BATCH.json.
 """
-# ruff: noqa: B023, BLE001, F841, E501   (research script, kept as run)
+# ruff: noqa: B023, BLE001, F841, E501   (research script)
 
 import collections
 import json

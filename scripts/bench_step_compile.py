@@ -9,7 +9,7 @@ forward loop, its recompute and the backward.
 One program per process, into an empty persistent cache: trace + lower, and XLA's compile,
 timed apart; then the compiled program's run time (median of 5).
 """
-# ruff: noqa: E501   (research script, kept as run)
+# ruff: noqa: E501   (research script)
 
 import json
 import statistics

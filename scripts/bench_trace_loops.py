@@ -1,4 +1,4 @@
-"""Where the closed loop's time goes, per kernel (results/bench/h100_loop_trace.json; kept as run).
+"""Where the closed loop's time goes, per kernel (results/bench/h100_loop_trace.json).
 
     TNAMES=raw,physics_only,full python scripts/bench_trace_loops.py trace   -> $OUT/prof.json
 
@@ -7,7 +7,7 @@ with jax.profiler; per GPU: kernels per tick, busy ms per tick, gaps > 3 us betw
 the top kernels, and kernel-launching ops per while-loop body of the optimised HLO.
 `ablate` / `rawsens`: tkujax.bench.profile's ablation; raw MJX reading qpos vs sensordata.
 """
-# ruff: noqa: E501   (research script, kept as run)
+# ruff: noqa: E501   (research script)
 
 
 import collections

@@ -12,7 +12,7 @@ warm-up (forward, population of `popsize`, grouped gradient), each call's own wa
 (`call_s`, from its start; side by side they overlap), and each call's value, to check the two
 modes compute the same.
 """
-# ruff: noqa: E501   (research script, kept as run)
+# ruff: noqa: E501   (research script)
 
 import json
 import sys

@@ -1,7 +1,7 @@
 """FPGA twin diagnostic: the closed loop with one servo step added to a command, float against
 fixed (the IK-angle analysis of results/fpga/README.md, section 1). Run from the repository
 root: `python scripts/fpga_command_step.py ...`; writes under /tmp/fpgadiag."""
-# ruff: noqa: E501   (research script, kept as run)
+# ruff: noqa: E501   (research script)
 
 import sys
 import functools

@@ -2,7 +2,7 @@
 loop: their leg commands before and after the servo's rounding (results/fpga/README.md,
 section 1, "What parts: the IK angles"). Run from the repository root; writes under
 /tmp/fpgadiag."""
-# ruff: noqa: E501   (research script, kept as run)
+# ruff: noqa: E501   (research script)
 
 import sys
 import numpy as np

@@ -1,7 +1,7 @@
 """FPGA twin diagnostic: the float controller alone, one servo step (0.088 deg) added to one
 joint command for one tick: how far the realised step moves (the 2.36 mm floor of
 results/fpga/README.md, section 1). Run from the repository root; writes under /tmp/fpgadiag."""
-# ruff: noqa: E501   (research script, kept as run)
+# ruff: noqa: E501   (research script)
 
 import sys
 import numpy as np

@@ -2,7 +2,7 @@
 commands, gate and x_Sup (results/fpga/README.md, section 1, "What stays equal").
 Run from the repository root: `python scripts/fpga_trace.py 2.4 0.5`; writes under
 /tmp/fpgadiag."""
-# ruff: noqa: E501, E741   (research script, kept as run)
+# ruff: noqa: E501, E741   (research script)
 
 import sys
 import numpy as np

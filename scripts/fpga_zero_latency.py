@@ -1,7 +1,7 @@
 """FPGA twin diagnostic: the pushes of results/fpga_latency at zero latency with the largest step
 gaps, re-run on MuJoCo C with the old (`ik_guard_bits = 0`) and the current datapath
 (results/fpga/README.md, section 1, "The latency study's ~45 mm")."""
-# ruff: noqa: E731, UP031   (research script, kept as run)
+# ruff: noqa: E731, UP031   (research script)
 
 import numpy as np
 import jax.numpy as jnp

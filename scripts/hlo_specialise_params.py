@@ -3,7 +3,7 @@ the CPU: the sweep chunk (batch 4 x 0.3 s) compiled with the controller paramete
 the sweeps run) and with every parameter a compile-time constant; prints the three largest
 computations of each optimised HLO (ops, fusions, copies) and checks the outcomes agree.
 Run from the project root: python scripts/hlo_specialise_params.py"""
-# ruff: noqa: B023, E501   (research script, kept as run)
+# ruff: noqa: B023, E501   (research script)
 
 import re
 import time

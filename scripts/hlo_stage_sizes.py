@@ -1,6 +1,6 @@
 """StableHLO size (characters, one robot, lowered on the project's 2-core CPU, jax 0.10.2) of a
 lean MJX physics step of TKU-X, stage by stage, forward and gradient (d of the sum of every
-float field of the state with respect to qpos, qvel and ctrl); kept as run:
+float field of the state with respect to qpos, qvel and ctrl):
 
   stage              fwd   (+)      grad  (+)
   kinematics         0.631 (+0.631) 1.334 (+1.334)
@@ -19,7 +19,7 @@ MJX's body-tree kinematics is half of the step's program (8,926 jaxpr equations:
 copy of its per-body function per tree level and joint signature, written with scalar quaternion
 arithmetic); the contacts and the 1-iteration Newton solver are small.
 """
-# ruff: noqa: E501, E741   (research script, kept as run)
+# ruff: noqa: E501, E741   (research script)
 
 import jax
 import jax.numpy as jnp

@@ -1,6 +1,6 @@
 """Per-push gradients of the soft-gate loss (mlp policy, CPU): their norm distribution, and
 whether a per-push clipped mean is a descent direction of the hard loss."""
-# ruff: noqa: UP031   (research script, kept as run)
+# ruff: noqa: UP031   (research script)
 
 import dataclasses
 import sys

@@ -1,6 +1,6 @@
 """The push's phase in the 30 ms control period, and the robust detection option.
 
-One push, 1.0 N·s from the front at 0.30 m (the issue's contact height), on the MuJoCo C backend
+One push, 1.0 N·s from the front at 0.30 m (the study's contact height), on the MuJoCo C backend
 (fast on a CPU; the controller tick it compiles is shared by the 4 runs, parameters being traced
 values):
 - mid-tick: onset on the 0.75 s controller tick (phase 0, as the paper): no IMU sample falls

@@ -5,7 +5,7 @@ Everything that runs the MJX rollout shares ONE compiled value_and_grad (module 
 `problem`): float64, 2 pushes x 0.6 s, no servo quantisation, no remat. Compiling it takes
 ~4 minutes on a 2-core CPU (once; the persistent XLA cache makes reruns fast).
 
-Finite-difference setting (the issue asks for "where no contact changes"; both are stated):
+Finite-difference setting ("where no contact changes" is asked of it; both are stated):
   float64; pushes at 0.15 s onset, 20 ms pulse at 0.36 m; horizon 0.6 s; soft gate, 2 deg;
   servo quantisation OFF (with it the leg targets are piecewise constant in the parameters,
   so finite differences see zero while the straight-through gradient does not: by design);
