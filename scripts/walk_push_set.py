@@ -5,7 +5,7 @@
 TKU-X (or --robot FILE) walking its default gait at each --speeds value; pushes of the chest
 (`tkujax.studies.walk_push.push_at_gait_phase`: 20 ms half-sine at the default height) from 8
 directions x 7 impulses (0.3-2.0 N s) x 8 gait phases (0 = the left foot's touchdown), in the
-7th gait cycle, simulated 3 s past the onset. Each set runs with the footstep recovery off and
+10th gait cycle, simulated 3 s past the onset. Each set runs with the footstep recovery off and
 on (balance control on in both; `tkujax.control.walk_recovery`), for the robot's controller
 and, with --lateral, the same controller with sideways steps (lateral_steps = 1). Falls per
 run, direction, impulse and phase, and the pushes that fall in one run only; the machine

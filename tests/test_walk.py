@@ -168,6 +168,17 @@ def test_tkux_steps_in_place_and_walks(tkux_walks):
     assert abs(backward["mean_forward_mps"] + 0.1) < 0.04, backward
 
 
+def test_heading_hold_while_walking_sideways():
+    """TKU-X walking 0.1 m/s to the left for 8 s turns 7 deg with the hip yaws held at 0
+    (heading_gain 0) and under 3 deg with the default heading hold."""
+    who = walker(None)
+    cmds = [WalkCommand.for_params(who.gait_params, 0.0, 0.1, heading_gain=g) for g in (0.0, 0.5)]
+    series, _ = run_walk(who, cmds, 8.0, "mujoco")
+    free, held = (walk_metrics(series, i, c)["heading_drift_deg"] for i, c in enumerate(cmds))
+    assert abs(free) > 5.0 and abs(held) < 3.0, (free, held)
+    assert cmds[1].heading_gain == WalkCommand().heading_gain
+
+
 @pytest.mark.skipif(not OP3_MODEL.exists(), reason="no ../shared/models/robotis_op3")
 def test_op3_steps_in_place_and_walks():
     who = walker(str(OP3_FILE))
@@ -193,6 +204,41 @@ def test_walk_command_line(capsys):
         assert key in out
 
 
+def test_yawed_ik_through_mujoco_kinematics():
+    """solve_legs_yaw on TKU-X: MuJoCo's forward kinematics put each ankle at its target
+    (1 mm), the sole level (within the hip roll's |sin(roll) sin(lean)| + 1 deg, as
+    solve_legs) and the foot turned by the hip yaw (0.5 deg); yaw 0 is solve_legs exactly."""
+    import mujoco
+
+    from tkujax.control.solve import solve_legs, solve_legs_yaw
+    from tkujax.model import LEG_ACTUATORS, load_model
+
+    model = load_model()
+    data = mujoco.MjData(model)
+    adr = np.array([model.joint(n).qposadr[0] for n in LEG_ACTUATORS])
+    d_y, d_z = PARAMS.hip_offset_y, PARAMS.hip_to_ankle_z
+    for dx, dy, lift, yaw_r, yaw_l in ((0.03, 0.0, 0.0, 0.1, -0.05), (-0.04, 0.01, 0.02, -0.1, 0.1),
+                                       (0.0, -0.01, 0.03, 0.05, 0.0), (0.02, 0.0, 0.01, 0.0, 0.0)):
+        p_r = jnp.array([dx, -d_y + dy, -d_z])
+        p_l = jnp.array([-dx, d_y + dy, -d_z + lift])
+        q, ok = solve_legs_yaw(p_r, p_l, yaw_r, yaw_l, PARAMS)
+        assert bool(ok)
+        if yaw_r == yaw_l == 0.0:
+            flat, _ = solve_legs(p_r, p_l, PARAMS)
+            np.testing.assert_array_equal(np.asarray(q), np.asarray(flat))
+        data.qpos[:] = model.key("stand").qpos
+        data.qpos[adr] = np.asarray(q)
+        mujoco.mj_kinematics(model, data)
+        waist = data.site("waist").xpos
+        for site, target, yaw, roll in (("r_ankle", p_r, yaw_r, q[1]),
+                                        ("l_ankle", p_l, yaw_l, q[7])):
+            frame = data.site(site).xmat.reshape(3, 3)
+            np.testing.assert_allclose(data.site(site).xpos - waist, np.asarray(target), atol=1e-3)
+            tilt = np.degrees(np.arccos(min(1.0, frame[2, 2])))
+            assert tilt < 1.0 + np.degrees(abs(np.sin(float(roll)) * np.sin(PARAMS.standing_lean)))
+            assert abs(np.degrees(np.arctan2(frame[1, 0], frame[0, 0]) - yaw)) < 0.5
+
+
 def test_push_at_gait_phase():
     cmd = WalkCommand.for_params(PARAMS, 0.1)
     for phase in (0.0, 0.3, 0.5, 0.875):
@@ -210,7 +256,8 @@ def test_footstep_offsets_centred_and_outward():
     the swing foot; the phase bins' weights interpolate and sum to 1."""
     state = GaitState(count=jnp.asarray(3.0), start_s=jnp.asarray(1.0),
                       swing_left=jnp.asarray(1.0), feet_from=jnp.zeros(4),
-                      feet_to=jnp.array([-0.015, 0.0, 0.015, 0.0]))
+                      feet_to=jnp.array([-0.015, 0.0, 0.015, 0.0]), yaw_from=jnp.zeros(2),
+                      yaw_to=jnp.zeros(2))
     moved = move_footstep(state, jnp.array([0.02, 0.01]))
     np.testing.assert_allclose(np.asarray(moved.feet_to), [-0.025, -0.005, 0.025, 0.005])
     rec = dataclasses.replace(RecoveryState.init(), pending=jnp.array([0.03, -0.02]),
@@ -226,9 +273,9 @@ def test_footstep_offsets_centred_and_outward():
 
 
 def test_footstep_recovery_silent_without_push_and_steps_after_one():
-    """TKU-X at 0.1 m/s on MuJoCo C, 5.5 s: without a push the recovery never triggers (the
+    """TKU-X at 0.1 m/s on MuJoCo C, 6.7 s: without a push the recovery never triggers (the
     walk is bit-identical to recovery off); after 1.2 N s from behind in mid-swing (gait phase
-    0.25 of the 7th cycle) it moves a footstep forward, where recovery off moves none."""
+    0.25 of the 10th cycle) it moves a footstep forward, where recovery off moves none."""
     who = walker(None)
     off, on = (WalkCommand.for_params(who.gait_params, 0.1, recovery=r) for r in (0.0, 1.0))
     push = push_at_gait_phase(off, 0.25, 1.2, 0.0)

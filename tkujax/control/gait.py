@@ -12,18 +12,24 @@ in place. Sideways, the stance is 2 d_y + |d_y step| wide after the leading foot
 2 d_y - |d_y step| after the trailing foot's; the leading foot (the left one for
 lateral_mps >= 0) swings first.
 
-Two tkujax extensions of the paper's gait, on by default (`WalkCommand.for_params`): a lateral
-sway of the waist toward the support foot, sway_m sin(pi t / T) during each step (a third of
-d_y: without it TKU-X falls within 2 s when stepping in place with a 4.5 cm lift, and rolls
-+-10 deg at 3 cm; docs/walking.md), and a ramp that grows the step over the first `ramp_steps`
-steps (4: TKU-X walks 0.35 m/s, without it 0.3 m/s).
+Three tkujax extensions of the paper's gait, on by default (`WalkCommand.for_params`):
+
+- a lateral sway of the waist toward the support foot, sway_m sin(pi t / T) during each step,
+  a third of d_y (without it TKU-X falls within 1.3 s stepping in place with a 4.5 cm lift,
+  and within 2 s at 0.1 m/s with 3 cm; docs/walking.md);
+- a ramp that grows the step over the first `ramp_steps` steps (4: TKU-X holds 0.35 m/s,
+  without it 0.3 m/s);
+- a heading hold: each step turns by -heading_gain x the heading error through the hip yaws
+  (`advance`'s turn, `gait_yaws`; `walking.yaw_rate` integrates the heading from the gyro).
+  Sideways at 0.1 m/s for 20 s TKU-X turns 21 deg without it, 1.3 deg with it; OP3 about
+  200 deg and 2 deg (`tests/test_walk.py`: 8 s).
 
 Gait phase: one gait cycle is two steps (left swing, right swing); `gait_phase` is 0 at the left
 foot's touchdown (the end of a left swing, T - gamma T / 2 into it) and grows to 1 over 2 T.
 
 Everything here is a pure function of traced values (the command's fields are pytree leaves:
-one compiled program serves every speed); the step counter advances by `where`, and the next
-footstep's offset (`footstep_offset`, the recovery while walking) enters as an argument.
+one compiled program serves every speed); the step counter advances by `where`, and the turn
+and the footstep offsets (`walk_recovery`, the recovery while walking) enter as arguments.
 """
 
 from __future__ import annotations
@@ -40,6 +46,8 @@ WALK_START_S = 0.3     # the stand is held this long before the first step (the 
 SWAY_FRAC = 1.0 / 3.0  # the default sway, a fraction of d_y (docs/walking.md: the scan)
 RAMP_STEPS = 4.0       # the default ramp (docs/walking.md: the speed range with and without)
 BAND_FRAC = 0.07       # the default recovery band, a fraction of thigh + calf (walk_recovery)
+HEADING_GAIN = 0.5     # the default heading hold: the share of the heading error turned per step
+MAX_TURN_RAD = 0.1     # the most a step turns (5.7 deg)
 
 
 @jax.tree_util.register_dataclass
@@ -55,7 +63,10 @@ class WalkCommand:
     the step grows linearly over this many steps (0: the full step from the first).
     recovery: 1 = the capture point moves the next footstep (`walk_recovery`), 0 = the nominal
     gait; recovery_band_m: how far the capture point must leave the undisturbed gait's for
-    that. The defaults are TKU-X's (`for_params(ControllerParams.paper())`)."""
+    that. heading_gain: each step turns by -heading_gain x the heading error (the yaw the
+    controller integrates from the gyro since the start; at most MAX_TURN_RAD), with the hip
+    yaws (`advance`'s turn); 0: the hip yaws stay 0. The defaults are TKU-X's
+    (`for_params(ControllerParams.paper())`)."""
 
     speed_mps: jax.Array = 0.0
     lateral_mps: jax.Array = 0.0
@@ -67,6 +78,7 @@ class WalkCommand:
     ramp_steps: jax.Array = RAMP_STEPS
     recovery: jax.Array = 0.0
     recovery_band_m: jax.Array = 0.0154
+    heading_gain: jax.Array = HEADING_GAIN
 
     @classmethod
     def for_params(cls, params: ControllerParams, speed_mps: float = 0.0,
@@ -88,7 +100,7 @@ class WalkCommand:
                       lift_m=(0.0, 0.1), double_support_ratio=(0.0, 0.8),
                       sway_m=(-0.05, 0.05), start_s=(0.0, 100.0),
                       ramp_steps=(0.0, 20.0), recovery=(0.0, 1.0),
-                      recovery_band_m=(0.0, 0.5))
+                      recovery_band_m=(0.0, 0.5), heading_gain=(0.0, 2.0))
         for name, (lo, hi) in limits.items():
             v = float(getattr(self, name))
             if not lo <= v <= hi:       # also refuses NaN
@@ -104,13 +116,16 @@ class GaitState:
     """count: the current step's index (-1 before the first); start_s: when it started;
     swing_left: 1 when the left foot swings in it; feet_from / feet_to: (4,) ankle
     displacements from the stand pose [x_right, y_right, x_left, y_left] (m, relative to the
-    waist) at its start and its end."""
+    waist) at its start and its end; yaw_from / yaw_to: (2,) the feet's yaw relative to the
+    waist [right, left] (rad, the hip yaws) at its start and its end."""
 
     count: jax.Array
     start_s: jax.Array
     swing_left: jax.Array
     feet_from: jax.Array
     feet_to: jax.Array
+    yaw_from: jax.Array
+    yaw_to: jax.Array
 
 
 def gait_init(command: WalkCommand, dtype=jnp.float32) -> GaitState:
@@ -120,7 +135,8 @@ def gait_init(command: WalkCommand, dtype=jnp.float32) -> GaitState:
     first_left = c.lateral_mps >= 0.0
     return GaitState(count=jnp.asarray(-1.0, dtype), start_s=c.start_s - c.step_period_s,
                      swing_left=jnp.where(first_left, 0.0, 1.0).astype(dtype),
-                     feet_from=jnp.zeros((4,), dtype), feet_to=jnp.zeros((4,), dtype))
+                     feet_from=jnp.zeros((4,), dtype), feet_to=jnp.zeros((4,), dtype),
+                     yaw_from=jnp.zeros((2,), dtype), yaw_to=jnp.zeros((2,), dtype))
 
 
 def _as(command: WalkCommand, dtype) -> WalkCommand:
@@ -151,13 +167,15 @@ def planned_feet(swing_left, d, offset) -> jax.Array:
                      jnp.concatenate([swing, support], -1))
 
 
-def advance(state: GaitState, time_s, command: WalkCommand,
-            offset=(0.0, 0.0)) -> tuple[GaitState, jax.Array]:
+def advance(state: GaitState, time_s, command: WalkCommand, offset=(0.0, 0.0),
+            turn=0.0) -> tuple[GaitState, jax.Array]:
     """The gait at controller time time_s: when the current step is over (time_s >= start + T)
     the next one starts at start + T (not at this tick: the period stays T exactly whatever the
     control period), the other foot swinging from where the last step left it to
-    `planned_feet` with the footstep offset (2,) added to the swing foot. Returns (state,
-    whether a step started at this tick)."""
+    `planned_feet` with the footstep offset (2,) added to the swing foot, and turning: its
+    swing foot to +turn / 2 and its support foot to -turn / 2 of yaw relative to the waist
+    (rad; the waist turns by about turn over the step and the next). Returns (state, whether a
+    step started at this tick)."""
     dtype = state.feet_to.dtype
     c = _as(command, dtype)
     due = time_s >= state.start_s + c.step_period_s
@@ -168,8 +186,27 @@ def advance(state: GaitState, time_s, command: WalkCommand,
                     start_s=jnp.where(due, state.start_s + c.step_period_s, state.start_s),
                     swing_left=jnp.where(due, swing_left, state.swing_left),
                     feet_from=jnp.where(due, state.feet_to, state.feet_from),
-                    feet_to=jnp.where(due, feet_to, state.feet_to))
+                    feet_to=jnp.where(due, feet_to, state.feet_to),
+                    yaw_from=jnp.where(due, state.yaw_to, state.yaw_from),
+                    yaw_to=jnp.where(due, planned_yaws(swing_left, turn, dtype), state.yaw_to))
     return new, due
+
+
+def planned_yaws(swing_left, turn, dtype=jnp.float32) -> jax.Array:
+    """(2,) [right, left] yaws a step ends at: the swing foot +turn / 2, the support -turn / 2."""
+    half = 0.5 * jnp.asarray(turn, dtype)
+    return jnp.where(swing_left > 0.5, jnp.stack([-half, half]),
+                     jnp.stack([half, -half])).astype(dtype)
+
+
+def gait_yaws(state: GaitState, time_s, command: WalkCommand, params: ControllerParams):
+    """(yaw_right, yaw_left) of the gait at time_s (rad, relative to the waist): from yaw_from
+    to yaw_to with the CPG's quarter sine, as the feet's x (`gait_feet`)."""
+    dtype = state.yaw_to.dtype
+    t_step = jnp.asarray(time_s, dtype) - state.start_s
+    unit_x, _, _ = unit_oscillators(t_step, walk_params(params, _as(command, dtype)))
+    yaw = state.yaw_from + (state.yaw_to - state.yaw_from) * unit_x
+    return yaw[..., 0], yaw[..., 1]
 
 
 def swing_in_reach(state: GaitState, time_s, command: WalkCommand, margin_s) -> jax.Array:

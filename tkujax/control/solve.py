@@ -74,3 +74,42 @@ def solve_legs(p_right: jax.Array, p_left: jax.Array, params: ControllerParams):
     right, ok_r = solve_leg(p_right, jnp.broadcast_to(-d_y, p_right.shape[:-1]), params)
     left, ok_l = solve_leg(p_left, jnp.broadcast_to(d_y, p_left.shape[:-1]), params)
     return jnp.concatenate([right, left], -1), ok_r & ok_l
+
+
+def _rot_z(a: jax.Array) -> jax.Array:
+    c, s = jnp.cos(a), jnp.sin(a)
+    z, o = jnp.zeros_like(a), jnp.ones_like(a)
+    return jnp.stack([jnp.stack([c, -s, z], -1), jnp.stack([s, c, z], -1),
+                      jnp.stack([z, z, o], -1)], -2)
+
+
+def solve_leg_yaw(p_ankle_level: jax.Array, hip_y: jax.Array, yaw: jax.Array,
+                  params: ControllerParams):
+    """`solve_leg` with the hip yaw at `yaw` (rad, about the pelvis's z axis: the foot turned
+    by about `yaw` relative to the waist). The target is taken into the yawed leg's frame
+    (R_z(yaw)^T after the lean), the sole kept level: M = R_x(-roll_h) R_z(-yaw) R_y(-lean).
+    With yaw = 0 it is `solve_leg`'s solution."""
+    lean = params.standing_lean
+    hip = jnp.stack([jnp.zeros_like(hip_y), hip_y, jnp.zeros_like(hip_y)], -1)
+    p_rel = p_ankle_level - hip
+    p_pelvis = jnp.einsum("...ji,...j->...i", _rot_y(jnp.broadcast_to(lean, p_rel.shape[:-1])),
+                          p_rel)
+    yaw = jnp.broadcast_to(jnp.asarray(yaw, p_rel.dtype), p_rel.shape[:-1])
+    p_leg = jnp.einsum("...ji,...j->...i", _rot_z(yaw), p_pelvis)
+    a = leg_ik(p_leg, params.thigh_length, params.calf_length)
+    m = _rot_x(-a.hip_roll) @ _rot_z(-yaw) @ _rot_y(jnp.broadcast_to(-lean, a.hip_roll.shape))
+    sole_pitch = jnp.arctan2(m[..., 0, 2], m[..., 2, 2])
+    ankle_roll = jnp.arctan2(-m[..., 1, 2], jnp.hypot(m[..., 0, 2], m[..., 2, 2]))
+    ankle_pitch = sole_pitch - a.hip_pitch - a.knee
+    angles = jnp.stack([yaw, a.hip_roll, a.hip_pitch, a.knee, ankle_pitch, ankle_roll], -1)
+    return angles, a.reachable
+
+
+def solve_legs_yaw(p_right: jax.Array, p_left: jax.Array, yaw_right, yaw_left,
+                   params: ControllerParams):
+    """`solve_legs` with each leg's hip yaw (rad) given (`solve_leg_yaw`)."""
+    d_y = jnp.asarray(params.hip_offset_y)
+    right, ok_r = solve_leg_yaw(p_right, jnp.broadcast_to(-d_y, p_right.shape[:-1]), yaw_right,
+                                params)
+    left, ok_l = solve_leg_yaw(p_left, jnp.broadcast_to(d_y, p_left.shape[:-1]), yaw_left, params)
+    return jnp.concatenate([right, left], -1), ok_r & ok_l

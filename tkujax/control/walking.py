@@ -3,7 +3,8 @@
 `walking_step` is `controller.controller_step` with the standing robot's one recovery step
 replaced by the gait (`tkujax.control.gait`): the Kalman filter, the push detection and the
 capture point run as when standing (the detection gate is recorded), the feet follow the walking
-CPG, the legs' IK and the stance feedback are the standing controller's. Recovery while walking
+CPG, the legs' IK (with the hip yaws of the heading hold, `solve.solve_legs_yaw`) and the stance
+feedback are the standing controller's. Recovery while walking
 (command.recovery = 1, and `enabled`) moves the next footstep instead of adding a step
 (`tkujax.control.walk_recovery`: the capture point against the undisturbed gait's at the same
 phase); the offset a step took is recorded as x_sup_m, y_sup_m (step_weight 1 from the first).
@@ -18,11 +19,11 @@ import jax.numpy as jnp
 
 from tkujax.control.controller import (ControllerOutput, ControllerState, Sensors,
                                        controller_init, detect_push, stance_offsets)
-from tkujax.control.gait import (GaitState, WalkCommand, advance, gait_feet, gait_init,
-                                 touchdown_time)
+from tkujax.control.gait import (MAX_TURN_RAD, GaitState, WalkCommand, advance, gait_feet,
+                                 gait_init, gait_yaws, touchdown_time)
 from tkujax.control.kalman import accel_to_angle, accel_variance, gyro_to_rates, kalman_step
 from tkujax.control.params import ControllerParams
-from tkujax.control.solve import solve_legs
+from tkujax.control.solve import solve_legs_yaw
 from tkujax.control.walk_recovery import (RecoveryState, move_footsteps, recovery_update,
                                           walking_capture_point)
 
@@ -30,11 +31,13 @@ from tkujax.control.walk_recovery import (RecoveryState, move_footsteps, recover
 @dataclasses.dataclass(frozen=True)
 class WalkingState:
     """The standing controller's state (its Kalman filter and clock; x_sup_m / y_sup_m: the
-    last footstep offset; step_weight: 1 once one was applied), the gait's and the recovery's."""
+    last footstep offset; step_weight: 1 once one was applied), the gait's, the recovery's and
+    the heading (rad): the yaw integrated from the gyro since the start (`yaw_rate`)."""
 
     controller: ControllerState
     gait: GaitState
     recovery: RecoveryState
+    heading_rad: jax.Array
 
     @property
     def x_sup_m(self):
@@ -57,7 +60,8 @@ def walking_init(params: ControllerParams, command: WalkCommand,
                  dtype=jnp.float32) -> WalkingState:
     """The robot standing in its stand keyframe, the gait before its first step."""
     return WalkingState(controller=controller_init(params, dtype),
-                        gait=gait_init(command, dtype), recovery=RecoveryState.init(dtype))
+                        gait=gait_init(command, dtype), recovery=RecoveryState.init(dtype),
+                        heading_rad=jnp.zeros((), dtype))
 
 
 def walking_step(state: WalkingState, sensors: Sensors, params: ControllerParams,
@@ -80,12 +84,15 @@ def walking_step(state: WalkingState, sensors: Sensors, params: ControllerParams
     on = enabled * jnp.asarray(command.recovery, phi.dtype)
     steady = state.gait.count >= jnp.asarray(command.ramp_steps, phi.dtype)
     recovery, _ = recovery_update(state.recovery, xi, ctrl.time_s, command, params, on, steady)
-    gait, started = advance(state.gait, ctrl.time_s, command)
+    turn = jnp.clip(-jnp.asarray(command.heading_gain, phi.dtype) * state.heading_rad,
+                    -MAX_TURN_RAD, MAX_TURN_RAD)
+    gait, started = advance(state.gait, ctrl.time_s, command, turn=turn)
     recovery, gait, moved = move_footsteps(recovery, gait, started, ctrl.time_s, command,
                                            params.control_period)
     offset = recovery.applied
     p_right, p_left = gait_feet(gait, ctrl.time_s, command, params)
-    targets, reachable = solve_legs(p_right, p_left, params)
+    yaw_right, yaw_left = gait_yaws(gait, ctrl.time_s, command, params)
+    targets, reachable = solve_legs_yaw(p_right, p_left, yaw_right, yaw_left, params)
     targets = targets + enabled * stance_offsets(phi - params.standing_lean, pitch_rate,
                                                  kalman.phi[..., 1], rates[..., 1], params)
     new_ctrl = dataclasses.replace(
@@ -95,4 +102,14 @@ def walking_step(state: WalkingState, sensors: Sensors, params: ControllerParams
         y_sup_m=jnp.where(moved, offset[1], ctrl.y_sup_m).astype(ctrl.y_sup_m.dtype))
     out = ControllerOutput(targets, phi, kalman.phi[..., 1], gate, reachable,
                            touchdown_time(gait, command))
-    return WalkingState(controller=new_ctrl, gait=gait, recovery=recovery), out
+    heading = state.heading_rad + params.control_period * yaw_rate(sensors.gyro, kalman.phi)
+    return WalkingState(controller=new_ctrl, gait=gait, recovery=recovery,
+                        heading_rad=heading.astype(state.heading_rad.dtype)), out
+
+
+def yaw_rate(gyro, pitch_roll) -> jax.Array:
+    """The world yaw rate (rad/s) from the body-frame gyro (3,) and the filtered [pitch, roll]:
+    the z row of R_y(pitch) R_x(roll) applied to the rate."""
+    pitch, roll = pitch_roll[..., 0], pitch_roll[..., 1]
+    return (-jnp.sin(pitch) * gyro[..., 0]
+            + jnp.cos(pitch) * (jnp.sin(roll) * gyro[..., 1] + jnp.cos(roll) * gyro[..., 2]))

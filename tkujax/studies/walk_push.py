@@ -19,7 +19,7 @@ from tkujax.control.gait import WalkCommand, time_at_phase
 from tkujax.sim.push import DEFAULT_DURATION_S, make_push, stack_pushes
 from tkujax.studies.walk import Walker, run_walk, walker
 
-PUSH_CYCLE = 6          # pushes land in the 7th gait cycle: 3 cycles after the 4-step ramp
+PUSH_CYCLE = 9          # pushes land in the 10th gait cycle: the trigger is armed (walk_recovery)
 AFTER_PUSH_S = 3.0      # simulated after the onset: a fall shows well within it
 
 
