@@ -285,7 +285,7 @@ def test_spec_validation_names_key_and_range():
             "tune.anneal.end_deg"),
            ({"tune": {**SPEC["tune"], "bogus": 1}}, "unknown key"),
            ({"evaluate": {"seed": 0}}, "evaluate.seed"),
-           ({"push": {"impulse_ns": {"uniform": [0.2, 20.0]}}}, "push.impulse_ns"),
+           ({"push": {"impulse_ns": {"uniform": [0.2, 250.0]}}}, "push.impulse_ns"),
            ({"push": {"onset_s": 0.99}}, "push.onset_s")]
     for patch, match in bad:
         with pytest.raises(SpecError, match=match):

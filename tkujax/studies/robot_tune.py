@@ -142,7 +142,7 @@ def tune_robot_controller(robot_file: str | Path, out: str | Path, budget_s: flo
     t0 = time.perf_counter()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    log = log or StatusLog(budget_s)
+    log = log or StatusLog(budget_s=budget_s, desc="tune --robot ")
     robot_file = str(Path(robot_file).resolve())
     robot = robot_setup(robot_file)
     pushes = _stage_pushes(out, robot, log)
