@@ -34,11 +34,15 @@ CONSERVATIVE_SOURCE = ("conservative default (no tuned controller: stance feedba
 def conservative_controller(scaled: ControllerParams) -> ControllerParams:
     """`scaled` (the robot's scaled defaults) without steps, with STANCE_SCALE of the
     recommended stance feedback and its accelerometer gate (module doc)."""
-    stance = {k: STANCE_SCALE * RECOMMENDED[k] for k in STANCE_GAINS}
-    stance["accel_gate"] = RECOMMENDED["accel_gate"]
     return dataclasses.replace(
         scaled, eps_forward=NO_STEP_THRESHOLD_RAD, eps_backward=NO_STEP_THRESHOLD_RAD,
-        cp_trigger=0.0, lateral_steps=0.0, max_steps=1.0, **stance).validate()
+        cp_trigger=0.0, lateral_steps=0.0, max_steps=1.0, **conservative_stance()).validate()
+
+
+def conservative_stance() -> dict:
+    """STANCE_SCALE of the recommended stance gains and its accelerometer gate."""
+    return {k: STANCE_SCALE * RECOMMENDED[k] for k in STANCE_GAINS} | {
+        "accel_gate": RECOMMENDED["accel_gate"]}
 
 
 def robot_controller(desc: RobotDescription,

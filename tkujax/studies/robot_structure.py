@@ -23,8 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from tkujax.control.io import controller_params_from
-from tkujax.control.params import RECOMMENDED
-from tkujax.robot.own_controller import NO_STEP_THRESHOLD_RAD, STANCE_GAINS, STANCE_SCALE
+from tkujax.robot.own_controller import NO_STEP_THRESHOLD_RAD, STANCE_GAINS, conservative_stance
 from tkujax.sim.options import RolloutConfig
 from tkujax.sim.push import make_push, stack_pushes
 from tkujax.sim.rollout_mujoco import simulate_mujoco
@@ -50,8 +49,7 @@ def structure_start(robot, name: str) -> dict:
     """The start of structure `name` on `robot` (module doc), as controller field values."""
     d = robot.defaults
     reach = float(d.thigh_length + d.calf_length)
-    start = dict(STRUCTURES[name]["fixed"], accel_gate=RECOMMENDED["accel_gate"])
-    start |= {k: STANCE_SCALE * RECOMMENDED[k] for k in STANCE_GAINS}
+    start = dict(STRUCTURES[name]["fixed"]) | conservative_stance()
     if name == "step":
         start |= dict(step_period=float(d.step_period), lift_height=float(d.lift_height))
         start |= {k: round(0.15 * reach, 4) for k in ("cp_trigger_forward_m",
