@@ -73,6 +73,20 @@ def set_leg(robot: RobotModel, data: mujoco.MjData, side: str, q: np.ndarray) ->
     mujoco.mj_kinematics(robot.model, data)
 
 
+def leg_jacobian(robot: RobotModel, data: mujoco.MjData, i: int, jacp: np.ndarray | None = None,
+                 jacr: np.ndarray | None = None) -> np.ndarray:
+    """(6, n): the ankle centre's velocity and the foot's angular velocity per leg joint rate
+    of leg i (LEG_ORDER), in `data`'s world frame (after kinematics; jacp, jacr: 3 x nv
+    scratch arrays, reused by a loop)."""
+    model = robot.model
+    jacp = np.zeros((3, model.nv)) if jacp is None else jacp
+    jacr = np.zeros((3, model.nv)) if jacr is None else jacr
+    mujoco.mj_comPos(model, data)
+    mujoco.mj_jacSite(model, data, jacp, jacr, robot.ankle_sites[i])
+    dofs = robot.leg_dofs[i]
+    return np.concatenate([jacp[:, dofs], jacr[:, dofs]])
+
+
 def solve_leg_ik(robot: RobotModel, side: str, target_pos: np.ndarray, target_rot: np.ndarray,
                  q_init: np.ndarray | None = None, data: mujoco.MjData | None = None,
                  max_iterations: int = 200, damping: float = 1e-4) -> LegIK:
@@ -81,14 +95,13 @@ def solve_leg_ik(robot: RobotModel, side: str, target_pos: np.ndarray, target_ro
     (default: the leg's angles in `data`, or zero), clipped to the joint ranges."""
     model, i = robot.model, _side(side)
     data = data if data is not None else base_data(robot)
-    dofs, qadr = robot.leg_dofs[i], robot.leg_qpos[i]
+    qadr = robot.leg_qpos[i]
     q = np.array(q_init if q_init is not None else data.qpos[qadr], float)
     joints = robot.leg_joints[i]
     limited = model.jnt_limited[joints].astype(bool)
     lo = np.where(limited, model.jnt_range[joints, 0], -np.inf)
     hi = np.where(limited, model.jnt_range[joints, 1], np.inf)
     jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
-    site = robot.ankle_sites[i]
     err_p = err_r = np.inf
     iterations = 0
     for iterations in range(1, max_iterations + 1):  # noqa: B007 (the count is returned)
@@ -98,9 +111,7 @@ def solve_leg_ik(robot: RobotModel, side: str, target_pos: np.ndarray, target_ro
         err_p, err_r = float(np.linalg.norm(e[:3])), float(np.linalg.norm(e[3:]))
         if err_p < 1e-9 and err_r < 1e-8:
             break
-        mujoco.mj_comPos(model, data)
-        mujoco.mj_jacSite(model, data, jacp, jacr, site)
-        jac = np.concatenate([jacp[:, dofs], jacr[:, dofs]])
+        jac = leg_jacobian(robot, data, i, jacp, jacr)
         step = jac.T @ np.linalg.solve(jac @ jac.T + damping ** 2 * np.eye(6), e)   # 6 x 6
         q = np.clip(q + step, lo, hi)
     return LegIK(q_rad=q, position_error_m=err_p, rotation_error_rad=err_r, iterations=iterations)

@@ -23,10 +23,9 @@ thigh and calf (`tkux_leg_jacobian`). A robot's leg may differ:
 
 from __future__ import annotations
 
-import mujoco
 import numpy as np
 
-from tkujax.robot.ik_numeric import base_data
+from tkujax.robot.ik_numeric import base_data, leg_jacobian
 from tkujax.robot.loader import LEG_ORDER, RobotModel
 from tkujax.sim.leg_chain import LegChain, tkux_fk
 
@@ -65,13 +64,7 @@ def tkux_leg_jacobian(q: np.ndarray, thigh_m: float, calf_m: float) -> np.ndarra
 
 def robot_leg_jacobian(robot: RobotModel, qpos: np.ndarray, side: str) -> np.ndarray:
     """(6, n): the same of the robot's leg at `qpos`, in its base frame (MuJoCo's Jacobians)."""
-    model, i = robot.model, LEG_ORDER.index(side)
-    data = base_data(robot, qpos)
-    mujoco.mj_comPos(model, data)
-    jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
-    mujoco.mj_jacSite(model, data, jacp, jacr, robot.ankle_sites[i])
-    dofs = robot.leg_dofs[i]
-    return np.concatenate([jacp[:, dofs], jacr[:, dofs]])
+    return leg_jacobian(robot, base_data(robot, qpos), LEG_ORDER.index(side))
 
 
 def sign_map(robot: RobotModel, stand_ctrl: np.ndarray,
