@@ -17,9 +17,9 @@ from pathlib import Path
 
 import tkujax
 from tkujax.robot.builtin import write_generated_robot
-from tkujax.robot.closed_loop import robot_setup
+from tkujax.robot.robot_setup import robot_setup
 from tkujax.studies.robot_inputs import robot_lip
-from tkujax.robot.summary import robot_stand_summary
+from tkujax.robot.file_summary import robot_stand_summary
 
 ROOT = Path(__file__).resolve().parents[1]
 SPEC = """

@@ -13,7 +13,7 @@ import os
 from pathlib import Path
 
 import tkujax
-from tkujax.studies.export import export_records
+from tkujax.sweeps.table_export import export_records
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL_SPEC = """

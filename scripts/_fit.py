@@ -37,7 +37,7 @@ def load_fit(path: Path, which: str) -> dict:
 
 def fit_params(path: Path, which: str):
     """(x, reading, ModelParams, ControllerParams) of the fit `which` in the summary at `path`."""
-    from tkujax.studies.calibrate import params as P
+    from tkujax.studies.calibrate import fit_vector as P
 
     fit = load_fit(path, which)
     x, reading = fit["x"], fit["reading"]

@@ -33,11 +33,11 @@ from pathlib import Path
 import jax
 from jax.profiler import ProfileData
 
-from tkujax.studies.compile_cache import fresh_compilation_cache
+from tkujax.sweeps.compile_cache import fresh_compilation_cache
 from tkujax.studies.tune.benchmark import bench_spec
 from tkujax.studies.tune.problem import TuneProblem
 from tkujax.studies.tune.reparam import CPU_COMPILER_OPTIONS, DEG
-from tkujax.studies.tune.spec import sample_pushes
+from tkujax.studies.tune.tune_spec import sample_pushes
 
 OUT = Path(os.environ.get("OUT", "/tmp/out"))
 SHORT = {"autotune": "xla_gpu_autotune_level"}

@@ -10,7 +10,7 @@ both modes, their ratio, the fall agreement and the mean decision time.
 
 With --chunk C it instead streams the pushes as chunks of C (each chunk's own noise keys, as a
 sweep does) through the lanes twice: one chunk at a time (the lanes drain at every chunk's end)
-and with refill across chunk boundaries (`tkujax.studies.lane_stream`), and prints both modes'
+and with refill across chunk boundaries (`tkujax.sweeps.lane_stream`), and prints both modes'
 pushes/s, the fraction of lane-segments idle (no push in the lane) and whether the records
 are the same bit for bit.
 
@@ -28,8 +28,8 @@ import jax
 import numpy as np
 
 from tkujax.cli.runtime import configure_runtime
-from tkujax.control.io import controller_params_from
-from tkujax.control.params import ControllerParams
+from tkujax.control.params_files import controller_params_from
+from tkujax.control.controller_params import ControllerParams
 
 
 def timed(fn, repeats: int = 2) -> tuple[object, float, float]:
@@ -56,9 +56,9 @@ def emit(res: dict, out: str | None) -> None:
 
 def measure(spec, n: int, lanes: int, repeats: int = 2) -> dict:
     """Full horizon and early decisions on the first n records of `spec`."""
-    from tkujax.studies import early
-    from tkujax.studies.chunk_program import (chunk_keys, make_chunk_fn, record_inputs,
-                                              traced_params)
+    from tkujax.sweeps import early
+    from tkujax.sweeps.chunk_program import (chunk_keys, make_chunk_fn, record_inputs,
+                                             traced_params)
 
     recs = record_inputs(spec)
     inputs = {k: recs[k][:n].astype(np.float32) for k in recs
@@ -86,9 +86,9 @@ def measure(spec, n: int, lanes: int, repeats: int = 2) -> dict:
 def measure_refill(spec, n: int, lanes: int, chunk: int, repeats: int = 2) -> dict:
     """Early decisions on the first n records of `spec` in chunks of `chunk`, one chunk at a
     time and with refill across chunks."""
-    from tkujax.studies import early
-    from tkujax.studies.chunk_program import chunk_keys, record_inputs, traced_params
-    from tkujax.studies.lane_stream import LaneStream
+    from tkujax.sweeps import early
+    from tkujax.sweeps.chunk_program import chunk_keys, record_inputs, traced_params
+    from tkujax.sweeps.lane_stream import LaneStream
 
     recs = record_inputs(spec)
     inputs = {k: recs[k][:n] for k in recs if k not in ("push_id", "from_grid", "case_id")}
@@ -142,7 +142,7 @@ def main(argv=None) -> None:
     ap.add_argument("--out", default=None, help="also write the JSON here")
     args = ap.parse_args(argv)
     configure_runtime()
-    from tkujax.studies.spec import load_spec
+    from tkujax.spec.sweep_spec import load_spec
 
     spec = load_spec(args.spec)
     if args.duration_s is not None:

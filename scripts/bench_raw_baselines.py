@@ -58,8 +58,8 @@ def raw(batch, n_steps, settle_s, per_push_model, reps):
 
 
 def loop(batch, name, reps):
-    from tkujax.control.params import ControllerParams
-    from tkujax.studies.sweep import traced_params
+    from tkujax.control.controller_params import ControllerParams
+    from tkujax.sweeps.sweep import traced_params
 
     cfg = {
         "physics_only": {"ablate": ("noise", "controller", "wrench", "records")},

@@ -22,7 +22,7 @@ import jax.numpy as jnp
 from tkujax.sim import physics
 from tkujax.sim.mjx_import import mjx
 from tkujax.sim.setup import init
-from tkujax.studies.compile_cache import fresh_compilation_cache
+from tkujax.sweeps.compile_cache import fresh_compilation_cache
 
 
 def main(batch: int, which: str, out: str | None) -> None:

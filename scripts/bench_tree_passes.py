@@ -31,8 +31,8 @@ import jax
 
 from tkujax import bench
 from tkujax.sim import physics, rollout_mjx
-from tkujax.studies import sweep
-from tkujax.studies.compile_cache import fresh_compilation_cache
+from tkujax.sweeps import sweep
+from tkujax.sweeps.compile_cache import fresh_compilation_cache
 
 
 def grad(kin: str, batch: int, duration_s: float) -> list[dict]:

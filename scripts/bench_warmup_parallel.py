@@ -21,10 +21,10 @@ import time
 import jax
 import numpy as np
 
-from tkujax.studies.compile_cache import fresh_compilation_cache
+from tkujax.sweeps.compile_cache import fresh_compilation_cache
 from tkujax.studies.tune import search
 from tkujax.studies.tune.search import SearchConfig, warm_up_calls
-from tkujax.studies.tune.spec import load_tune_spec, make_problem, sample_pushes
+from tkujax.studies.tune.tune_spec import load_tune_spec, make_problem, sample_pushes
 
 
 CALL_S: dict[str, float] = {}

@@ -20,7 +20,7 @@ def main(argv=None):
     import jax
 
     from tkujax.sim.rollout_mjx import simulate
-    from tkujax.studies.calibrate import evaluate as E
+    from tkujax.studies.calibrate import paper_rows as E
 
     x, reading, mp, cp = fit_params(a.calibration, a.which)
     fit = load_fit(a.calibration, a.which)      # its MuJoCo C rows, compared below

@@ -8,18 +8,18 @@ import sys
 import numpy as np
 import jax
 import jax.numpy as jnp
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.control.controller import controller_init, controller_step, Sensors
 from tkujax.control.cpg import cpg_feet
 from tkujax.control.solve import solve_legs
 from tkujax.control.fixed import (
-    FixedPointConfig,
-    controller_init_fx,
-    controller_step_fx,
-    coefficients,
-    cpg_feet_fx,
-    to_float,
-)
+                                  FixedPointConfig,
+                                  controller_init_fx,
+                                  controller_step_fx,
+                                  coefficients,
+                                  cpg_feet_fx,
+                                  to_float,
+                                  )
 
 
 def main() -> None:

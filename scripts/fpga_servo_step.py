@@ -6,7 +6,7 @@ results/fpga/README.md, section 1). Run from the repository root; writes under /
 import sys
 import numpy as np
 import jax.numpy as jnp
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.sim.push import Push, onset_from_phase
 from tkujax.sim.rollout_mjx import RolloutConfig
 import tkujax.sim.rollout_mujoco as rm

@@ -3,7 +3,7 @@ without `ik_guard_bits` (the 0.207 -> 0.037 mrad of results/fpga/README.md, sect
 
 import numpy as np
 import jax.numpy as jnp
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.control.controller import stand_leg_targets
 from tkujax.control.fixed import FixedPointConfig, stand_leg_targets_fx, to_float, QFormat
 

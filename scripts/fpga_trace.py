@@ -7,7 +7,7 @@ Run from the repository root: `python scripts/fpga_trace.py 2.4 0.5`; writes und
 import sys
 import numpy as np
 import jax.numpy as jnp
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.control.fixed import FixedPointConfig
 from tkujax.sim.push import Push, onset_from_phase
 from tkujax.sim.rollout_mjx import RolloutConfig

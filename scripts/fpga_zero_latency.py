@@ -6,11 +6,11 @@ gaps, re-run on MuJoCo C with the old (`ik_guard_bits = 0`) and the current data
 import numpy as np
 import jax.numpy as jnp
 import dataclasses
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.sim.push import Push
 from tkujax.sim.rollout_mjx import RolloutConfig
 from tkujax.sim.rollout_mujoco import simulate_mujoco
-from tkujax.studies.spec import fixed_point_config
+from tkujax.spec.sweep_spec import fixed_point_config
 
 
 def main() -> None:

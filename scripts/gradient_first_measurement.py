@@ -19,8 +19,8 @@ import numpy as np
 from tkujax.control import ControllerParams
 from tkujax.sim.rollout_mjx import RolloutConfig
 from tkujax.sim.rollout_mujoco import simulate_mujoco
-from tkujax.studies.gradient import diagnostics as dg
-from tkujax.studies.gradient.measure import (Latent, batch_functions, loss_names, make_per_push,
+from tkujax.gradients import diagnostics as dg
+from tkujax.studies.gradient_measure import (Latent, batch_functions, loss_names, make_per_push,
                                              pushes_from)
 
 CPU_OPTIONS = {"xla_llvm_disable_expensive_passes": True}

@@ -1,4 +1,4 @@
-"""ROC AUC of the bounded DCM margin (tkujax.studies.gradient.margin) against the hard fall, on
+"""ROC AUC of the bounded DCM margin (tkujax.gradients.margin) against the hard fall, on
 pushes spread around the fall boundary, with MuJoCo C (CPU), against the tuning loss's fall term
 (tkujax.studies.tune.loss) as the baseline.
 
@@ -22,12 +22,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from tkujax.control import ControllerParams
-from tkujax.control.io import recommended_policy
+from tkujax.control.params_files import recommended_policy
 from tkujax.sim.push import CONTROL_PERIOD_S, Push
 from tkujax.sim.rollout_mjx import RolloutConfig
 from tkujax.sim.rollout_mujoco import simulate_mujoco
-from tkujax.studies.gradient.auc import roc_auc, roc_curve
-from tkujax.studies.gradient.margin import MarginConfig, batched_margin
+from tkujax.gradients.auc import roc_auc, roc_curve
+from tkujax.gradients.margin import MarginConfig, batched_margin
 from tkujax.studies.tune.loss import LossConfig, push_loss
 
 VARIANTS = {

@@ -8,7 +8,7 @@ on the default robot (no ensemble), its randomisation and sensor noise kept, tun
 
 For each: the per-push gradients of one batch (TuneProblem.grouped_value_and_grad with groups =
 n, soft gate at 0.5 deg as the tuner's gradient methods), their diagnostics
-(`tkujax.studies.gradient.diagnostics.summary`), and the step check along -g/|g| at a few step
+(`tkujax.gradients.diagnostics.summary`), and the step check along -g/|g| at a few step
 sizes (latent units) on the same batch and gate: predicted (first order) against measured.
 
     python scripts/gradient_tuner_check.py --out results/gradient_tuner_check_cpu
@@ -25,11 +25,11 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from tkujax.control.params import ControllerParams
-from tkujax.studies.gradient.diagnostics import step_check, summary
+from tkujax.control.controller_params import ControllerParams
+from tkujax.gradients.diagnostics import step_check, summary
 from tkujax.studies.tune.reparam import DEG
-from tkujax.studies.tune.spec import make_problem, parse_tune_spec, sample_pushes
-from tkujax.studies.validation import read_toml
+from tkujax.studies.tune.tune_spec import make_problem, parse_tune_spec, sample_pushes
+from tkujax.spec.validation import read_toml
 
 SPEC = "specs/tune/tune_recovery_ensemble.toml"
 TAU = 0.5 * DEG

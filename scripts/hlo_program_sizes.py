@@ -12,7 +12,7 @@ from tkujax.sim.setup import init
 from tkujax.sim.mjx_import import mjx
 from tkujax.sim import physics
 from tkujax.control.controller import controller_init, controller_step, Sensors
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 
 
 def main() -> None:

@@ -11,8 +11,8 @@ import collections
 import jax
 import jax.numpy as jnp
 from tkujax.bench import push_batch
-from tkujax.studies.sweep import make_chunk_fn, traced_params
-from tkujax.control.params import ControllerParams
+from tkujax.sweeps.sweep import make_chunk_fn, traced_params
+from tkujax.control.controller_params import ControllerParams
 
 
 def main() -> None:

@@ -39,9 +39,9 @@ ROWS = [(d, b, c) for c in ("off", "on") for d in ("back", "front")
 
 
 def _setup(model_params, contact):
-    from tkujax.control.params import ControllerParams
+    from tkujax.control.controller_params import ControllerParams
     from tkujax.sim.push import stack_pushes
-    from tkujax.studies.calibrate import evaluate as E
+    from tkujax.studies.calibrate import paper_rows as E
 
     samples = [E.Sample(p, c) for c in CONTACTS_MS for p in PHASES_MS]
     pushes = stack_pushes([
@@ -139,7 +139,7 @@ def _markdown(results: list[dict]) -> str:
 
 def cmd_rows(a) -> None:
     from tkujax.model import ModelParams
-    from tkujax.model.io import load_model_params_json
+    from tkujax.model.params_json import load_model_params_json
     from tkujax.sim.push import BallContact
 
     base = load_model_params_json(a.model) if a.model else ModelParams()
@@ -215,7 +215,7 @@ def cmd_slices(a) -> None:
 
 
 def cmd_converge(a) -> None:
-    from tkujax.control.params import ControllerParams
+    from tkujax.control.controller_params import ControllerParams
     from tkujax.model import ModelParams
     from tkujax.sim import push as push_lib
     from tkujax.sim.rollout_mujoco import simulate_mujoco

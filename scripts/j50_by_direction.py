@@ -14,7 +14,7 @@ import sys
 
 import numpy as np
 
-from tkujax.studies.sweep import load
+from tkujax.sweeps.sweep import load
 
 
 def j50(rec: dict, control: int, azimuth_deg: float) -> float:

@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from op3_gate_check import heldout_like, SECTORS
-from tkujax.control.io import controller_params_from
-from tkujax.robot.closed_loop import robot_setup
+from tkujax.control.params_files import controller_params_from
+from tkujax.robot.robot_setup import robot_setup
 from tkujax.sim.options import RolloutConfig
 from tkujax.sim.push import Push
 from tkujax.sim.rollout_mujoco import simulate_mujoco

@@ -10,8 +10,8 @@ import json
 import numpy as np
 import jax.numpy as jnp
 from pathlib import Path
-from tkujax.control.io import controller_params_from
-from tkujax.robot.closed_loop import robot_setup
+from tkujax.control.params_files import controller_params_from
+from tkujax.robot.robot_setup import robot_setup
 from tkujax.sim.options import RolloutConfig
 from tkujax.sim.push import Push
 from tkujax.sim.rollout_mujoco import simulate_mujoco

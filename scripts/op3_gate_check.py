@@ -23,9 +23,9 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from tkujax.control.io import controller_params_from
-from tkujax.control.params import RECOMMENDED
-from tkujax.robot.closed_loop import robot_setup
+from tkujax.control.params_files import controller_params_from
+from tkujax.control.controller_params import RECOMMENDED
+from tkujax.robot.robot_setup import robot_setup
 from tkujax.sim.options import RolloutConfig
 from tkujax.sim.push import Push
 from tkujax.sim.rollout_mujoco import simulate_mujoco

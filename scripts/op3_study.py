@@ -116,8 +116,8 @@ def heldout_spec(smoke: bool, name: str = "op3_heldout.toml") -> dict:
 
 def _sweep(spec: dict, out: Path, robot, deadline: float, params=None) -> dict:
     """Run (or resume) a sweep chunk by chunk until it is complete or the deadline passes."""
-    from tkujax.studies.spec import parse_spec
-    from tkujax.studies.sweep import run_sweep
+    from tkujax.spec.sweep_spec import parse_spec
+    from tkujax.sweeps.sweep import run_sweep
 
     parsed = parse_spec(spec)
     while True:
@@ -129,7 +129,7 @@ def _sweep(spec: dict, out: Path, robot, deadline: float, params=None) -> dict:
 
 def step_picture(args, out: Path, deadline: float) -> dict:
     from tkujax import render
-    from tkujax.robot.closed_loop import robot_setup
+    from tkujax.robot.robot_setup import robot_setup
 
     ok, why = render.rendering_available()
     if not ok:
@@ -142,10 +142,10 @@ def step_picture(args, out: Path, deadline: float) -> dict:
 
 
 def step_map(args, out: Path, deadline: float) -> dict:
-    from tkujax.robot.closed_loop import robot_setup
+    from tkujax.robot.robot_setup import robot_setup
     from tkujax.studies.robot_inputs import robot_lip
-    from tkujax.studies.maps import make_maps
-    from tkujax.studies.sweep import load
+    from tkujax.analysis.maps import make_maps
+    from tkujax.sweeps.sweep import load
 
     robot = robot_setup(_robot_path(args))
     spec = map_spec(args.smoke)
@@ -173,7 +173,7 @@ def search_budget_s(args, variant: Variant, left_s: float) -> float:
 
 
 def step_tune(args, out: Path, deadline: float) -> dict:
-    from tkujax.robot.closed_loop import robot_setup
+    from tkujax.robot.robot_setup import robot_setup
     from tkujax.studies.tune import run_tune
 
     variant = VARIANTS[args.variant]
@@ -191,9 +191,9 @@ def step_tune(args, out: Path, deadline: float) -> dict:
 
 
 def step_verdict(args, out: Path, deadline: float) -> dict:
-    from tkujax.control.io import load_controller_params_json
-    from tkujax.robot.closed_loop import robot_setup
-    from tkujax.studies.compare import Bands, compare_runs
+    from tkujax.control.params_files import load_controller_params_json
+    from tkujax.robot.robot_setup import robot_setup
+    from tkujax.analysis.compare import Bands, compare_runs
 
     tuned = (Path(args.params) if args.params
              else out / "tune" / VARIANTS[args.variant].judged)

@@ -19,7 +19,7 @@ def main(argv=None):
     a = ap.parse_args(argv)
     out = check_out(ap, [a.calibration], a.out)
     from tkujax.sim import push as push_lib
-    from tkujax.studies.calibrate import evaluate as E
+    from tkujax.studies.calibrate import paper_rows as E
     from tkujax.studies.calibrate import targets as T
 
     x, reading, mp, cp = fit_params(a.calibration, a.which)
@@ -32,8 +32,8 @@ def main(argv=None):
                                onset_s=0.75 + float(ph)) for d, b in E.CASES])
         res = {}
         for c, en in (("off", 0.0), ("on", 1.0)):
-            s, o = E._simulate(pushes, np.full(4, en, np.float32), cp, mp)
-            res.update(E._rows(s, o, c, cp))
+            s, o = E.simulate_cases(pushes, np.full(4, en, np.float32), cp, mp)
+            res.update(E.case_rows(s, o, c, cp))
         for k in T.ROWS:
             rec_p, step_p = T.PAPER_TABLE[k]
             r = res[k]

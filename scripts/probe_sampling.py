@@ -18,7 +18,7 @@ def main(argv=None):
     a = ap.parse_args(argv)
     out = check_out(ap, [a.calibration], a.out)
     from tkujax.sim import push as push_lib
-    from tkujax.studies.calibrate import evaluate as E
+    from tkujax.studies.calibrate import paper_rows as E
 
     x, reading, mp, cp = fit_params(a.calibration, a.which)
     rows = []
@@ -29,7 +29,7 @@ def main(argv=None):
                                    push_lib.DIRECTIONS[d], height_m=x["push_height_m"],
                                    duration_s=dur, onset_s=0.75 + phase)
                 for d, b in E.CASES])
-            s, o = E._simulate(pushes, np.ones(4, np.float32), cp, mp)
+            s, o = E.simulate_cases(pushes, np.ones(4, np.float32), cp, mp)
             phi = np.degrees(np.asarray(s["pitch_est"], float))
             row = dict(duration_ms=1e3 * dur, phase_ms=1e3 * phase)
             for i, (d, b) in enumerate(E.CASES):

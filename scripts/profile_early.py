@@ -28,8 +28,8 @@ import numpy as np
 from bench_early import emit, timed   # scripts/ is on the path when this script runs
 
 from tkujax.cli.runtime import configure_runtime
-from tkujax.control.io import controller_params_from
-from tkujax.control.params import ControllerParams
+from tkujax.control.params_files import controller_params_from
+from tkujax.control.controller_params import ControllerParams
 
 
 def warm_time(fn, repeats: int = 3) -> float:
@@ -60,10 +60,10 @@ def main(argv=None) -> None:
     ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
     configure_runtime()
-    from tkujax.studies import early
-    from tkujax.studies.chunk_program import (chunk_keys, make_chunk_fn, record_inputs,
-                                              traced_params)
-    from tkujax.studies.spec import load_spec
+    from tkujax.sweeps import early
+    from tkujax.sweeps.chunk_program import (chunk_keys, make_chunk_fn, record_inputs,
+                                             traced_params)
+    from tkujax.spec.sweep_spec import load_spec
 
     spec = load_spec(args.spec)
     recs = record_inputs(spec)

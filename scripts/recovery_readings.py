@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from tkujax.studies.calibrate import evaluate as E
+from tkujax.studies.calibrate import paper_rows as E
 from tkujax.studies.calibrate import islands as I
-from tkujax.studies.calibrate import params as P
+from tkujax.studies.calibrate import fit_vector as P
 from tkujax.studies.calibrate import targets as T
 
 
@@ -31,13 +31,13 @@ def main(out: Path) -> None:
     cp = P.controller_params(x, reading, mp)
     res = {"hypot": {}, "pitch": {}}
     for control, en in (("off", 0.0), ("on", 1.0)):
-        s, o = E._simulate(pushes, np.full(n, en, np.float32), cp, mp)
+        s, o = E.simulate_cases(pushes, np.full(n, en, np.float32), cp, mp)
         for name, key in (("hypot", "recovery_time_s"), ("pitch", "recovery_time_pitch_s")):
             oo = {k: o[k] for k in o.keys()}
             oo["recovery_time_s"] = o[key]
             for k, ph in enumerate(phases):
                 res[name].setdefault(ph, {}).update(
-                    E._rows(s, oo, control, cp, len(E.CASES) * k))
+                    E.case_rows(s, oo, control, cp, len(E.CASES) * k))
     summary = {}
     for name in res:
         losses = [T.table_loss(res[name][ph])[0] for ph in phases]

@@ -1,7 +1,7 @@
 """Does `tkujax replay --exact` reproduce a GPU sweep's records bit for bit? (results/scale/)
 
 Runs the first chunk of each sweep spec given (MJX), then replays K random records of it twice:
-exact (the sweep's own program at its shape, `tkujax.studies.replay_exact`) and plain (the
+exact (the sweep's own program at its shape, `tkujax.sweeps.replay_exact`) and plain (the
 record alone, a batch of one). Counts, for each, the records whose every stored outcome column
 equals the replayed one bit for bit, and the plain replays whose fall outcome agrees. Writes
 OUT.json.
@@ -25,9 +25,9 @@ from tkujax.cli.runtime import configure_runtime
 def check(spec: str, work: Path, k: int, seed: int) -> dict:
     import jax
 
-    from tkujax.studies import chunks
-    from tkujax.studies.replay import replay
-    from tkujax.studies.replay_exact import bitwise_differences
+    from tkujax.sweeps import chunks
+    from tkujax.sweeps.replay import replay
+    from tkujax.sweeps.replay_exact import bitwise_differences
 
     out = work / Path(spec).stem
     t0 = time.perf_counter()

@@ -1,6 +1,6 @@
 """Do a GPU sweep's stored outcomes still hold on the current code? (results/sweeps/README.md)
 
-Replays N random records of a committed sweep folder with `tkujax.studies.replay.replay` (the
+Replays N random records of a committed sweep folder with `tkujax.sweeps.replay.replay` (the
 sweeps' own program, `make_chunk_fn`, one push at a time on this machine) and counts the records
 whose fall outcome (fell, diverged) equals the stored one; OUT.json keeps the counts and the
 records that differ.
@@ -16,7 +16,7 @@ import time
 import jax
 import numpy as np
 
-from tkujax.studies.replay import replay
+from tkujax.sweeps.replay import replay
 
 
 def main(run_dir: str, n: int, seed: int, out: str) -> None:

@@ -16,7 +16,7 @@ import time
 import jax.numpy as jnp
 import numpy as np
 
-from tkujax.robot.closed_loop import robot_setup
+from tkujax.robot.robot_setup import robot_setup
 from tkujax.sim.options import RolloutConfig
 from tkujax.sim.push import Push
 from tkujax.sim.rollout_mujoco import simulate_mujoco

@@ -8,7 +8,7 @@ OUT/summary.json (and nothing big outside --work).
     python scripts/scale_run.py --out $OUT --work /tmp/scale --rollouts 1048576 --batch 65536
     python scripts/scale_run.py --smoke --out /tmp/smoke --work /tmp/smoke   # a CPU check
 
-Workers share one sweep folder through the chunk store's claims (`tkujax.studies.chunks`):
+Workers share one sweep folder through the chunk store's claims (`tkujax.sweeps.chunks`):
 each runs `tkujax sweep` on its own (no coordinator), a killed worker's claim is taken over,
 and a chunk counts only once its file matches the manifest. Rerunning the script resumes
 every folder it finds under --work (a finished run is not recomputed).
@@ -53,12 +53,12 @@ def env_for(mem_fraction: float | None) -> dict:
 
 
 def n_chunks_of(out: Path) -> int | None:
-    from tkujax.studies import chunks
+    from tkujax.sweeps import chunks
     return chunks.read_manifest(out).get("n_chunks")
 
 
 def done_count(out: Path) -> tuple[int, int | None]:
-    from tkujax.studies import chunks
+    from tkujax.sweeps import chunks
     n = n_chunks_of(out)
     return (0, None) if n is None else (len(chunks.done_chunks(out, n)), n)
 
@@ -119,7 +119,7 @@ def plain_run(spec: Path, out: Path, log) -> float:
 def chunk_rate(out: Path) -> float | None:
     """Pushes per second of a run's steady state: the rows of every chunk but the first over
     the time between the first chunk's file and the last's (the first pays the start-up)."""
-    from tkujax.studies import chunks
+    from tkujax.sweeps import chunks
     entries = chunks.read_manifest(out).get("chunks", {})
     times = sorted(((out / name).stat().st_mtime, e["rows"]) for name, e in entries.items())
     if len(times) < 2 or times[-1][0] <= times[0][0]:
@@ -129,7 +129,7 @@ def chunk_rate(out: Path) -> float | None:
 
 def compare(a: Path, b: Path, n_chunks: int | None = None) -> dict:
     """Every column of every chunk of a (the first n_chunks) against b's, bit for bit."""
-    from tkujax.studies import chunks
+    from tkujax.sweeps import chunks
     parts_a = chunks.read_chunks(a, chunks.read_manifest(a))
     parts_b = chunks.read_chunks(b, chunks.read_manifest(b))
     if n_chunks is not None:
@@ -154,7 +154,7 @@ def baseline(spec: Path, pushes: int, lanes: int, log) -> dict:
             "sys.path.insert(0, 'scripts')\n"
             "from tkujax.cli.runtime import configure_runtime; configure_runtime()\n"
             "from bench_early import measure\n"
-            "from tkujax.studies.spec import load_spec\n"
+            "from tkujax.spec.sweep_spec import load_spec\n"
             f"res = measure(load_spec({str(spec)!r}), {pushes}, {lanes})\n"
             "print('RESULT', json.dumps(res))\n")
     proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env_for(None),

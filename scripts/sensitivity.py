@@ -41,8 +41,8 @@ def main(argv=None):
     out = check_out(ap, [a.center], a.out)
     import numpy as np
 
-    from tkujax.studies.calibrate import evaluate as E
-    from tkujax.studies.calibrate import params as P
+    from tkujax.studies.calibrate import paper_rows as E
+    from tkujax.studies.calibrate import fit_vector as P
 
     x0 = P.DEFAULT.copy()
     if a.center:

@@ -20,8 +20,8 @@ def main(argv=None):
     ap = parser(__doc__, "JSON {parameter: [points sorted by value]}")
     a = ap.parse_args(argv)
     out = check_out(ap, [a.calibration], a.out)
-    from tkujax.studies.calibrate import evaluate as E
-    from tkujax.studies.calibrate import params as P
+    from tkujax.studies.calibrate import paper_rows as E
+    from tkujax.studies.calibrate import fit_vector as P
     from tkujax.studies.calibrate import targets as T
 
     fit = load_fit(a.calibration, a.which)

@@ -17,9 +17,9 @@ import time
 import jax
 import numpy as np
 
-from tkujax.control.params import ControllerParams
-from tkujax.studies import chunk_program
-from tkujax.studies.spec import load_spec
+from tkujax.control.controller_params import ControllerParams
+from tkujax.sweeps import chunk_program
+from tkujax.spec.sweep_spec import load_spec
 
 
 def rows_differing(a: dict, b: dict) -> dict[str, int]:

@@ -23,12 +23,12 @@ def main(argv=None):
     ap.add_argument("ball", choices=("baseball", "volleyball"))
     ap.add_argument("control", choices=("off", "on"))
     a = ap.parse_args(argv)
-    from tkujax.studies.calibrate import evaluate as E
+    from tkujax.studies.calibrate import paper_rows as E
 
     x, reading, mp, cp = fit_params(a.calibration, a.which)
     i = E.CASES.index((a.direction, a.ball))
     enabled = np.full(4, 1.0 if a.control == "on" else 0.0, np.float32)
-    s, o = E._simulate(E.pushes_for(x), enabled, cp, mp)
+    s, o = E.simulate_cases(E.pushes_for(x), enabled, cp, mp)
     print("t_s pitch_deg kalman_phi_deg x_sup_cm l_ankle_x_cm r_ankle_x_cm zmp_x_cm")
     for j in range(0, len(s["t"][i])):
         if s["t"][i][j] < 0.6:

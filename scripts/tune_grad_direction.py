@@ -5,7 +5,7 @@ import sys
 import time
 import numpy as np
 import jax
-from tkujax.studies.tune.spec import load_tune_spec, make_problem, sample_pushes
+from tkujax.studies.tune.tune_spec import load_tune_spec, make_problem, sample_pushes
 
 
 def main() -> None:

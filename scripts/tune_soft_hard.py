@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import jax
 import jax.numpy as jnp
-from tkujax.studies.tune.spec import load_tune_spec, make_problem, sample_pushes
+from tkujax.studies.tune.tune_spec import load_tune_spec, make_problem, sample_pushes
 from tkujax.studies.tune.search import SearchConfig, first_order_grads
 from tkujax.studies.tune.searchers import adam_update
 from tkujax.studies.tune.methods import make_optimizer

@@ -3,7 +3,7 @@
     python scripts/walk_push_set.py --out results/walking/push_set_tkux_cpu.json
 
 TKU-X (or --robot FILE) walking its default gait at each --speeds value; pushes of the chest
-(`tkujax.studies.walk_push.push_at_gait_phase`: 20 ms half-sine at the default height) from 8
+(`tkujax.walking.walk_push.push_at_gait_phase`: 20 ms half-sine at the default height) from 8
 directions x 7 impulses (0.3-2.0 N s) x 8 gait phases (0 = the left foot's touchdown), in the
 10th gait cycle, simulated 3 s past the onset. Each set runs with the footstep recovery off and
 on (balance control on in both; `tkujax.control.walk_recovery`), for the robot's controller
@@ -20,8 +20,8 @@ import json
 import sys
 from pathlib import Path
 
-from tkujax.studies.walk import walker
-from tkujax.studies.walk_push import WalkPushSet, run_walk_pushes
+from tkujax.walking.walk import walker
+from tkujax.walking.walk_push import WalkPushSet, run_walk_pushes
 
 AZIMUTHS = tuple(float(a) for a in range(0, 360, 45))
 IMPULSES = (0.3, 0.5, 0.7, 0.9, 1.2, 1.5, 2.0)

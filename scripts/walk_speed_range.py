@@ -4,7 +4,7 @@
     python scripts/walk_speed_range.py --robot specs/robots/op3.toml \
         --out results/walking/speed_range_op3_cpu.json
 
-One batch of walks (`tkujax.studies.walk.run_walk`, the robot's default gait: its controller's
+One batch of walks (`tkujax.walking.walk.run_walk`, the robot's default gait: its controller's
 T, a third of d_y of sway, a 4-step ramp; balance control on, recovery off) at speeds from
 --min to --max in --step, for --seconds each. Per speed: fell (and when), the measured mean
 speed, step length and period, heading drift. "held": the widest interval of tested speeds
@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from tkujax.control.gait import WalkCommand
-from tkujax.studies.walk import run_walk, walk_metrics, walker
+from tkujax.walking.walk import run_walk, walk_metrics, walker
 
 
 def held_interval(speeds, fell) -> tuple[float, float] | None:

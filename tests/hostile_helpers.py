@@ -8,7 +8,7 @@ import json
 from pathlib import Path
 
 from tkujax.cli import main
-from tkujax.studies import chunks
+from tkujax.sweeps import chunks
 
 # 4 pushes of 0.3 s on MuJoCo C, 2 chunks: a second or two per run.
 TINY = """

@@ -18,7 +18,7 @@ from tkujax.sim import rollout_mujoco as bm
 from tkujax.sim.closed_loop import push_wrench
 from tkujax.sim import push as push_lib
 from tkujax.sim import rollout_mjx as sim
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 
 # (impulse N s, azimuth deg, balance control 0/1): small/large pushes from behind and in front.
 CASES = [(0.3, 0.0, 0.0), (0.9, 0.0, 1.0), (1.5, 0.0, 1.0), (2.2, 0.0, 0.0),

@@ -187,7 +187,10 @@ def test_bad_sizes_fail_before_any_stage_naming_the_argument(tmp_path, kw, messa
 
 
 def test_cli_names_the_option_of_a_bad_integer_list(tmp_path, capsys):
-    from tkujax.bench.__main__ import main
+    from tkujax.cli import main as cli_main
+
+    def main(argv):
+        return cli_main(["bench", *argv])
 
     assert main(["--out", str(tmp_path / "b.json"), "--batches", "0,abc"]) == 2
     assert "--batches: a comma list of integers, got '0,abc'" in capsys.readouterr().err
@@ -249,7 +252,10 @@ def test_cli_modes(tmp_path, monkeypatch):
     import dataclasses
 
     from tkujax.bench import runner
-    from tkujax.bench.__main__ import main
+    from tkujax.cli import main as cli_main
+
+    def main(argv):
+        return cli_main(["bench", *argv])
 
     calls = []
 

@@ -13,13 +13,13 @@ import numpy as np
 import pytest
 
 from tkujax.model import ModelParams
-from tkujax.model.io import load_model_params_json, model_params_from_dict
-from tkujax.studies.calibrate import evaluate as E
-from tkujax.studies.calibrate import params as P
+from tkujax.model.params_json import load_model_params_json, model_params_from_dict
+from tkujax.studies.calibrate import paper_rows as E
+from tkujax.studies.calibrate import fit_vector as P
 from tkujax.studies.calibrate import targets as T
-from tkujax.studies.calibrate.run import run_calibrate
-from tkujax.studies.calibrate.spec import parse_calibrate_spec
-from tkujax.studies.spec import SpecError
+from tkujax.studies.calibrate.calibrate_command import run_calibrate
+from tkujax.studies.calibrate.calibrate_spec import parse_calibrate_spec
+from tkujax.spec.sweep_spec import SpecError
 
 SEARCH = {"max_evals": 10, "popsize": 4, "restarts": 1, "seed": 3}
 
@@ -77,7 +77,7 @@ def test_spec_defaults_and_narrowing():
 
 
 def test_shipped_specs_parse():
-    from tkujax.studies.calibrate.spec import load_calibrate_spec
+    from tkujax.studies.calibrate.calibrate_spec import load_calibrate_spec
 
     cpu, full = load_calibrate_spec("specs/calibrate/calibrate_cpu.toml"), load_calibrate_spec(
         "specs/calibrate/calibrate.toml")
@@ -143,8 +143,8 @@ def test_model_params_json():
 
 
 def test_cli_model_option(tmp_path):
-    from tkujax.cli.options import model_params_from_options as model_params_from
-    from tkujax.model.io import save_model_params_json
+    from tkujax.cli.shared_options import model_params_from_options as model_params_from
+    from tkujax.model.params_json import save_model_params_json
 
     mp = P.model_params(P.from_unit(np.full(len(P.NAMES), 0.3)))
     path = save_model_params_json(mp, tmp_path / "model_params.json")
@@ -256,7 +256,7 @@ def test_archive_of_another_fit_is_refused(tmp_path):
 
 def test_real_evaluation_one_candidate(tmp_path):
     """The MuJoCo C evaluation end to end on one candidate (the start point)."""
-    from tkujax.control.io import load_controller_params_json as load_params_json
+    from tkujax.control.params_files import load_controller_params_json as load_params_json
 
     spec = _spec({"params": ["leg_kp", "foot_length_m"], "readings": ["deviation/updated"],
                   "rows": "table4"}, {"max_evals": 1}, report={"sensitivity": False})
@@ -273,7 +273,7 @@ def test_ensemble_default_member_and_islands(tmp_path):
     """Stand-in evaluator: ensemble.json holds distinct candidates within the tolerance of the
     best, its default member is their medoid, and the islands contain the default member."""
     from tkujax.model.ensemble import load_ensemble
-    from tkujax.studies.calibrate import ensemble as ENS
+    from tkujax.studies.calibrate import ensemble_build as ENS
 
     spec = _spec({"params": ["foot_length_m", "leg_kp"], "readings": ["deviation/latched"],
                   "hit_phases_ms": [0], "contact_times_ms": [15, 25], "heldout": False},
@@ -310,7 +310,7 @@ def test_ensemble_spec_errors():
 def test_criterion_shortfall_by_hand():
     """The 'done when' penalty: 0.8 minus the probability of the paper's outcome where
     positive, plus for the stepping rows P(stand and step against the paper's way)."""
-    from tkujax.studies.calibrate.run import criterion_shortfall
+    from tkujax.studies.calibrate.calibrate_command import criterion_shortfall
 
     exp = {"/".join(k): {"p_paper": 1.0} for k in T.ROWS}
     exp["back/volleyball/on"] = {"p_paper": 0.7, "p_step_wrong_way": 0.0}     # 0.1
@@ -332,7 +332,7 @@ def test_front_hit_parameters_move_only_the_front_pushes():
     """front_height_offset_m and front_impulse_ratio: neutral values give the pushes of one hit
     for both directions (what fits before them simulated); otherwise only the front pushes
     change, by exactly the offset and the ratio."""
-    from tkujax.studies.calibrate.evaluate import CASES, pushes_for
+    from tkujax.studies.calibrate.paper_rows import CASES, pushes_for
 
     # The default contact has its own front hit (BallContact); from the neutral one:
     base = dict(P.as_dict(P.base_vector()), **P.NEUTRAL)
@@ -361,7 +361,7 @@ def test_fits_that_hold_the_front_hit_keep_their_digest_and_archives(tmp_path):
     """A spec that does not fit the front hit has the digest it had before the names existed
     (the shipped specs' archives resume), and an archived candidate without them reads as
     the neutral values."""
-    from tkujax.studies.calibrate.spec import parse_calibrate_spec
+    from tkujax.studies.calibrate.calibrate_spec import parse_calibrate_spec
 
     data = {"fit": {"params": ["leg_kp"]}, "search": {"max_evals": 1}}
     spec = parse_calibrate_spec(data)

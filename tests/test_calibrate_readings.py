@@ -10,11 +10,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from tkujax.studies.calibrate import params as P
+from tkujax.studies.calibrate import fit_vector as P
 from tkujax.studies.calibrate import targets as T
 from tkujax.control.capture_point import capture_point
 from tkujax.control.controller import Sensors, controller_init, controller_step, cp_angle
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.model import ModelParams
 
 G = 9.81

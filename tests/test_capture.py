@@ -20,8 +20,8 @@ from tkujax.sim.push import Push
 from tkujax.studies.capture import theory
 from tkujax.studies.capture.optimize import MarginProblem
 from tkujax.studies.capture.region import analyse
-from tkujax.studies.spec import SpecError, load_spec, parse_spec
-from tkujax.studies.sweep import run_sweep
+from tkujax.spec.sweep_spec import SpecError, load_spec, parse_spec
+from tkujax.sweeps.sweep import run_sweep
 
 G = 9.81
 # J = 0 and 1.5 N s from behind x three sagittal targets (+ the controller's own step): 8

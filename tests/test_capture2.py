@@ -14,8 +14,8 @@ from tkujax.control import ControllerParams, StepOverride
 from tkujax.control.controller import override_feet
 from tkujax.control.cpg import cpg_feet_lateral
 from tkujax.studies.capture.region import jn_table
-from tkujax.studies.spec import SpecError, load_spec, parse_spec
-from tkujax.studies.sweep import step_override
+from tkujax.spec.sweep_spec import SpecError, load_spec, parse_spec
+from tkujax.sweeps.sweep import step_override
 
 P = ControllerParams.paper()      # T = 0.3 s, gamma = 0.2: lift 0.03 s, land 0.27 s after start
 D_Y, D_Z, H = 0.045, 0.20, 0.03   # hip_offset_y, hip_to_ankle_z, lift_height (paper)

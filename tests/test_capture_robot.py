@@ -15,11 +15,11 @@ import pytest
 from tkujax.cli import main
 from tkujax.robot.builtin import GENERATED_SECOND, write_generated_robot
 from tkujax.studies.robot_inputs import capture_feet, capture_robot, robot_lip
-from tkujax.studies.capturability import step_reach_m
+from tkujax.analysis.capturability import step_reach_m
 from tkujax.studies.capture import run_capture
 from tkujax.studies.capture.on_robot import check_capture_robot
-from tkujax.studies.replay import replay
-from tkujax.studies.spec import SpecError, load_spec, parse_spec
+from tkujax.sweeps.replay import replay
+from tkujax.spec.sweep_spec import SpecError, load_spec, parse_spec
 
 from test_robot_file import REPO, needs_op3
 

@@ -32,7 +32,7 @@ from tkujax.sim import ball_rig
 from tkujax.sim import physics
 from tkujax.sim import rollout_mjx as sim
 from tkujax.sim import push as push_lib
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.sim.push import G, ball_momentum_ns, ball_push, ball_speed_m_s, force_at, make_push
 
 ROBOT_MASS_KG = 4.5

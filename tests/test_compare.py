@@ -6,11 +6,11 @@ import json
 import numpy as np
 import pytest
 
-from tkujax.studies import chunks
-from tkujax.studies.compare import (Bands, compare_runs, difference_cells, load_run,
-                                    sector_index)
-from tkujax.studies.spec import SpecError, parse_spec
-from tkujax.studies.sweep import record_inputs
+from tkujax.sweeps import chunks
+from tkujax.analysis.compare import (Bands, compare_runs, difference_cells, load_run,
+                                     sector_index)
+from tkujax.spec.sweep_spec import SpecError, parse_spec
+from tkujax.sweeps.sweep import record_inputs
 
 
 def _write(out, rec, chunk=64, complete=True):
@@ -173,8 +173,8 @@ def test_unpaired_robots_accepts_other_draws_and_uses_independent_errors(tmp_pat
     """Two runs of one push set whose robot draws differ: refused by default, accepted with
     unpaired_robots, with the standard error of a difference of two independent rates."""
     import numpy as np
-    from tkujax.studies.compare import Run, check_same_pushes, fall_difference
-    from tkujax.studies.spec import SpecError
+    from tkujax.analysis.compare import Run, check_same_pushes, fall_difference
+    from tkujax.spec.sweep_spec import SpecError
 
     n = 200
     base = dict(impulse_ns=np.full(n, 1.0), azimuth_deg=np.zeros(n), onset_phase=np.zeros(n))

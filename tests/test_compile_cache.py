@@ -1,11 +1,11 @@
-"""The persistent-cache helpers of `tkujax.studies.compile_cache`: a fresh cache compiles cold,
+"""The persistent-cache helpers of `tkujax.sweeps.compile_cache`: a fresh cache compiles cold,
 and `persistent_cache_hits` sees the compile that the cache then serves."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from tkujax.studies.compile_cache import fresh_compilation_cache, persistent_cache_hits
+from tkujax.sweeps.compile_cache import fresh_compilation_cache, persistent_cache_hits
 
 
 def _compile_and_run():

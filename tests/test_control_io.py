@@ -1,4 +1,4 @@
-"""ControllerParams from JSON and spec-style values (tkujax.control.io): ranges are
+"""ControllerParams from JSON and spec-style values (tkujax.control.params_files): ranges are
 ControllerParams.validate's, and errors name the key and the range."""
 
 import dataclasses
@@ -7,10 +7,10 @@ import math
 
 import pytest
 
-from tkujax.control.io import (allowed_range, checked_value, controller_params_from,
-                               controller_params_from_dict, load_controller_params_json,
-                               save_controller_params_json)
-from tkujax.control.params import ControllerParams
+from tkujax.control.params_files import (allowed_range, checked_value, controller_params_from,
+                                         controller_params_from_dict, load_controller_params_json,
+                                         save_controller_params_json)
+from tkujax.control.controller_params import ControllerParams
 
 
 def test_allowed_range_is_what_validate_says():

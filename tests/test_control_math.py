@@ -20,7 +20,7 @@ from tkujax.control.cpg import cpg_feet
 from tkujax.control.ik import LegAngles, leg_ik, paper_leg_ik, paper_to_model_angles
 from tkujax.control.kalman import (KalmanState, accel_to_angle, accel_variance, gyro_to_rates,
                                    kalman_init, kalman_step)
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 
 # Default-model geometry, given explicitly (tests do not call ControllerParams.paper()).
 P = ControllerParams(hip_offset_y=0.045, hip_to_ankle_z=0.20, thigh_length=0.11,

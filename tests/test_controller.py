@@ -21,7 +21,7 @@ import pytest
 from tkujax.control.capture_point import capture_point
 from tkujax.control.controller import Sensors, controller_init, controller_step, stand_leg_targets
 from tkujax.control.cpg import cpg_feet
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.control.solve import solve_legs
 from tkujax.model import LEG_ACTUATORS, load_model
 

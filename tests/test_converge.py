@@ -8,7 +8,7 @@ import pytest
 
 from tkujax import cli
 from tkujax.studies import converge as C
-from tkujax.studies.spec import SpecError
+from tkujax.spec.sweep_spec import SpecError
 
 TINY = """
 [converge]

@@ -11,13 +11,14 @@ import jax
 import numpy as np
 import pytest
 
-from tkujax.control.params import ControllerParams
-from tkujax.studies import chunks, early
-from tkujax.studies.chunk_program import chunk_keys, make_chunk_fn, record_inputs, traced_params
-from tkujax.studies.lane_stream import LaneStream
-from tkujax.studies.spec import SpecError, parse_spec
-from tkujax.studies.sweep import load, run_sweep
-from tkujax.studies.sweep_hash import spec_hash
+from tkujax.control.controller_params import ControllerParams
+from tkujax.sweeps import chunks
+from tkujax.sweeps import early
+from tkujax.sweeps.chunk_program import chunk_keys, make_chunk_fn, record_inputs, traced_params
+from tkujax.sweeps.lane_stream import LaneStream
+from tkujax.spec.sweep_spec import SpecError, parse_spec
+from tkujax.sweeps.sweep import load, run_sweep
+from tkujax.sweeps.sweep_hash import spec_hash
 from tkujax.model import ModelParams
 
 # Impulses bracketing the fall boundary pushed from behind (0.6-1.0 N s) and from the front
@@ -59,7 +60,7 @@ def test_exact_replay_of_an_early_record_is_bit_identical(early_run):
     """`replay(exact=True)` runs the record in the sweep's lanes (the others idle, from the
     stand, not the chunk's snapshot): every stored column, the ones an early record reads up
     to its fall decision and decided_s included, equals the stored bits."""
-    from tkujax.studies.replay import replay
+    from tkujax.sweeps.replay import replay
 
     out, _, reference = early_run
     for i in (int(np.flatnonzero(reference["fell"])[0]),

@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 from tkujax.model.ensemble import save_ensemble
-from tkujax.studies import maps
-from tkujax.studies.calibrate import params as P
-from tkujax.studies.spec import SpecError, load_spec, parse_spec
-from tkujax.studies.sweep_hash import spec_hash
-from tkujax.studies.sweep import choose_backend, record_inputs
-from tkujax.control.params import ControllerParams
+from tkujax.analysis import maps
+from tkujax.studies.calibrate import fit_vector as P
+from tkujax.spec.sweep_spec import SpecError, load_spec, parse_spec
+from tkujax.sweeps.sweep_hash import spec_hash
+from tkujax.sweeps.sweep import choose_backend, record_inputs
+from tkujax.control.controller_params import ControllerParams
 from tkujax.model import ModelParams
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -116,7 +116,7 @@ def test_the_shipped_specs_parse(monkeypatch):
 
 @pytest.fixture(scope="module")
 def ensemble_run(tmp_path_factory):
-    from tkujax.studies.sweep import load, run_sweep
+    from tkujax.sweeps.sweep import load, run_sweep
 
     tmp = tmp_path_factory.mktemp("ens")
     data = _spec(_ensemble(tmp / "e.json"))
@@ -162,7 +162,7 @@ def test_mujoco_c_runs_each_member(ensemble_run, tmp_path):
     """The MuJoCo C backend (one batch per member) agrees with the MJX sweep on the fall
     outcomes (the pushes are far from the boundary) and writes the same robot_id column; a
     replay runs the record on its member."""
-    from tkujax.studies.sweep import load, run_sweep
+    from tkujax.sweeps.sweep import load, run_sweep
 
     spec, _, mjx_rec = ensemble_run
     manifest = run_sweep(spec, tmp_path, backend="mujoco", quiet=True)
@@ -171,7 +171,7 @@ def test_mujoco_c_runs_each_member(ensemble_run, tmp_path):
     np.testing.assert_array_equal(rec["robot_id"], mjx_rec["robot_id"])
     assert np.mean(rec["fell"] == mjx_rec["fell"]) >= 0.85
     # replay re-runs the record on its member, and refuses a changed ensemble file
-    from tkujax.studies.replay import replay
+    from tkujax.sweeps.replay import replay
 
     i = int(np.flatnonzero(rec["robot_id"] == 1)[0])
     again = replay(tmp_path, i)
@@ -241,7 +241,7 @@ def test_member_boundaries_and_their_band_by_hand():
 def test_map_of_an_ensemble_sweep_draws_and_writes_the_band(tmp_path):
     """make_maps on a sweep folder of synthetic records: the band's files and summary section
     (and a sweep without robot_id gets none)."""
-    from tkujax.studies import chunks
+    from tkujax.sweeps import chunks
 
     rec = _synthetic()
     keep = ~rec.pop("diverged")

@@ -11,7 +11,7 @@ import pytest
 
 import tkujax
 from tkujax.cli import main
-from tkujax.studies.export import DTYPES_KEY, MANIFEST_KEY, read_parquet, records_table
+from tkujax.sweeps.table_export import DTYPES_KEY, MANIFEST_KEY, read_parquet, records_table
 
 TINY = str(Path(__file__).resolve().parents[1] / "specs" / "sweep" / "tiny.toml")
 

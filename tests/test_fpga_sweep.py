@@ -11,17 +11,17 @@ import pytest
 
 from tkujax.control.controller import controller_init
 from tkujax.control.fixed import FixedPointConfig, controller_init_fx
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.model import ModelParams
 from tkujax.sim.push import Push
 from tkujax.sim.rollout_mjx import RolloutConfig
 from tkujax.sim.rollout_mujoco import simulate_mujoco
 from tkujax.sim.tick import control_tick, control_tick_fx
 from tkujax.studies.fpga import analyse, float_reference_spec
-from tkujax.studies.record_schema import manifest_spec
-from tkujax.studies.spec import SpecError, fixed_point_config, parse_spec
-from tkujax.studies.sweep_hash import spec_hash
-from tkujax.studies.sweep import load, run_sweep, shares_robot_draws
+from tkujax.sweeps.record_schema import manifest_spec
+from tkujax.spec.sweep_spec import SpecError, fixed_point_config, parse_spec
+from tkujax.sweeps.sweep_hash import spec_hash
+from tkujax.sweeps.sweep import load, run_sweep, shares_robot_draws
 
 BASE = {"sweep": {"name": "f", "chunk_size": 4, "duration_s": 1.5, "control": ["on"]},
         "push": {"grid": {"impulse_ns": [0.5, 2.2], "onset_s": [0.3]}},
@@ -153,7 +153,7 @@ def test_old_sweeps_keep_their_hash():
     differ: they are never resumed into a folder of the new rule. Manifests without the IMU
     low-pass fields read as the unfiltered robot they ran."""
     from pathlib import Path
-    from tkujax.model.io import model_params_from_dict
+    from tkujax.model.params_json import model_params_from_dict
     root = Path(__file__).resolve().parents[1] / "results"
     manifests = sorted(root.glob("*/manifest.json")) + sorted(root.glob("sweeps/*/manifest.json"))
     assert manifests, "no committed sweep manifest to check against"

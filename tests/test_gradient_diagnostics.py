@@ -8,9 +8,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from tkujax.studies.gradient import diagnostics as dg
-from tkujax.studies.gradient.auc import roc_auc
-from tkujax.studies.gradient.bundled import bundled_value_and_grad
+from tkujax.gradients import diagnostics as dg
+from tkujax.gradients.auc import roc_auc
+from tkujax.gradients.bundled import bundled_value_and_grad
 
 
 def test_half_batch_cosine_closed_form():

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from tkujax.sim.records import Series
-from tkujax.studies.gradient.margin import (MarginConfig, dcm_xy, hull_signed_distance,
-                                            margin_loss, push_margin, window_mask)
+from tkujax.gradients.margin import (MarginConfig, dcm_xy, hull_signed_distance,
+                                     margin_loss, push_margin, window_mask)
 
 N = 20
 DT = 0.03

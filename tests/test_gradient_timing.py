@@ -10,7 +10,7 @@ import numpy as np
 
 from tkujax.control.controller import (Sensors, controller_init, controller_step,
                                        crossing_time_offset, with_timing_gradient)
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 
 G = 9.81
 
@@ -114,7 +114,7 @@ def test_crossing_offset_is_zero_in_value_and_guarded():
 
 def test_latent_moves_the_named_fields_and_carries_the_option():
     from tkujax.control.controller import TimingGradientParams
-    from tkujax.studies.gradient.measure import Latent
+    from tkujax.studies.gradient_measure import Latent
     base = ControllerParams.recommended()
     lat = Latent(base, timing_gradient=True)
     z = np.zeros(len(lat.names))

@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.sim.options import Episode, ProgramOptions, RolloutConfig
 from tkujax.sim.push import Push
 from tkujax.sim.rollout_mjx import rollout

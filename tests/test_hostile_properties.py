@@ -12,9 +12,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from tkujax.studies.spec import (MAX_RECORDS, PHASE_KEY, PUSH_FIELDS, SpecError, expand,
-                                 parse_spec, record_count)
-from tkujax.studies.validation import number, uniform, values
+from tkujax.spec.sweep_spec import (MAX_RECORDS, PHASE_KEY, PUSH_FIELDS, SpecError, expand,
+                                    parse_spec, record_count)
+from tkujax.spec.validation import number, uniform, values
 
 SETTINGS = settings(max_examples=150, deadline=None,
                     suppress_health_check=[HealthCheck.too_slow])
@@ -148,10 +148,10 @@ def test_numbers_and_uniforms_are_finite_or_named(value):
 
 def _dialect(name: str):
     if name == "tune":
-        from tkujax.studies.tune.spec import parse_tune_spec
+        from tkujax.studies.tune.tune_spec import parse_tune_spec
         return parse_tune_spec
     if name == "calibrate":
-        from tkujax.studies.calibrate.spec import parse_calibrate_spec
+        from tkujax.studies.calibrate.calibrate_spec import parse_calibrate_spec
         return parse_calibrate_spec
     from tkujax.studies.converge import parse_spec as parse_converge
     return parse_converge

@@ -18,8 +18,8 @@ import pytest
 from hostile_helpers import (CHUNKS_TINY, N_TINY, TINY, folder_state, no_temporaries, refused,
                              run)
 
-from tkujax.studies import chunks
-from tkujax.studies.sweep import load
+from tkujax.sweeps import chunks
+from tkujax.sweeps.sweep import load
 
 ROOT = Path(__file__).resolve().parents[1]
 OTHER = TINY.replace("impulse_ns = [0.5]", "impulse_ns = [0.6]")
@@ -98,7 +98,7 @@ def test_two_writers_of_one_spec_share_the_chunks(reference, tmp_path):
 
 @pytest.mark.parametrize("trial", range(6))
 def test_the_folder_claim_admits_one_spec_when_claims_race(tmp_path, trial):
-    from tkujax.studies.sweep_folder import claim_folder
+    from tkujax.sweeps.sweep_folder import claim_folder
 
     out = tmp_path / "race"
     out.mkdir()
@@ -194,8 +194,8 @@ def test_a_resume_with_an_edited_input_is_refused_naming_it(capsys, tmp_path, ca
 def test_a_robot_identity_covers_included_files_and_meshes(tmp_path):
     import shutil
 
-    from tkujax.robot.closed_loop import file_digest
-    from tkujax.studies.sweep_hash import changed_inputs
+    from tkujax.robot.robot_setup import file_digest
+    from tkujax.sweeps.sweep_hash import changed_inputs
 
     src = ROOT.parent / "shared" / "models" / "robotis_op3"
     if not src.is_dir():
@@ -242,7 +242,7 @@ def test_provenance_is_per_chunk_and_history_is_kept(capsys, reference, tmp_path
                for e in entries)
     _same(load(out), rec)
 
-    from tkujax.studies.replay import replay
+    from tkujax.sweeps.replay import replay
 
     m["backend"] = "mjx"       # a top level naming another backend: the chunk's entry rules
     (out / chunks.MANIFEST).write_text(json.dumps(m))
@@ -334,7 +334,7 @@ def test_ctrl_c_says_how_to_resume_and_leaves_no_temporary(reference, tmp_path, 
                                            "to resume")
     assert "Traceback" not in err
     no_temporaries(out)
-    from tkujax.studies.sweep import run_sweep
+    from tkujax.sweeps.sweep import run_sweep
 
     assert run_sweep(spec, out, quiet=True, backend="mujoco")["complete"]
     _same(load(out), rec)

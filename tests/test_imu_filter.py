@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.model import ModelParams
 from tkujax.sim import push as push_lib
 from tkujax.sim import rollout_mjx as sim

@@ -4,7 +4,7 @@ and the default robot's 8 rows at the fit's phase through MuJoCo C (~5 s on a CP
 import pytest
 
 from tkujax.studies.calibrate import islands as I
-from tkujax.studies.calibrate import params as P
+from tkujax.studies.calibrate import fit_vector as P
 
 
 def test_island_is_the_run_around_the_default():

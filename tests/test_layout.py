@@ -10,7 +10,8 @@ import pytest
 import tkujax
 
 ROOT = Path(tkujax.__file__).parent
-LAYERS = ["model", "control", "sim", "robot", "studies", "top"]   # top: bench, render, cli
+LAYERS = ["model", "control", "sim", "robot", "gradients", "walking", "spec", "sweeps",
+          "analysis", "studies", "top"]   # top: bench, viewer, render, cli
 
 
 def _layer(module: str) -> str:

@@ -14,7 +14,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.sim import physics
 from tkujax.sim import rollout_mjx as sim
 from tkujax.sim.mjx_import import mjx

@@ -14,8 +14,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from tkujax.control.params import ControllerParams
-from tkujax.studies.sweep import make_chunk_fn, traced_params
+from tkujax.control.controller_params import ControllerParams
+from tkujax.sweeps.sweep import make_chunk_fn, traced_params
 
 N = 4
 RECORDS = dict(impulse_ns=[0.4, 2.5, 1.6, 2.5], azimuth_deg=[0.0, 0.0, 180.0, 90.0],

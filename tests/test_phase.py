@@ -24,7 +24,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.model import ModelParams
 from tkujax.sim import push as push_lib
 from tkujax.sim.push import make_push, onset_from_phase, stack_pushes
@@ -100,8 +100,8 @@ def test_default_imu_lowpass_narrows_the_phase_gap(runs):
 def test_sweep_runs_the_phase_axis_and_accel_gate_grid_on_mujoco_c(runs, tmp_path):
     """The same two pushes as a spec: onset_phase grid x [controller.grid] accel_gate, on the
     MuJoCo C backend (one batch per grid point): the records are the direct runs'."""
-    from tkujax.studies.spec import parse_spec
-    from tkujax.studies.sweep import load, run_sweep
+    from tkujax.spec.sweep_spec import parse_spec
+    from tkujax.sweeps.sweep import load, run_sweep
 
     spec = parse_spec({
         "sweep": {"name": "phase_test", "chunk_size": 8, "duration_s": CONFIG.duration_s,

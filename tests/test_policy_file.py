@@ -13,11 +13,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from tkujax.control.io import load_controller_params_json, load_policy_json, save_policy_json
-from tkujax.control.params import ControllerParams
+from tkujax.control.params_files import (load_controller_params_json, load_policy_json,
+                                         save_policy_json)
+from tkujax.control.controller_params import ControllerParams
 from tkujax.control.policy import Schedule, schedule_to_dict
-from tkujax.studies.spec import SpecError, parse_spec
-from tkujax.studies.sweep import load, run_sweep
+from tkujax.spec.sweep_spec import SpecError, parse_spec
+from tkujax.sweeps.sweep import load, run_sweep
 
 FIELDS = ("cp_gain", "step_period")
 LO, HI = (0.5, 0.1), (4.0, 0.5)
@@ -154,7 +155,7 @@ def test_recommended_policy_is_the_study_best_and_runs_by_name(tmp_path):
     from pathlib import Path
 
     from tkujax.cli import main
-    from tkujax.control.io import recommended_policy
+    from tkujax.control.params_files import recommended_policy
     from tkujax.control.policy import schedule_to_dict
 
     params, sched = recommended_policy()
@@ -180,7 +181,7 @@ def test_recommended_policy_is_the_study_best_and_runs_by_name(tmp_path):
                            np.nan_to_num(scalar["step_length_m"]), atol=1e-3)
     # `tkujax replay` re-simulates a policy sweep's record with its schedule (from the
     # manifest), so it reproduces the record, also where the scalar set would step otherwise.
-    from tkujax.studies.replay import replay
+    from tkujax.sweeps.replay import replay
 
     for i in range(len(pol["fell"])):
         assert replay(tmp_path / "pol", i)["identical"], i

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from tkujax.studies.progress import PROGRESS_ENV, Progress, StatusLog, bar_wanted, track
+from tkujax.sweeps.progress import PROGRESS_ENV, Progress, StatusLog, bar_wanted, track
 
 TINY = str(Path(__file__).resolve().parents[1] / "specs" / "sweep" / "tiny.toml")
 
@@ -82,7 +82,7 @@ def test_status_log_plain_lines_off_a_terminal_and_a_budget_bar_on_one():
 
 
 def test_sweep_off_a_terminal_prints_no_bar(tmp_path, capsys):
-    from tkujax.studies.sweep import run_sweep
+    from tkujax.sweeps.sweep import run_sweep
 
     manifest = run_sweep(TINY, tmp_path / "tiny", backend="mujoco")
     assert manifest["complete"]

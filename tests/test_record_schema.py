@@ -1,4 +1,4 @@
-"""The sweep manifest's record schema (tkujax.studies.record_schema): one table of the fields
+"""The sweep manifest's record schema (tkujax.sweeps.record_schema): one table of the fields
 each schema version records, the value a field takes in a manifest that predates it, the spec
 hash of older sweeps, and the version a new manifest records."""
 
@@ -8,13 +8,13 @@ from pathlib import Path
 
 import pytest
 
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.model import ModelParams
-from tkujax.studies.record_schema import (ADDED_FIELDS, FIRST_FIELDS, GROUPS, SCHEMA_KEY,
-                                          SCHEMA_VERSION, UNVERSIONED, fields_missing, fields_of,
-                                          filled_fields, hashed_fields, manifest_version)
-from tkujax.studies.record_schema import manifest_spec
-from tkujax.studies.sweep_hash import spec_hash
+from tkujax.sweeps.record_schema import (ADDED_FIELDS, FIRST_FIELDS, GROUPS, SCHEMA_KEY,
+                                         SCHEMA_VERSION, UNVERSIONED, fields_missing, fields_of,
+                                         filled_fields, hashed_fields, manifest_version)
+from tkujax.sweeps.record_schema import manifest_spec
+from tkujax.sweeps.sweep_hash import spec_hash
 
 RESULTS = Path(__file__).resolve().parents[1] / "results"
 
@@ -46,7 +46,7 @@ def test_an_added_field_enters_the_hash_only_when_set():
 
 
 def test_tree_passes_of_a_spec_enter_the_hash_and_an_older_manifest_ran_mjx():
-    from tkujax.studies.spec import SpecError, parse_spec
+    from tkujax.spec.sweep_spec import SpecError, parse_spec
 
     raw = {"sweep": {"name": "t"}, "push": {"grid": {"impulse_ns": [1.0]}}}
     compact = parse_spec(raw)
@@ -89,8 +89,8 @@ def test_committed_sweeps_are_unversioned_and_keep_their_hash_through_the_table(
     """Every committed sweep manifest predates the schema version; the ones whose records are
     today's (not `shares_robot_draws` from before the IMU low-pass) reproduce their hash from
     the parameters the table fills in."""
-    from tkujax.studies.record_schema import manifest_controller_params, manifest_model_params
-    from tkujax.studies.sweep_hash import shares_robot_draws
+    from tkujax.sweeps.record_schema import manifest_controller_params, manifest_model_params
+    from tkujax.sweeps.sweep_hash import shares_robot_draws
 
     manifests = sorted(RESULTS.glob("*/manifest.json")) + sorted(
         RESULTS.glob("sweeps/*/manifest.json"))

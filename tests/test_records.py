@@ -21,10 +21,10 @@ import pytest
 
 from tkujax.sim import metrics
 from tkujax.sim.records import Series
-from tkujax.studies import chunks
-from tkujax.studies.maps import max_recoverable_impulse
-from tkujax.control.io import load_controller_params_json as load_params_json
-from tkujax.studies.sweep import load, run_sweep
+from tkujax.sweeps import chunks
+from tkujax.analysis.maps import max_recoverable_impulse
+from tkujax.control.params_files import load_controller_params_json as load_params_json
+from tkujax.sweeps.sweep import load, run_sweep
 
 ROOT = Path(__file__).resolve().parents[1]
 SPEC = """
@@ -115,7 +115,7 @@ def _env(**extra):
 
 def _writer(spec, out, slow_s: float) -> subprocess.Popen:
     code = ("import json, sys; from tkujax.cli import configure_runtime; configure_runtime(); "
-            "from tkujax.studies.sweep import run_sweep; "
+            "from tkujax.sweeps.sweep import run_sweep; "
             "m = run_sweep(sys.argv[1], sys.argv[2], quiet=True, backend='mujoco'); "
             "print(json.dumps(dict(computed=m['chunks_computed_last_run'], "
             "complete=m['complete'])))")
@@ -251,7 +251,7 @@ def test_claims_live_and_stale(reference, tmp_path):
 
 def test_replay_reproduces_a_record(reference, tmp_path, capsys):
     from tkujax.cli import main
-    from tkujax.studies.replay import replay
+    from tkujax.sweeps.replay import replay
 
     _, out, rec = reference
     i = int(np.flatnonzero(rec["fell"])[0])
@@ -280,8 +280,8 @@ def test_replay_of_an_older_manifest_fills_what_it_lacks_as_the_code_was(referen
 
     from tkujax.cli import main
     from tkujax.model import ModelParams
-    from tkujax.studies.record_schema import added_fields, manifest_model_params
-    from tkujax.studies.replay import replay
+    from tkujax.sweeps.record_schema import added_fields, manifest_model_params
+    from tkujax.sweeps.replay import replay
 
     _, out, rec = reference
     assert replay(out, 0)["fields_missing"] == {}
@@ -307,8 +307,8 @@ def test_replay_of_an_older_manifest_fills_what_it_lacks_as_the_code_was(referen
 
 def test_a_new_sweep_records_the_schema_version(reference):
     """A new manifest names its record schema version and records every field it has."""
-    from tkujax.studies.record_schema import (SCHEMA_KEY, SCHEMA_VERSION, fields_missing,
-                                              fields_of)
+    from tkujax.sweeps.record_schema import (SCHEMA_KEY, SCHEMA_VERSION, fields_missing,
+                                             fields_of)
 
     manifest = chunks.read_manifest(reference[1])
     assert manifest[SCHEMA_KEY] == SCHEMA_VERSION and fields_missing(manifest) == {}

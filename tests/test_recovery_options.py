@@ -18,7 +18,7 @@ import pytest
 from tkujax.control.capture_point import capture_point, capture_point_rate, push_gate
 from tkujax.control.controller import (Sensors, StepsState, detect_push, later_step_feet, cp_angle,
                                        controller_init, controller_step, stance_offsets)
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.model import LEG_ACTUATORS
 
 G = 9.81

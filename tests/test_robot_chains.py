@@ -17,11 +17,11 @@ import pytest
 
 import tkujax
 from tkujax.control.controller import stand_leg_targets
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.control.solve import solve_legs
 from tkujax.model import ModelParams, build_mjcf
 from tkujax.robot.builtin import robot_toml, write_generated_robot
-from tkujax.robot.closed_loop import robot_setup
+from tkujax.robot.robot_setup import robot_setup
 from tkujax.robot.description import RobotFileError
 from tkujax.robot.geometry import RobotGeometry, scaled_defaults
 from tkujax.robot.ik_numeric import base_data, foot_pose, solve_leg_ik

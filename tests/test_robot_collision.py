@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from tkujax.robot.builtin import GENERATED_SECOND, write_generated_robot
-from tkujax.robot.closed_loop import file_digest
+from tkujax.robot.robot_setup import file_digest
 from tkujax.robot.collision import BOX_SUFFIX, fit_box, mesh_vertices_in_body
 from tkujax.robot.description import RobotFileError, load_description
 from tkujax.robot.loader import geom_points, load_robot

@@ -12,16 +12,16 @@ import pytest
 
 from tkujax.cli import main
 from tkujax.robot.builtin import GENERATED_SECOND, write_generated_robot
-from tkujax.robot.closed_loop import robot_setup
+from tkujax.robot.robot_setup import robot_setup
 from tkujax.studies.capture import run_capture
-from tkujax.studies.compare import compare_runs
-from tkujax.studies.maps import make_maps
-from tkujax.studies.replay import replay
+from tkujax.analysis.compare import compare_runs
+from tkujax.analysis.maps import make_maps
+from tkujax.sweeps.replay import replay
 from tkujax.studies.robot_inputs import robot_lip, sweep_robot, tune_robot
-from tkujax.studies.spec import SpecError, parse_spec
-from tkujax.studies.sweep import run_sweep
-from tkujax.studies.tune.robot import on_robot
-from tkujax.studies.tune.spec import parse_tune_spec
+from tkujax.spec.sweep_spec import SpecError, parse_spec
+from tkujax.sweeps.sweep import run_sweep
+from tkujax.studies.tune.robot_table import on_robot
+from tkujax.studies.tune.tune_spec import parse_tune_spec
 
 from test_robot_file import REPO
 

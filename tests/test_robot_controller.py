@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 
 import tkujax
-from tkujax.control.io import load_controller_params_json
+from tkujax.control.params_files import load_controller_params_json
 from tkujax.robot.builtin import write_generated_robot
-from tkujax.robot.closed_loop import robot_setup
+from tkujax.robot.robot_setup import robot_setup
 from tkujax.robot.description import RobotFileError, load_description
 from tkujax.robot.own_controller import CONSERVATIVE_SOURCE, NO_STEP_THRESHOLD_RAD
 from tkujax.sim.rollout_mujoco import simulate_mujoco
-from tkujax.studies.sweep import run_sweep
+from tkujax.sweeps.sweep import run_sweep
 
 REPO = Path(__file__).resolve().parents[1]
 MODELS = Path(os.environ.get("TKUJAX_MENAGERIE") or REPO.parent / "shared" / "models")

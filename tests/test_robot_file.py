@@ -12,7 +12,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.robot.builtin import GENERATED_SECOND, write_generated_robot
 from tkujax.robot.description import RobotFileError, load_description
 from tkujax.robot.geometry import controller_params_for, measure_geometry

@@ -1,4 +1,4 @@
-"""Robot files in the closed loop (tkujax.robot.closed_loop): the leg map's round trip through
+"""Robot files in the closed loop (tkujax.robot.robot_setup): the leg map's round trip through
 MuJoCo's kinematics, the mesh fall test, and a small sweep on MJX and on MuJoCo C.
 
 The generated second robot runs everywhere (no third-party files); OP3 runs when a Menagerie
@@ -13,13 +13,13 @@ import pytest
 
 from tkujax.control.solve import solve_legs
 from tkujax.robot.builtin import GENERATED_SECOND, write_generated_robot
-from tkujax.robot.closed_loop import robot_setup
+from tkujax.robot.robot_setup import robot_setup
 from tkujax.sim.options import RolloutConfig
 from tkujax.sim.push import Push
 from tkujax.sim.rollout_mjx import simulate
 from tkujax.sim.rollout_mujoco import simulate_mujoco
-from tkujax.studies.spec import SpecError, parse_spec
-from tkujax.studies.sweep import check_robot_sweep, load, run_sweep
+from tkujax.spec.sweep_spec import SpecError, parse_spec
+from tkujax.sweeps.sweep import check_robot_sweep, load, run_sweep
 
 from test_robot_file import REPO, needs_op3
 

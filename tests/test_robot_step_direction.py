@@ -19,9 +19,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from tkujax.control.params import RECOMMENDED
+from tkujax.control.controller_params import RECOMMENDED
 from tkujax.robot.builtin import GENERATED_SECOND, write_generated_robot
-from tkujax.robot.closed_loop import robot_setup
+from tkujax.robot.robot_setup import robot_setup
 from tkujax.sim.options import RolloutConfig
 from tkujax.sim.push import Push
 from tkujax.sim.rollout_mujoco import simulate_mujoco

@@ -11,7 +11,7 @@ import pytest
 
 from tkujax.cli import main
 from tkujax.robot.builtin import write_generated_robot
-from tkujax.robot.closed_loop import file_digest, robot_setup
+from tkujax.robot.robot_setup import file_digest, robot_setup
 from tkujax.robot.description import load_description
 from tkujax.studies.robot_pushes import FALL_TARGET, IMPULSE_LO_FRAC, robot_pushes
 from tkujax.studies.robot_structure import STRUCTURES, choose_structure, structure_start

@@ -10,9 +10,9 @@ from tkujax.model import load_model
 from tkujax.model.ensemble import load_ensemble, save_ensemble
 from tkujax.sim import robots as R
 from tkujax.sim.mjx_import import mjx
-from tkujax.studies.calibrate import evaluate as E
+from tkujax.studies.calibrate import paper_rows as E
 from tkujax.studies.calibrate import evaluate_mjx as M
-from tkujax.studies.calibrate import params as P
+from tkujax.studies.calibrate import fit_vector as P
 
 READING = "deviation/latched"
 

@@ -14,12 +14,12 @@ import jax
 import numpy as np
 import pytest
 
-from tkujax.studies import capturability
-from tkujax.control.params import ControllerParams
+from tkujax.analysis import capturability
+from tkujax.control.controller_params import ControllerParams
 from tkujax.model import ModelParams
-from tkujax.studies.spec import SpecError, load_spec, parse_spec
-from tkujax.control.io import load_controller_params_json as load_params_json
-from tkujax.studies.sweep import load, run_sweep
+from tkujax.spec.sweep_spec import SpecError, load_spec, parse_spec
+from tkujax.control.params_files import load_controller_params_json as load_params_json
+from tkujax.sweeps.sweep import load, run_sweep
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ROOT / "specs" / "sweep" / "tiny.toml"
@@ -100,7 +100,7 @@ def test_bad_run_options_name_the_option(tmp_path):
         with pytest.raises(ValueError, match=rf"max_chunks must be an integer >= 1.*{bad!r}"):
             run_sweep(TINY, tmp_path / "s", max_chunks=bad, quiet=True)
     assert not (tmp_path / "s").exists()
-    from tkujax.studies.maps import make_maps
+    from tkujax.analysis.maps import make_maps
 
     with pytest.raises(FileNotFoundError, match=r"holds no sweep \(manifest.json not found\)"):
         make_maps(tmp_path)
@@ -218,7 +218,7 @@ def test_exact_replay_matches_the_stored_record_bit_for_bit(full_run, capsys):
     shape: a fallen and a survived record equal the stored ones in every column's bits (the
     plain replay, a batch of one, need only agree to rounding)."""
     from tkujax.cli import main
-    from tkujax.studies.replay import replay
+    from tkujax.sweeps.replay import replay
 
     out, _, rec = full_run
     for i in (int(np.flatnonzero(rec["fell"])[-1]), int(np.flatnonzero(~rec["fell"])[-1])):
@@ -273,7 +273,7 @@ def test_two_devices_give_the_same_records(full_run, tmp_path):
     _, _, reference = full_run
     code = ("import jax; from tkujax.cli import configure_runtime; configure_runtime(); "
             "assert jax.local_device_count() == 2, jax.devices(); "
-            f"from tkujax.studies.sweep import run_sweep; "
+            f"from tkujax.sweeps.sweep import run_sweep; "
             f"run_sweep({str(TINY)!r}, {str(tmp_path)!r}, quiet=True, backend='mjx')")
     env = _subprocess_env(XLA_FLAGS="--xla_force_host_platform_device_count=2")
     proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
@@ -341,7 +341,7 @@ def test_map_boundary_matches_individual_rollouts(full_run):
     """The tiny sweep's map puts the fall boundary where independent single rollouts (MuJoCo C
     backend, one push at a time) put it."""
     from tkujax.sim.rollout_mujoco import simulate_mujoco
-    from tkujax.studies.maps import make_maps, max_recoverable_impulse
+    from tkujax.analysis.maps import make_maps, max_recoverable_impulse
     from tkujax.sim.push import make_push, stack_pushes
     from tkujax.sim.rollout_mjx import RolloutConfig
 
@@ -368,7 +368,7 @@ def test_map_boundary_matches_individual_rollouts(full_run):
 def test_auto_backend_is_mujoco_c_on_cpu_and_agrees_with_mjx(full_run, tmp_path):
     """On a CPU, "auto" runs MuJoCo C; its outcomes agree with the MJX sweep (>= 95 %: all 8
     here, the tiny sweep's impulses being far from the fall boundary)."""
-    from tkujax.studies.sweep import choose_backend
+    from tkujax.sweeps.sweep import choose_backend
 
     _, _, reference = full_run
     manifest = run_sweep(TINY, tmp_path, quiet=True)
@@ -412,8 +412,8 @@ def test_persistent_cache_serves_a_new_process(full_run):
         "jax.monitoring.register_event_listener("
         "lambda e, **k: hits.append(e) if e == '/jax/compilation_cache/cache_hits' else None)\n"
         "from tkujax.control import ControllerParams\n"
-        "from tkujax.studies.spec import load_spec\n"
-        "from tkujax.studies.sweep import make_chunk_fn, traced_params, record_inputs\n"
+        "from tkujax.spec.sweep_spec import load_spec\n"
+        "from tkujax.sweeps.sweep import make_chunk_fn, traced_params, record_inputs\n"
         f"spec = load_spec({str(TINY)!r})\n"
         "recs = record_inputs(spec)\n"
         "keys_in = [k for k in recs if k not in ('push_id', 'from_grid')]\n"

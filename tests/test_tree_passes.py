@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from mujoco.mjx._src import smooth
 
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.sim import physics, tree_passes
 from tkujax.sim import rollout_mjx as sim
 from tkujax.sim.mjx_import import mjx

@@ -35,12 +35,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from tkujax.control.params import ControllerParams
-from tkujax.studies.spec import RANDOMIZE_DEFAULTS, SpecError
-from tkujax.control.io import load_controller_params_json as load_params_json
+from tkujax.control.controller_params import ControllerParams
+from tkujax.spec.sweep_spec import RANDOMIZE_DEFAULTS, SpecError
+from tkujax.control.params_files import load_controller_params_json as load_params_json
 from tkujax.studies.tune import (DEG, LossConfig, Reparam, TuneProblem, evolution_baseline,
-                         make_optimizer, optimise, params_json, parse_tune_spec,
-                         temperature_schedule)
+                                 make_optimizer, optimise, params_json, parse_tune_spec,
+                                 temperature_schedule)
 from tkujax.studies.tune.reparam import PAPER_TUNABLE
 
 H = 1e-5
@@ -363,7 +363,7 @@ def test_warm_up_runs_the_calls_side_by_side_and_returns_what_each_returned():
 def test_iterations_override_is_checked_like_the_spec_key(tmp_path):
     from pathlib import Path
 
-    from tkujax.studies.spec import SpecError
+    from tkujax.spec.sweep_spec import SpecError
     from tkujax.studies.tune import run_tune
 
     for bad in (0, -1, 2.5):

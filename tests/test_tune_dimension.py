@@ -1,5 +1,6 @@
 """The dimension study: parameterisations of growing size (tkujax.control.policy,
-tkujax.studies.tune.policy), their exact start at the hand-designed controller, the gradient
+tkujax.studies.tune.parameterisations), their exact start at the hand-designed controller, the
+gradient
 with respect to schedule parameters, the [study] spec and its resume logic.
 
 The controller-level checks run the controller alone over a fixed synthetic IMU sequence
@@ -16,12 +17,12 @@ import numpy as np
 import pytest
 
 from tkujax.control.controller import Sensors, controller_init, controller_step
-from tkujax.control.params import RECOMMENDED, ControllerParams
-from tkujax.studies.spec import SpecError
+from tkujax.control.controller_params import RECOMMENDED, ControllerParams
+from tkujax.spec.sweep_spec import SpecError
 from tkujax.studies.tune import Reparam, parse_tune_spec
-from tkujax.studies.tune.policy import PolicyReparam, parse_policy
-from tkujax.studies.tune.study import parse_only, plan, run_study, select
-from tkujax.studies.spec import read_toml
+from tkujax.studies.tune.parameterisations import PolicyReparam, parse_policy
+from tkujax.studies.tune.dimension_study import parse_only, plan, run_study, select
+from tkujax.spec.sweep_spec import read_toml
 
 FIELDS = ("step_period", "cp_gain", "cp_trigger_forward_m", "cp_trigger_backward_m",
           "stance_ankle_kp", "stance_hip_kp", "stance_roll_kp", "accel_gate")
@@ -111,7 +112,7 @@ def test_wide_mlp_has_over_a_thousand_parameters():
     """mlp96 on the 16 scalars and 8 scheduled fields of the dimension study (the gradients
     spec's large policy): 16 + 5 x 96 + 97 x 8 = 1,272 parameters, starting with every
     correction exactly 0."""
-    from tkujax.studies.spec import read_toml
+    from tkujax.spec.sweep_spec import read_toml
     from tkujax.studies.tune import parse_tune_spec
 
     spec = parse_tune_spec(read_toml("specs/tune/tune_dimension.toml"))
@@ -312,7 +313,7 @@ def test_mjx_start_reproduces_the_recommended_controller():
     asserted: outcomes equal, losses within 1e-6 relative); the scalar one runs the values of
     recommended() up to the float32 rounding of their latents (asserted on the values)."""
     from tkujax.studies.tune import TuneProblem
-    from tkujax.studies.tune.spec import sample_pushes
+    from tkujax.studies.tune.tune_spec import sample_pushes
 
     spec = parse_tune_spec(_spec_dict())
     base = ControllerParams.recommended()
@@ -451,7 +452,7 @@ def test_recommended_method_follows_the_study_evidence():
     from pathlib import Path
 
     from tkujax.studies.tune.advice import EVIDENCE, recommended_method
-    from tkujax.studies.tune.study_report import recommend_methods
+    from tkujax.studies.tune.dimension_study_report import recommend_methods
 
     summary = Path(__file__).resolve().parents[1] / "results/tune_dimension/summary.json"
     if summary.exists():
@@ -484,7 +485,7 @@ def test_recommended_method_follows_the_study_evidence():
 def test_heldout_curve_reuses_the_start_and_best_evaluations():
     """study.heldout_curves: a checkpoint whose latents are the start's or the best's takes
     their fall rates; any other is evaluated (once, all seeds together)."""
-    from tkujax.studies.tune.study import heldout_curves
+    from tkujax.studies.tune.dimension_study import heldout_curves
 
     start, best, mid = np.zeros((2, 3)), np.ones((2, 3)), np.full((2, 3), 0.5)
     latents = {"start": start, "best": best}
@@ -507,8 +508,8 @@ def test_heldout_curve_reuses_the_start_and_best_evaluations():
 def test_budget_override_replaces_the_study_budget_and_is_checked(monkeypatch, tmp_path):
     """`tkujax tune SPEC --budget-s S` (run_tune's budget_s) gives a [study] spec's runs that
     budget; a budget outside [1 s, 1 day] is refused naming the key."""
-    import tkujax.studies.tune.study as study_module
-    from tkujax.studies.tune.run import run_tune
+    import tkujax.studies.tune.dimension_study as study_module
+    from tkujax.studies.tune.tune_command import run_tune
 
     seen = []
     monkeypatch.setattr(study_module, "run_study",

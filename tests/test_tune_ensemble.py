@@ -21,12 +21,12 @@ import pytest
 
 from tkujax.model import ModelParams
 from tkujax.model.ensemble import save_ensemble
-from tkujax.studies.calibrate import params as P
-from tkujax.studies.spec import SpecError
+from tkujax.studies.calibrate import fit_vector as P
+from tkujax.spec.sweep_spec import SpecError
 from tkujax.studies.tune.loss import OFF_SURVIVED, LossConfig, harm_weighted_mean
 from tkujax.studies.tune.problem import RECORD_KEYS, TuneProblem
-from tkujax.studies.tune.spec import (ensembles_record, grid_pushes, make_problem,
-                                      parse_tune_spec, robot_table, sample_pushes, shifted)
+from tkujax.studies.tune.tune_spec import (ensembles_record, grid_pushes, make_problem,
+                                           parse_tune_spec, robot_table, sample_pushes, shifted)
 
 ROOT = Path(__file__).resolve().parents[1]
 DURATION = 0.5

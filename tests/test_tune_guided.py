@@ -114,8 +114,8 @@ def test_gradients_specs_parse():
     """The comparison's specs: sectors8 (80) and mlp96 (1,272 parameters), the three methods,
     three seeds side by side, compile included, starting at the recommended controller on the
     default robot."""
-    from tkujax.control.params import ControllerParams
-    from tkujax.studies.spec import read_toml
+    from tkujax.control.controller_params import ControllerParams
+    from tkujax.spec.sweep_spec import read_toml
     from tkujax.studies.tune import parse_tune_spec
 
     for path, batch in (("specs/tune/gradients.toml", 1024), ("specs/tune/gradients_cpu.toml", 16)):

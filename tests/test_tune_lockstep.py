@@ -157,7 +157,7 @@ def test_lockstep_shares_one_clock(stand):
 def test_lockstep_evaluation_matches_per_seed(stand):
     """fell_rates_lockstep (all seeds in one call per chunk, padded) = compare.fell_rates per
     seed."""
-    from tkujax.studies.tune.compare import fell_rates
+    from tkujax.studies.tune.method_compare import fell_rates
 
     n, batch = 6, N                          # 2 chunks, the last one padded
     recs = [stand_records(n, 50 + s) for s in SEEDS]
@@ -187,9 +187,9 @@ def test_lockstep_matches_run_search_through_mjx():
     """The real problem (the CPU smoke spec's policy `scalars`, 2 pushes x 0.3 s, float32),
     (1+1)-ES, 3 iterations: lockstep over 2 seeds = run_search per seed (measured: identical
     iterates, losses within 3e-7 relative)."""
-    from tkujax.studies.spec import read_toml
+    from tkujax.spec.sweep_spec import read_toml
     from tkujax.studies.tune import parse_tune_spec
-    from tkujax.studies.tune.spec import sample_pushes
+    from tkujax.studies.tune.tune_spec import sample_pushes
 
     data = read_toml("specs/tune/tune_dimension_cpu.toml")
     data["tune"] = dict(data["tune"], batch=2, duration_s=0.3)
@@ -215,7 +215,7 @@ def test_compile_included_clock_runs_the_same_search(stand):
     snapshots end at the best latents; the compile charged is the longest first call of the
     method's functions."""
     from tkujax.studies.tune.lockstep import lockstep_calls
-    from tkujax.studies.tune.study_clock import clocked_search
+    from tkujax.studies.tune.budget_clock import clocked_search
 
     batches = [stand_records(N, 10 + s) for s in SEEDS]
     keys = [stand_keys(N, s) for s in SEEDS]
@@ -236,7 +236,7 @@ def test_compile_included_clock_charges_and_snapshots(stand):
     charge over the budget leaves no search, every checkpoint at the start; a charge of most of
     the budget leaves the rest of it, and the early checkpoint holds the start."""
     from tkujax.studies.tune.lockstep import lockstep_calls
-    from tkujax.studies.tune.study_clock import clocked_search
+    from tkujax.studies.tune.budget_clock import clocked_search
 
     batches = [stand_records(N, 10 + s) for s in SEEDS]
     keys = [stand_keys(N, s) for s in SEEDS]

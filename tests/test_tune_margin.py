@@ -12,14 +12,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.sim.records import Series
-from tkujax.studies.gradient.bundled import bundle_noise
-from tkujax.studies.spec import SpecError
+from tkujax.gradients.bundled import bundle_noise
+from tkujax.spec.sweep_spec import SpecError
 from tkujax.studies.tune import DEG, LossConfig, Reparam, TuneProblem, parse_tune_spec
 from tkujax.studies.tune.loss import push_loss
 from tkujax.studies.tune.reparam import PAPER_TUNABLE
-from tkujax.studies.tune.report import gradient_section
+from tkujax.studies.tune.tune_outputs import gradient_section
 from tkujax.studies.tune.search import GradientOptions, SearchConfig, run_search
 from tests.test_tune import BATCH, two_pushes
 
@@ -73,7 +73,7 @@ def test_margin_kind_is_bounded_for_a_fallen_push_and_blind_after_the_fall():
 
 
 def test_margin_kind_equals_the_margin_module_for_a_survivor_and_soft_kind_is_unchanged():
-    from tkujax.studies.gradient.margin import margin_loss
+    from tkujax.gradients.margin import margin_loss
 
     s = _series(0.002 * np.arange(30), pitch=0.01 * np.sin(np.arange(30)))
     terms = push_loss(s, 0.0, MARGIN)
@@ -123,8 +123,8 @@ def test_spec_keys_are_refused_with_key_range_and_value(tune, words):
 
 def test_spec_options_reach_the_problem_and_saved_params_stay_plain():
     from tkujax.control.controller import has_timing_gradient
-    from tkujax.studies.tune.evaluate import params_json
-    from tkujax.studies.tune.spec import make_problem
+    from tkujax.studies.tune.held_out_gate import params_json
+    from tkujax.studies.tune.tune_spec import make_problem
 
     spec = _spec(loss=dict(kind="margin", window_s=0.3), gradient_window_ticks=5,
                  timing_gradient=True, bundle_sigma=0.05)

@@ -1,4 +1,5 @@
-"""`tkujax tune` never recommends a worse set: the rule (tkujax.studies.tune.evaluate.recommend)
+"""`tkujax tune` never recommends a worse set: the rule
+(tkujax.studies.tune.held_out_gate.recommend)
 on hand-made evaluations, and run_tune end to end with the search and the evaluation stubbed
 (no rollout is compiled)."""
 
@@ -9,8 +10,8 @@ import json
 import numpy as np
 import pytest
 
-from tkujax.studies.sweep import load_params_json
-from tkujax.studies.tune.evaluate import RULE, recommend
+from tkujax.sweeps.sweep import load_params_json
+from tkujax.studies.tune.held_out_gate import RULE, recommend
 
 
 def _ev(fell, loss, diverged=None):
@@ -71,7 +72,7 @@ def test_run_tune_writes_the_recommendation(tmp_path, monkeypatch, capsys, bette
     recommended_from = start) when the tuned set is not better, the tuned set otherwise; the
     summary and the CLI's stdout say which."""
     from tkujax import cli
-    from tkujax.studies.tune import run as run_mod
+    from tkujax.studies.tune import tune_command as run_mod
 
     def fake_search(method, problem, z0, train, keys, cfg, seed, log):
         z = np.asarray(z0) + 1.0                          # "tuned": a different set
@@ -115,7 +116,7 @@ def test_run_tune_writes_the_recommendation(tmp_path, monkeypatch, capsys, bette
 
 
 def test_direction_harm_is_reported_not_vetoed():
-    from tkujax.studies.tune.evaluate import harmed_directions
+    from tkujax.studies.tune.held_out_gate import harmed_directions
 
     # Sectors: 0 = behind, 2 = front; 4 pushes each. Behind: 3 -> 1 falls; front: 0 -> 1.
     sector = np.array([0, 0, 0, 0, 2, 2, 2, 2])

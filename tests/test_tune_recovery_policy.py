@@ -16,13 +16,13 @@ import pytest
 
 from tkujax.control.controller import (NOT_STARTED_S, Sensors, controller_init, controller_step,
                                        with_timing_gradient)
-from tkujax.control.io import load_policy_json, save_policy_json
-from tkujax.control.params import ControllerParams
+from tkujax.control.params_files import load_policy_json, save_policy_json
+from tkujax.control.controller_params import ControllerParams
 from tkujax.control.policy import (RECOVERY_TIME_MAX_S, RECOVERY_TIME_SCALE_S, recovery_inputs,
                                    schedule_to_dict)
-from tkujax.studies.spec import SpecError, read_toml
+from tkujax.spec.sweep_spec import SpecError, read_toml
 from tkujax.studies.tune import Reparam, parse_tune_spec
-from tkujax.studies.tune.policy import PolicyReparam, parse_policy
+from tkujax.studies.tune.parameterisations import PolicyReparam, parse_policy
 
 FIELDS = ("step_period", "cp_gain", "cp_trigger_forward_m", "cp_trigger_backward_m",
           "stance_ankle_kp", "stance_hip_kp", "stance_roll_kp")

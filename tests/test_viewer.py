@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from tkujax.cli import main
-from tkujax.viewer.geometry import (com_positions, geom_poses, geom_shapes, mat_to_wxyz,
-                                    primitive_mesh)
+from tkujax.viewer.scene_meshes import (com_positions, geom_poses, geom_shapes, mat_to_wxyz,
+                                        primitive_mesh)
 from tkujax.viewer.playback import (PushScene, Selection, capture_points, frame_index,
                                     in_azimuth_band, parse_band, push_arrow, push_label,
                                     replay_scenes, row_offsets, select_records, step_target)
@@ -337,7 +337,7 @@ def test_browser_slider_moves_the_robots(scenes):
 
 
 def test_replay_refuses_an_unknown_backend(sweep_dir):
-    from tkujax.studies.replay import replay
+    from tkujax.sweeps.replay import replay
 
     with pytest.raises(ValueError, match="backend must be 'mujoco' or 'mjx'"):
         replay(sweep_dir, 0, backend="gpu")

@@ -23,12 +23,12 @@ from tkujax.control.gait import (GaitState, WalkCommand, advance, gait_feet, gai
                                  gait_phase, move_footstep, planned_feet, step_vector,
                                  time_at_phase)
 from tkujax.control.walk_recovery import PHASE_BINS, RecoveryState, phase_weights, step_offset
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.sim.options import RolloutConfig
 from tkujax.sim.push import make_push, stack_pushes
 from tkujax.sim.rollout_mujoco import simulate_mujoco
-from tkujax.studies.walk import run_walk, walk_metrics, walker
-from tkujax.studies.walk_push import push_at_gait_phase
+from tkujax.walking.walk import run_walk, walk_metrics, walker
+from tkujax.walking.walk_push import push_at_gait_phase
 
 PARAMS = ControllerParams.paper()
 OP3_FILE = Path(__file__).resolve().parent.parent / "specs" / "robots" / "op3.toml"

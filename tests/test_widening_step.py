@@ -17,7 +17,7 @@ import pytest
 
 from tkujax.control.capture_point import capture_point_rate
 from tkujax.control.controller import Sensors, controller_init, controller_step, detect_push
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 
 G = 9.81
 
@@ -91,8 +91,8 @@ def test_validate_names_the_gain_and_its_range(value):
 
 
 def test_sweep_spec_takes_the_gain_and_names_its_range():
-    from tkujax.studies.spec import parse_spec
-    from tkujax.studies.validation import SpecError
+    from tkujax.spec.sweep_spec import parse_spec
+    from tkujax.spec.validation import SpecError
 
     base = {"sweep": {"name": "w"}, "push": {"grid": {"impulse_ns": [0.5]}}}
     spec = parse_spec(base | {"controller": {"cp_gain_lateral": -1.0}})
@@ -108,7 +108,7 @@ def test_op3_widen_start_is_its_tune_specs_start():
     import tomllib
     from pathlib import Path
 
-    from tkujax.control.io import controller_params_from_dict
+    from tkujax.control.params_files import controller_params_from_dict
 
     robots = Path(__file__).parents[1] / "specs" / "robots"
     start = controller_params_from_dict(json.loads((robots / "op3_widen.json").read_text()),

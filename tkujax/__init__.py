@@ -35,7 +35,7 @@ __version__ = "0.2.0"
 _API = {
     "ModelParams": "tkujax.model", "load_model": "tkujax.model",
     "ControllerParams": "tkujax.control",
-    "recommended_policy": "tkujax.control.io",
+    "recommended_policy": "tkujax.control.params_files",
     "Push": "tkujax.sim.push", "make_push": "tkujax.sim.push", "stack_pushes": "tkujax.sim.push",
     "Series": "tkujax.sim.records", "Outcomes": "tkujax.sim.records",
     "simulate": "tkujax.sim.rollout_mjx", "RolloutConfig": "tkujax.sim.options",
@@ -43,13 +43,13 @@ _API = {
     "simulate_mujoco": "tkujax.sim.rollout_mujoco",
     "init": "tkujax.sim.setup", "SimSetup": "tkujax.sim.setup",
     "run_paper": "tkujax.studies.paper",
-    "run_sweep": "tkujax.studies.sweep", "load": "tkujax.studies.export",
-    "make_maps": "tkujax.studies.maps", "compare_runs": "tkujax.studies.compare",
-    "replay": "tkujax.studies.replay",
+    "run_sweep": "tkujax.sweeps.sweep", "load": "tkujax.sweeps.table_export",
+    "make_maps": "tkujax.analysis.maps", "compare_runs": "tkujax.analysis.compare",
+    "replay": "tkujax.sweeps.replay",
     "run_tune": "tkujax.studies.tune",
     "run_calibrate": "tkujax.studies.calibrate",
     "run_capture": "tkujax.studies.capture", "StepOverride": "tkujax.control",
-    "WalkCommand": "tkujax.control.gait", "simulate_walk": "tkujax.studies.walk",
+    "WalkCommand": "tkujax.control.gait", "simulate_walk": "tkujax.walking.walk",
 }
 __all__ = [*_API, "__version__"]
 

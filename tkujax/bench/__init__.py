@@ -17,7 +17,7 @@ Modules (imports go one way, top to bottom):
   controller_parts.py  g: the controller's pieces timed alone
   report.py            the Markdown summary
   runner.py            BenchConfig, MODES, run_bench: the stages one by one, resumable
-  cli.py               add_bench_command: the `tkujax bench` command (`python -m tkujax.bench`)
+  cli.py               add_bench_command: the `tkujax bench` command
 
 Speeds are reported, never asserted.
 """
@@ -32,7 +32,7 @@ import importlib
 _API = {
     **dict.fromkeys(("push_batch", "timed", "traced_paper_params"), "tkujax.bench.common"),
     **dict.fromkeys(("loop_fn", "per_robot", "variant_loop_fn"), "tkujax.bench.profile"),
-    **dict.fromkeys(("profile_markdown", "summary_markdown"), "tkujax.bench.report"),
+    **dict.fromkeys(("profile_markdown", "summary_markdown"), "tkujax.bench.bench_summary"),
     **dict.fromkeys(("MODES", "STAGE_GROUPS", "BenchConfig", "run_bench"),
                     "tkujax.bench.runner"),
     **dict.fromkeys(("closed_loop", "compile_times", "cpu_peer", "gradient_compile",

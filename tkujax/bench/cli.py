@@ -107,7 +107,7 @@ def bench_config(args):
 def run_command(args) -> int:
     """The `tkujax bench` handler: run, print the summary; 1 when a stage failed."""
     from tkujax.bench import runner
-    from tkujax.bench.report import summary_markdown
+    from tkujax.bench.bench_summary import summary_markdown
 
     runner.run_bench(args.out, bench_config(args), resume=args.resume)
     result = json.loads(Path(args.out).read_text())

@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.sim import physics
 from tkujax.sim.push import CONTROL_PERIOD_S
 
@@ -39,7 +39,7 @@ def push_batch(n: int, seed: int = 0) -> dict:
 
 def traced_paper_params() -> ControllerParams:
     """The paper's controller parameters as the sweeps trace them (array leaves)."""
-    from tkujax.studies.sweep import traced_params
+    from tkujax.sweeps.sweep import traced_params
 
     return traced_params(ControllerParams.paper())
 

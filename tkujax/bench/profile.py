@@ -1,6 +1,6 @@
 """`tkujax bench --profile`: what each part of the closed loop costs per control tick.
 
-By ablation: the closed loop of the sweeps (`tkujax.studies.sweep.make_chunk_fn`: per-push
+By ablation: the closed loop of the sweeps (`tkujax.sweeps.sweep.make_chunk_fn`: per-push
 model fields, sensor noise, controller, push wrench, Series records and outcomes) is timed
 whole, then with one part replaced by a trivial stand-in (`tkujax.bench.ablation`, a Python
 choice at trace time, so the other parts' program is unchanged), at one batch and duration:
@@ -93,7 +93,7 @@ def variant_loop_fn(name: str, duration_s: float):
 
 def _raw_loop_fn(model, index, state, duration_s: float):
     """A flat scan of mjx.step holding the stand targets (the "raw" variant)."""
-    from tkujax.studies.sweep import SWEEP_COMPILER_OPTIONS
+    from tkujax.sweeps.sweep import SWEEP_COMPILER_OPTIONS
 
     n_steps = n_ticks(duration_s) * substeps()
     ctrl = jnp.asarray(index.stand_ctrl, state.qpos.dtype)
@@ -115,8 +115,8 @@ def loop_fn(duration_s: float, config_fields: dict | None = None, shared_model: 
     from tkujax.sim.push import Push
     from tkujax.sim.randomize import randomize_model
     from tkujax.sim.setup import init
-    from tkujax.studies.spec import SWEEP_TREE_PASSES
-    from tkujax.studies.sweep import OUTCOME_KEYS, SWEEP_COMPILER_OPTIONS, SWEEP_LOOP
+    from tkujax.spec.sweep_spec import SWEEP_TREE_PASSES
+    from tkujax.sweeps.sweep import OUTCOME_KEYS, SWEEP_COMPILER_OPTIONS, SWEEP_LOOP
 
     host, model, index, state = init()
     if raw:

@@ -24,10 +24,10 @@ import numpy as np
 
 from tkujax.bench import profile, stages
 from tkujax.bench.controller_parts import profile_controller_parts
-from tkujax.bench.report import summary_markdown
-from tkujax.studies.progress import StatusLog
-from tkujax.studies.provenance import package_versions
-from tkujax.studies.sweep import SWEEP_UNROLL_SUBSTEPS
+from tkujax.bench.bench_summary import summary_markdown
+from tkujax.sweeps.progress import StatusLog
+from tkujax.sweeps.provenance import package_versions
+from tkujax.sweeps.sweep import SWEEP_UNROLL_SUBSTEPS
 
 # Sizes of the two modes. "default" finishes in a few minutes on one GPU (the closed-loop /
 # raw-MJX ratio at 1,024 and 65,536, the closed loop's compile, the CPU peer); "full" adds

@@ -21,11 +21,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from tkujax.bench.common import physics_steps, push_batch, timed, traced_paper_params
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.sim import physics
 from tkujax.sim.setup import init
-from tkujax.studies.compile_cache import fresh_compilation_cache
-from tkujax.studies.sweep import SWEEP_COMPILER_OPTIONS, SWEEP_UNROLL_SUBSTEPS, make_chunk_fn
+from tkujax.sweeps.compile_cache import fresh_compilation_cache
+from tkujax.sweeps.sweep import SWEEP_COMPILER_OPTIONS, SWEEP_UNROLL_SUBSTEPS, make_chunk_fn
 
 
 def raw_program(batch: int, n_steps: int):

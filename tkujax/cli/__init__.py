@@ -12,7 +12,7 @@ import argparse
 from tkujax.cli.analysis import add_analysis_commands
 from tkujax.cli.errors import OneLineParser, run_command
 from tkujax.cli.export import add_export_command
-from tkujax.cli.robot import add_robot_commands
+from tkujax.cli.robot_commands import add_robot_commands
 from tkujax.cli.runtime import configure_runtime
 from tkujax.cli.studies import add_study_commands
 from tkujax.cli.sweeps import add_sweep_commands

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from tkujax.cli.options import add_robot_check_option, controller_params_from_option
+from tkujax.cli.shared_options import add_robot_check_option, controller_params_from_option
 
 
 def _cmd_compare(args) -> int:
     from tkujax.studies.robot_inputs import sweep_robot
-    from tkujax.studies.compare import Bands, compare_runs, parse_run
+    from tkujax.analysis.compare import Bands, compare_runs, parse_run
 
     edges = (tuple(float(x) for x in args.impulse_edges.split(",")) if args.impulse_edges
              else None)

@@ -6,7 +6,7 @@
   exit 2;
 - Ctrl-C: "interrupted; rerun the same command to resume", exit 130 (128 + SIGINT), no
   traceback; the sweep's writers remove their temporary files on the way out
-  (`tkujax.studies.chunks`).
+  (`tkujax.sweeps.chunks`).
 """
 
 from __future__ import annotations

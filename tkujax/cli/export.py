@@ -4,7 +4,7 @@ from __future__ import annotations
 
 
 def _cmd_export(args) -> int:
-    from tkujax.studies.export import export_records
+    from tkujax.sweeps.table_export import export_records
 
     path = export_records(args.dir, args.out, fmt=args.format)
     print(path)

@@ -5,19 +5,19 @@ from __future__ import annotations
 from pathlib import Path
 
 from tkujax.cli.errors import bounded_float, bounded_int
-from tkujax.cli.options import model_params_from_options
+from tkujax.cli.shared_options import model_params_from_options
 
 
 def _cmd_calibrate(args) -> int:
     from tkujax.studies.calibrate import run_calibrate
-    from tkujax.studies.calibrate.spec import load_calibrate_spec
+    from tkujax.studies.calibrate.calibrate_spec import load_calibrate_spec
 
     spec = load_calibrate_spec(args.spec)
     over = {k: v for k, v in (("budget_s", args.budget_s), ("max_evals", args.max_evals),
                               ("workers", args.workers)) if v is not None}
     if over:
-        from tkujax.studies.calibrate.spec import parse_calibrate_spec
-        from tkujax.studies.spec import read_toml
+        from tkujax.studies.calibrate.calibrate_spec import parse_calibrate_spec
+        from tkujax.spec.sweep_spec import read_toml
 
         raw = read_toml(args.spec)
         raw.setdefault("search", {}).update(over)      # re-validated like the spec's own keys
@@ -64,7 +64,7 @@ def _cmd_tune(args) -> int:
         return _cmd_tune_robot(args)
     from tkujax.studies.robot_inputs import tune_robot
     from tkujax.studies.tune import run_tune
-    from tkujax.studies.validation import read_toml
+    from tkujax.spec.validation import read_toml
 
     record = run_tune(args.spec, args.out, iterations=args.iterations,
                       compare=not args.no_compare, evaluation=not args.no_eval,

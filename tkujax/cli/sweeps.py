@@ -6,13 +6,14 @@ import sys
 from pathlib import Path
 
 from tkujax.cli.errors import bounded_int
-from tkujax.cli.options import (MAX_CHUNKS, RENDER_HELP, add_parallel_options,
-                                add_robot_check_option, controller_params_from_option,
-                                model_params_from_options, parallel_kwargs, policy_from_option)
+from tkujax.cli.shared_options import (MAX_CHUNKS, RENDER_HELP, add_parallel_options,
+                                       add_robot_check_option, controller_params_from_option,
+                                       model_params_from_options, parallel_kwargs,
+                                       policy_from_option)
 
 
 def _cmd_sweep(args) -> int:
-    from tkujax.studies.sweep import run_sweep
+    from tkujax.sweeps.sweep import run_sweep
 
     params, schedule = policy_from_option(args.params)
     robot = _robot_option(args)
@@ -30,8 +31,8 @@ def _cmd_sweep(args) -> int:
 
 def _robot_option(args):
     """The RobotSetup of --robot FILE, else of the spec's [robot] file, else None."""
-    from tkujax.robot.closed_loop import robot_setup
-    from tkujax.studies.spec import load_spec
+    from tkujax.robot.robot_setup import robot_setup
+    from tkujax.spec.sweep_spec import load_spec
 
     path = args.robot or load_spec(args.spec).robot_file
     if path is None:
@@ -90,7 +91,7 @@ def _write_replay_video(result: dict, args) -> None:
 
 
 def _cmd_replay(args) -> int:
-    from tkujax.studies.replay import replay
+    from tkujax.sweeps.replay import replay
 
     from tkujax.studies.robot_inputs import sweep_robot
 
@@ -123,7 +124,7 @@ def _cmd_capture(args) -> int:
 
 
 def _cmd_map(args) -> int:
-    from tkujax.studies.maps import make_maps
+    from tkujax.analysis.maps import make_maps
 
     from tkujax.studies.robot_inputs import robot_lip, sweep_robot
 

@@ -7,7 +7,7 @@ import sys
 import time
 
 from tkujax.cli.errors import bounded_float, bounded_int
-from tkujax.cli.options import add_robot_check_option
+from tkujax.cli.shared_options import add_robot_check_option
 
 MAX_SHOWN = 64
 
@@ -38,7 +38,7 @@ def geom_groups(text: str) -> tuple[int, ...]:
 
 def _cmd_view(args) -> int:
     from tkujax.studies.robot_inputs import sweep_robot
-    from tkujax.studies.sweep import load
+    from tkujax.sweeps.sweep import load
     from tkujax.viewer.playback import replay_scenes, select_records
 
     selection = selection_from_args(args)

@@ -11,7 +11,7 @@ from tkujax.control.controller import (ControllerState, Sensors, StepOverride, c
 from tkujax.control.cpg import cpg_feet, cpg_feet_lateral
 from tkujax.control.ik import leg_ik
 from tkujax.control.kalman import KalmanState, accel_to_angle, kalman_init, kalman_step
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.control.solve import solve_legs
 
 __all__ = [

@@ -10,7 +10,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 
 
 def capture_point(phi: jax.Array, leg_length, com_height, g=9.81) -> jax.Array:

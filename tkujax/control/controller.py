@@ -57,7 +57,7 @@ from tkujax.control.capture_point import band_gate, capture_point_rate, push_gat
 from tkujax.control.cpg import unit_oscillators, cpg_feet, cpg_feet_lateral
 from tkujax.control.kalman import (KalmanState, accel_to_angle, accel_variance, gyro_to_rates,
                                    kalman_init, kalman_step)
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.control.policy import Schedule, recovery_inputs, scheduled_params
 from tkujax.control.solve import solve_legs
 

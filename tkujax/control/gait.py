@@ -40,7 +40,7 @@ import jax
 import jax.numpy as jnp
 
 from tkujax.control.cpg import unit_oscillators
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 
 WALK_START_S = 0.3     # the stand is held this long before the first step (the filter settles)
 SWAY_FRAC = 1.0 / 3.0  # the default sway, a fraction of d_y (docs/walking.md: the scan)

@@ -48,7 +48,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from tkujax.control.cpg import unit_oscillators
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 
 UNSCHEDULABLE = frozenset({"kalman_q", "kalman_r", "accel_gate", "control_period", "cp_excess",
                            "lateral_steps", "cp_trigger", "max_steps", "gravity",

@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 
 from tkujax.control.ik import leg_ik
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 
 
 def _rot_y(a: jax.Array) -> jax.Array:

@@ -42,7 +42,7 @@ import jax.numpy as jnp
 from tkujax.control.capture_point import capture_point_rate
 from tkujax.control.gait import (GaitState, WalkCommand, gait_phase, move_footstep,
                                  swing_in_reach)
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 
 PHASE_BINS = 16
 BASELINE_GAIN = 0.3

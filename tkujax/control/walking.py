@@ -22,7 +22,7 @@ from tkujax.control.controller import (ControllerOutput, ControllerState, Sensor
 from tkujax.control.gait import (MAX_TURN_RAD, GaitState, WalkCommand, advance, gait_feet,
                                  gait_init, gait_yaws, touchdown_time)
 from tkujax.control.kalman import accel_to_angle, accel_variance, gyro_to_rates, kalman_step
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.control.solve import solve_legs_yaw
 from tkujax.control.walk_recovery import (RecoveryState, move_footsteps, recovery_update,
                                           walking_capture_point)

@@ -11,7 +11,7 @@ import numpy as np
 
 from tkujax.model.mjcf import (ARM_JOINTS, FSR_SENSORS, HEAD_JOINTS, JOINT_NAMES, LEG_ACTUATORS,
                                WAIST_JOINTS, build_mjcf)
-from tkujax.model.params import MODEL_VARIANTS, MX28, MX64, ModelParams, ServoParams
+from tkujax.model.model_params import MODEL_VARIANTS, MX28, MX64, ModelParams, ServoParams
 
 __all__ = [
     "ARM_JOINTS", "FSR_SENSORS", "HEAD_JOINTS", "JOINT_NAMES", "LEG_ACTUATORS", "WAIST_JOINTS",

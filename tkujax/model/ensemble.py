@@ -5,7 +5,7 @@ The file (JSON):
   {"version": 1, "objective": ..., "reading": ..., "tolerance": ..., "best_loss": ...,
    "default_member": k,                 # the member chosen as the default robot
    "members": [{"id": 0, "loss": ..., "x": {fitted and held parameter values},
-                "model_params": {ModelParams as JSON (tkujax.model.io)}, ...}, ...]}
+                "model_params": {ModelParams as JSON (tkujax.model.params_json)}, ...}, ...]}
 Sweeps draw one member per push (`[randomize] ensemble = "PATH"`); only each member's
 model_params are used there (the controller and the pushes are the sweep's).
 """
@@ -16,8 +16,8 @@ import dataclasses
 import json
 from pathlib import Path
 
-from tkujax.model.io import model_params_from_dict, model_params_to_dict
-from tkujax.model.params import ModelParams
+from tkujax.model.params_json import model_params_from_dict, model_params_to_dict
+from tkujax.model.model_params import ModelParams
 
 VERSION = 1
 

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 
-from tkujax.model.params import ModelParams, ServoParams
+from tkujax.model.model_params import ModelParams, ServoParams
 
 # Names, in actuator order. Legs: right then left, hip yaw .. ankle roll (the paper's leg chain).
 HEAD_JOINTS = ("head_pan", "head_tilt")

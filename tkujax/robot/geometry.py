@@ -16,7 +16,7 @@ import math
 import mujoco
 import numpy as np
 
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.robot.description import ANKLE_ROLES, HIP_ROLES
 from tkujax.robot.loader import LEG_ORDER, RobotModel, ankle_point, axis_point, zero_pose_data
 

@@ -3,7 +3,7 @@ they name (meshes, height fields, skins, textures), resolved as MuJoCo's compile
 (`<compiler meshdir texturedir assetdir strippath>`; includes from the main file's folder).
 
 `model_files_digest` hashes them by content, so a robot's identity
-(`tkujax.robot.closed_loop.file_digest`, in a sweep's spec hash) changes with any of them.
+(`tkujax.robot.robot_setup.file_digest`, in a sweep's spec hash) changes with any of them.
 """
 
 from __future__ import annotations

@@ -1,7 +1,8 @@
 """The robot's controller: the one its robot file names, else a conservative default.
 
 `controller = "op3_controller.json"` in a robot file (relative to it) names a parameter file
-(`tkujax.control.io`); sweeps, maps, capture and compare use it, `--params` overrides it, and
+(`tkujax.control.params_files`); sweeps, maps, capture and compare use it, `--params` overrides it,
+and
 control off stays available. A robot without one gets `conservative_controller`: the paper's
 controller at the robot's scaled defaults with its steps switched off, half the recommended
 controller's stance feedback (ankle and hip on pitch, ankle on roll) and its accelerometer
@@ -18,8 +19,8 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from tkujax.control.io import is_policy, load_controller_params_json
-from tkujax.control.params import RECOMMENDED, ControllerParams
+from tkujax.control.params_files import is_policy, load_controller_params_json
+from tkujax.control.controller_params import RECOMMENDED, ControllerParams
 from tkujax.robot.description import RobotDescription
 from tkujax.robot.file_checks import RobotFileError
 

@@ -25,7 +25,7 @@ import numpy as np
 
 from tkujax.control.controller import StepOverride
 from tkujax.control.fixed import servo_switch_substep
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.sim.leg_chain import chain_targets
 from tkujax.sim import physics, recording, tree_passes
 from tkujax.sim.mjx_import import mjx

@@ -7,7 +7,7 @@ and the decision. `lane_ticks` advances a lane by a static number of control tic
 that is decided, or has reached its limit, keeps its state unchanged, bit for bit (a select
 per tick), so what it records does not depend on where the segments end. Under vmap every
 lane runs the same program; the host refills decided lanes between segments
-(`tkujax.studies.early`).
+(`tkujax.sweeps.early`).
 
 Decided (`decision_of`):
   fallen   the sweeps' fall test (`tkujax.sim.metrics.fall_indicator`: the pelvis below
@@ -31,7 +31,7 @@ import jax.numpy as jnp
 
 from tkujax.control.controller import controller_init
 from tkujax.control.fixed import controller_init_fx
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.sim.closed_loop import TickPieces, imu_read
 from tkujax.sim.metrics import fall_indicator
 from tkujax.sim.mjx_import import mjx

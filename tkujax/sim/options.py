@@ -61,7 +61,7 @@ class ProgramOptions:
     # its physics substeps; "flat", one scan over physics steps, the control tick and the
     # Series row in `lax.cond`s on the step counter (not batched, so vmap keeps them branches;
     # remat's tick checkpoint then wraps the control tick alone). The sweeps run "flat"
-    # (tkujax.studies.sweep.SWEEP_LOOP, with its XLA options: faster at batch 1,024 on a
+    # (tkujax.sweeps.sweep.SWEEP_LOOP, with its XLA options: faster at batch 1,024 on a
     # GPU); gradients and `simulate` keep "nested".
     loop: str = "nested"
     # MJX's passes over the body tree inside each physics step (TREE_PASSES): "mjx", MJX's own

@@ -31,7 +31,7 @@ import numpy as np
 from tkujax.control.controller import StepOverride, controller_init
 from tkujax.control.fixed import check_supported, controller_init_fx
 from tkujax.control.gait import WalkCommand, batch_walk
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.control.walking import walking_init
 from tkujax.model import ModelParams
 from tkujax.sim.closed_loop import TickPieces, imu_read, tick_pieces
@@ -151,10 +151,10 @@ def simulate(pushes: Push, enabled, params: ControllerParams, seed: int = 0,
     """Run a batch of pushes (stacked Push, leading axis) and return numpy (series, outcomes).
     schedule: a scheduled policy's Schedule (`tkujax.recommended_policy()` gives one with its
     params); None: the plain controller. robot: a robot file's `RobotSetup`
-    (`tkujax.robot.closed_loop.robot_setup`; its `params` are the controller's for it) in place
+    (`tkujax.robot.robot_setup.robot_setup`; its `params` are the controller's for it) in place
     of model_params. walk: the robots walk (`tkujax.control.gait.WalkCommand`, one for the
     batch or stacked along axis 0); None: they stand."""
-    if robot is not None:   # a robot file's RobotSetup (tkujax.robot.closed_loop)
+    if robot is not None:   # a robot file's RobotSetup (tkujax.robot.robot_setup)
         model_params = robot
     if config.fixed is not None:   # options the fixed-point twin lacks: refused, not ignored
         check_supported(params)

@@ -70,7 +70,7 @@ from tkujax.control.controller import StepOverride, controller_init
 from tkujax.control.fixed import (FixedPointConfig, check_supported, controller_init_fx,
                                   servo_switch_substep)
 from tkujax.control.gait import WalkCommand, batch_walk
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.control.walking import walking_init
 from tkujax.model import ModelParams
 from tkujax.sim.leg_chain import chain_targets_host
@@ -393,7 +393,7 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
     `tkujax.control.policy.Schedule`, shared by the batch; not with a fixed-point controller)
     and walk (a `tkujax.control.gait.WalkCommand`, one or stacked; None: standing).
     """
-    if robot is not None:   # a robot file's RobotSetup (tkujax.robot.closed_loop)
+    if robot is not None:   # a robot file's RobotSetup (tkujax.robot.robot_setup)
         model_params = robot
     if push_wrench not in PUSH_WRENCH_MODES:
         raise ValueError(f"push_wrench must be one of {PUSH_WRENCH_MODES}, got {push_wrench!r}")

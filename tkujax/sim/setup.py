@@ -150,7 +150,7 @@ class RobotSetup:
 
     setup: SimSetup
     settled: mujoco.MjData
-    params: object                 # tkujax.control.params.ControllerParams
+    params: object                 # tkujax.control.controller_params.ControllerParams
     name: str
     digest: str                    # sha256 of the robot file and its model file
     source: str                    # the robot file's path

@@ -22,9 +22,9 @@ import jax
 import jax.numpy as jnp
 
 from tkujax.control.controller import (NOT_STARTED_S, ControllerOutput, ControllerState, Sensors,
-                                      StepOverride, land_time, controller_step)
+                                       StepOverride, land_time, controller_step)
 from tkujax.control.fixed import FixedControllerState, FixedPointConfig, controller_step_fx
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.control.walking import walking_step
 
 SERVO_RESOLUTION_RAD = math.radians(360.0 / 4096.0)   # 0.088 deg, Dynamixel MX [paper Table 1]

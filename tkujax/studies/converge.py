@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tkujax.studies.validation import SpecError, in_range, read_toml, table
+from tkujax.spec.validation import SpecError, in_range, read_toml, table
 
 BACKENDS = ("mujoco", "mjx")
 CONTROLS = ("off", "on")
@@ -204,7 +204,7 @@ def _simulate(spec: ConvergeSpec, setting: Setting, pushes, enabled) -> dict:
     padded to the same shape, so MJX compiles once per setting)."""
     import jax
 
-    from tkujax.control.params import ControllerParams
+    from tkujax.control.controller_params import ControllerParams
 
     mp = setting.model_params()
     params = ControllerParams.paper(mp)

@@ -30,13 +30,14 @@ import numpy as np
 
 from tkujax.control.fixed.qformat import ROUNDING_MODES
 from tkujax.control.fixed.support import check_supported
-from tkujax.control.params import ControllerParams
-from tkujax.studies.map_cells import max_recoverable_impulse
+from tkujax.control.controller_params import ControllerParams
+from tkujax.analysis.map_cells import max_recoverable_impulse
 from tkujax.control.fixed.config import FixedPointConfig
-from tkujax.studies.spec import (FPGA_COLUMN, SpecError, SweepSpec, fixed_point_config, load_spec,
-                                 parse_spec)
-from tkujax.control.io import controller_params_from
-from tkujax.studies.sweep import load, run_sweep
+from tkujax.spec.sweep_spec import (FPGA_COLUMN, SpecError, SweepSpec, fixed_point_config,
+                                    load_spec,
+                                    parse_spec)
+from tkujax.control.params_files import controller_params_from
+from tkujax.sweeps.sweep import load, run_sweep
 
 # Keys whose generous end is the smallest value (less latency is better); the rest: largest
 # (more bits, more iterations); rounding: "nearest" (index 0).

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from tkujax.sim import push as push_lib
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.model import ModelParams
 from tkujax.sim.rollout_mjx import RolloutConfig, simulate
 
@@ -42,7 +42,7 @@ RECOVERY_NOTE = (
     "hypot(pitch, roll) to stay within 1 deg of the stand; \"pitch only\" "
     "(recovery_time_pitch_s) waits for the pitch alone, the paper's phi (\"pitch-axis\", Figs. "
     "13-16). They differ where a roll offset persists after a step. The calibration fit "
-    "(tkujax.studies.calibrate.evaluate) reads recovery_time_s, the hypot one: see "
+    "(tkujax.studies.calibrate.paper_rows) reads recovery_time_s, the hypot one: see "
     "results/calibration/FINDINGS.md (recovery readings) for why and what it changes.")
 
 

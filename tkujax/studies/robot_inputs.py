@@ -2,8 +2,8 @@
 (`sweep_robot`), the one a tune spec names (`tune_robot`), a robot's LIP (`robot_lip`) and
 its capture-region geometry (`capture_feet`, `capture_robot` for `tkujax capture`).
 
-The studies check what they are given (`tkujax.studies.robot_runs.check_robot`: the sha256 the
-manifest records; `tkujax.studies.tune.robot.on_robot`: the spec's [robot] file); this module
+The studies check what they are given (`tkujax.sweeps.sweep_robot.check_robot`: the sha256 the
+manifest records; `tkujax.studies.tune.robot_table.on_robot`: the spec's [robot] file); this module
 only finds and loads the files, a layer above them.
 """
 
@@ -14,14 +14,14 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from tkujax.robot.closed_loop import robot_setup
+from tkujax.robot.robot_setup import robot_setup
 from tkujax.robot.loader import geom_points
-from tkujax.studies.capturability import LipModel, convex_hull, step_reach_m
+from tkujax.analysis.capturability import LipModel, convex_hull, step_reach_m
 from tkujax.studies.capture.theory import Feet
-from tkujax.studies.chunks import read_manifest
-from tkujax.studies.robot_runs import recorded_robot
-from tkujax.studies.spec import load_spec
-from tkujax.studies.tune.robot import robot_file_of
+from tkujax.sweeps.chunks import read_manifest
+from tkujax.sweeps.sweep_robot import recorded_robot
+from tkujax.spec.sweep_spec import load_spec
+from tkujax.studies.tune.robot_table import robot_file_of
 
 
 def sweep_robot(run_dir: str | Path, given: str | None = None):

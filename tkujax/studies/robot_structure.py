@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tkujax.control.io import controller_params_from
+from tkujax.control.params_files import controller_params_from
 from tkujax.robot.own_controller import NO_STEP_THRESHOLD_RAD, STANCE_GAINS, conservative_stance
 from tkujax.sim.options import RolloutConfig
 from tkujax.sim.push import make_push, stack_pushes

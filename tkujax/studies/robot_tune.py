@@ -24,8 +24,8 @@ import math
 import time
 from pathlib import Path
 
-from tkujax.robot.closed_loop import robot_setup
-from tkujax.studies.progress import StatusLog
+from tkujax.robot.robot_setup import robot_setup
+from tkujax.sweeps.progress import StatusLog
 from tkujax.studies.robot_pushes import robot_pushes
 from tkujax.studies.robot_structure import STRUCTURES, choose_structure, structure_start
 from tkujax.studies.robot_verdict import heldout_verdict, name_controller

@@ -2,7 +2,7 @@
 in the robot file when it passes (`tkujax tune --robot`, tkujax.studies.robot_tune).
 
 `heldout_verdict` sweeps the held-out spec control off and on with the controller, compares
-them (`tkujax.studies.compare`: 4 directions x impulse bands x phase bands) and returns the
+them (`tkujax.analysis.compare`: 4 directions x impulse bands x phase bands) and returns the
 record of `results/robots/<name>/verdict.json`: robot, n_pushes, off_fall, on_fall, ratio,
 harmed_cells, method, n_params, wall_s, device, passed and why.
 `name_controller` writes the controller next to the robot file and names it there.
@@ -18,11 +18,11 @@ from pathlib import Path
 
 import jax
 
-from tkujax.control.io import controller_params_from_dict, save_controller_params_json
-from tkujax.control.params import ControllerParams
-from tkujax.studies.compare import Bands, compare_runs
-from tkujax.studies.spec import parse_spec
-from tkujax.studies.sweep import run_sweep
+from tkujax.control.params_files import controller_params_from_dict, save_controller_params_json
+from tkujax.control.controller_params import ControllerParams
+from tkujax.analysis.compare import Bands, compare_runs
+from tkujax.spec.sweep_spec import parse_spec
+from tkujax.sweeps.sweep import run_sweep
 
 MIN_CELL_PUSHES, HARM_PP = 100, 2.0
 _CONTROLLER_LINE = re.compile(r"^\s*controller\s*=.*$", re.MULTILINE)

@@ -2,7 +2,7 @@
 apart from `replay_scene`, which re-simulates a record).
 
 A `Selection` picks records from a sweep's columns (`select_records`). Each picked record is
-re-simulated on MuJoCo C by `tkujax.studies.replay.replay` (the sweep's robot, push, controller
+re-simulated on MuJoCo C by `tkujax.sweeps.replay.replay` (the sweep's robot, push, controller
 and model variation) and turned into a `PushScene`: the robot's geom meshes and their pose at
 every control period, the push's arrow, the capture point per frame and, when the controller
 stepped, the step's target, all shifted sideways by the robot's place in the row.
@@ -24,8 +24,8 @@ import numpy as np
 
 from tkujax.sim import physics
 from tkujax.sim.setup import RobotSetup, model_index
-from tkujax.viewer.geometry import (VISIBLE_GROUPS, GeomShape, com_positions, geom_poses,
-                                    geom_shapes, site_positions)
+from tkujax.viewer.scene_meshes import (VISIBLE_GROUPS, GeomShape, com_positions, geom_poses,
+                                        geom_shapes, site_positions)
 
 ARROW_SHOW_S = 0.25         # the push's arrow stays this long after its onset
 ARROW_FRACTION = 0.5        # the largest shown impulse's arrow is this fraction of the robot
@@ -219,7 +219,7 @@ def standing_height(shapes, positions: np.ndarray, wxyz: np.ndarray) -> float:
 
 
 def scene_from_replay(result: dict, model, ankle_sites, groups=VISIBLE_GROUPS) -> PushScene:
-    """The PushScene of one `tkujax.studies.replay.replay` result on the MuJoCo model it ran
+    """The PushScene of one `tkujax.sweeps.replay.replay` result on the MuJoCo model it ran
     (ankle_sites: the right and left ankle site ids; groups: the geom groups drawn); its arrow
     is ARROW_FRACTION of the robot's height long (`PushScene.with_arrow_scale` sets a scale
     shared by several pushes)."""
@@ -264,7 +264,7 @@ def replay_scenes(run_dir: str | Path, indices, robot=None, progress=None,
     scenes out in a row, sideways, 1.5 robot heights apart; the arrows share one scale (the
     largest impulse's is ARROW_FRACTION of the robot's height). progress(i, n, index) is
     called before each replay; groups: the geom groups drawn."""
-    from tkujax.studies.replay import replay
+    from tkujax.sweeps.replay import replay
 
     results = []
     for i, index in enumerate(indices):

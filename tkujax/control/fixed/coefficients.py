@@ -31,7 +31,7 @@ import jax.numpy as jnp
 
 from tkujax.control.fixed.config import FixedPointConfig
 from tkujax.control.fixed.qformat import QFormat, quantize
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 
 _COEF_INT_BITS = {"dt": 0, "cp_gain": 4, "two_sqrt_gl": 5, "sqrt_hg": 0, "inv_2ltlc": 7,
                   "t_lift": 10, "t_land": 10, "dphase_x": 2, "dphase_z": 2, "update_ticks": 10}

@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 
 from tkujax.control.controller import (ControllerState, Sensors, StepsState, controller_init,
-                                      controller_step)
+                                       controller_step)
 from tkujax.control.fixed.capture_point_fx import band_gate_fx, step_length_fx
 from tkujax.control.fixed.coefficients import coef_format, coefficients
 from tkujax.control.fixed.config import FixedPointConfig
@@ -38,7 +38,7 @@ from tkujax.control.fixed.ik_fx import solve_legs_fx
 from tkujax.control.fixed.kalman_fx import accel_to_angle_fx, kalman_step_fx
 from tkujax.control.fixed.qformat import neg, quantize, requant, straight_through, sub, to_float
 from tkujax.control.kalman import KalmanState
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 
 STANDARD_GRAVITY = 9.80665      # m/s^2 per g: the accelerometer's output scale
 NOT_STARTED_TICK = 1 << 30      # step start before any step: n = tick - start is very negative

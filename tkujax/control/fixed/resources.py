@@ -198,7 +198,7 @@ def count_ops(config: FixedPointConfig, params=None, fn=None) -> list[Op]:
     """The operations of one control period (`controller_step_fx`), or of `fn()` (a function
     of no arguments calling datapath code, e.g. one module, for tests; module "fn")."""
     from tkujax.control.controller import Sensors
-    from tkujax.control.params import ControllerParams
+    from tkujax.control.controller_params import ControllerParams
 
     params = ControllerParams.paper() if params is None else params
     config = dataclasses.replace(config, straight_through=False)

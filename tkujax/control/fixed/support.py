@@ -22,7 +22,7 @@ import dataclasses
 import jax
 import numpy as np
 
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 
 # Fields the fixed-point datapath reads (coefficients.py: every register is derived from these).
 IMPLEMENTED_FIELDS = frozenset({

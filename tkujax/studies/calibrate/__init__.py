@@ -15,6 +15,6 @@ The research tools around a fit (slices, sampling probes, phase robustness, one-
 sensitivities, the MJX cross-check, the many-core run) live in scripts/ at the repository root.
 """
 
-from tkujax.studies.calibrate.run import run_calibrate
+from tkujax.studies.calibrate.calibrate_command import run_calibrate
 
 __all__ = ["run_calibrate"]

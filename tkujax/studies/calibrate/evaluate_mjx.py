@@ -21,8 +21,8 @@ import numpy as np
 
 from tkujax.sim import robots as robots_lib
 from tkujax.sim.rollout_mjx import Episode, RolloutConfig, rollout
-from tkujax.studies.calibrate import evaluate as E
-from tkujax.studies.calibrate import params as P
+from tkujax.studies.calibrate import paper_rows as E
+from tkujax.studies.calibrate import fit_vector as P
 
 ROLLOUT = RolloutConfig(duration_s=2.4)         # as the C backend's paper rows
 

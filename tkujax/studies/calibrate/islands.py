@@ -33,8 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-from tkujax.studies.calibrate import evaluate as E
-from tkujax.studies.calibrate import params as P
+from tkujax.studies.calibrate import paper_rows as E
+from tkujax.studies.calibrate import fit_vector as P
 from tkujax.studies.calibrate.targets import PAPER_TABLE, ROWS
 
 PERIOD_MS = 30.0
@@ -46,7 +46,7 @@ DEFAULT_READING = "deviation/latched"
 def default_reading() -> str:
     """The READINGS key whose controller equals ControllerParams.paper() of the default model
     (raises if none does: the slices must go through the default robot)."""
-    from tkujax.control.params import ControllerParams
+    from tkujax.control.controller_params import ControllerParams
     from tkujax.model import ModelParams
 
     x0 = P.base_vector()

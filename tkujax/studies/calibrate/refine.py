@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.model import ModelParams
 from tkujax.sim import push as push_lib
 from tkujax.sim.metrics import outcomes as rollout_outcomes
@@ -39,7 +39,7 @@ from tkujax.sim.push import Push
 from tkujax.sim.randomize import randomize_model
 from tkujax.sim.rollout_mjx import Episode, ProgramOptions, RolloutConfig, rollout
 from tkujax.sim.setup import init
-from tkujax.studies.calibrate import params as P
+from tkujax.studies.calibrate import fit_vector as P
 from tkujax.studies.paper import PAPER_TABLE, paper_cases
 
 NAMES = ("leg_kp_scale", "leg_damping_scale", "impulse_scale", "chest_com_dx_cm")

@@ -7,7 +7,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from tkujax.studies.calibrate import evaluate as E
+from tkujax.studies.calibrate import paper_rows as E
 from tkujax.studies.calibrate import targets as T
 
 OBJECTIVE_ROWS = {"ALL": T.ROWS, "T4": T.TABLE4}

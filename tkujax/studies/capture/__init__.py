@@ -8,6 +8,6 @@
   run.py        run_capture: sweep -> analysis -> figures -> summary.md
 """
 
-from tkujax.studies.capture.run import run_capture
+from tkujax.studies.capture.capture_command import run_capture
 
 __all__ = ["run_capture"]

@@ -3,7 +3,7 @@
 The commanded step (tkujax.control.StepOverride) is in the controller's own frame: the swing
 ankle's displacement from its stand place. On a robot file the controller's parameters are the
 robot's (`tkujax.robot.geometry.controller_params_for` its measured legs), its analytic leg IK
-gives TKU-X-convention joint targets and the robot's leg map (`tkujax.robot.closed_loop`) turns
+gives TKU-X-convention joint targets and the robot's leg map (`tkujax.robot.robot_setup`) turns
 them into its actuators' targets, so the override needs nothing robot-specific. What differs is
 the geometry: the theory (LIP mass, CoM height, soles, ankles) and the leg reach l_max come from
 the robot (`tkujax.studies.robot_inputs.capture_feet`), and the targets must lie within that reach.
@@ -16,11 +16,11 @@ import itertools
 
 import numpy as np
 
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.sim.setup import RobotSetup
-from tkujax.studies.capturability import step_reach_m
-from tkujax.studies.spec import STEP_FIELDS, SweepSpec
-from tkujax.studies.validation import SpecError
+from tkujax.analysis.capturability import step_reach_m
+from tkujax.spec.sweep_spec import STEP_FIELDS, SweepSpec
+from tkujax.spec.validation import SpecError
 
 
 def _grid(spec: SweepSpec, key: str) -> np.ndarray:

@@ -18,7 +18,7 @@ import numpy as np
 import optax
 
 from tkujax.control.controller import StepOverride
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.model import ModelParams
 from tkujax.sim.metrics import capture_outcomes, outcomes
 from tkujax.sim.push import Push

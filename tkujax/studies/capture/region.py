@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from tkujax.studies.capture import theory
-from tkujax.studies.sweep import load
+from tkujax.sweeps.sweep import load
 
 TIMING = ("step_start_delay_s", "step_from_detection", "step_period_s")
 
@@ -103,7 +103,7 @@ def _icp_targets(rec: dict, sel: np.ndarray, feet: theory.Feet) -> np.ndarray:
 
 
 def regions(rec: dict, feet: theory.Feet) -> list[Region]:
-    """All one-step regions of a [step] sweep's records (as `tkujax.studies.sweep.load` returns
+    """All one-step regions of a [step] sweep's records (as `tkujax.sweeps.sweep.load` returns
     them); two-step records (step_steps = 2) enter only `jn_table`."""
     active = (rec["step_active"] > 0.5) & (_steps(rec) < 1.5)
     ref = {int(c): i for i, c in enumerate(rec["case_id"]) if not active[i]}

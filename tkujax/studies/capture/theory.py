@@ -11,7 +11,7 @@ one-step region for the swing ankle is
 a Minkowski sum of convex polygons, intersected with the step reach |p - p_stand| <= l_max.
 dt is from the push to touchdown (the step time included). Swing foot: the left one for
 targets with y >= 0 (as tkujax.control.StepOverride), so R_1 is drawn per half-plane.
-Caveats as tkujax.studies.capturability: the push acts at the chest, not the CoM; the double
+Caveats as tkujax.analysis.capturability: the push acts at the chest, not the CoM; the double
 support before lift-off (CoP anywhere under both feet) is ignored, which makes R_1 conservative.
 """
 
@@ -22,11 +22,11 @@ import math
 
 import numpy as np
 
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.model import ModelParams
 from tkujax.sim import physics
-from tkujax.studies import capturability
-from tkujax.studies.capturability import G, convex_hull
+from tkujax.analysis import capturability
+from tkujax.analysis.capturability import G, convex_hull
 
 
 @dataclasses.dataclass(frozen=True)

@@ -5,11 +5,13 @@ zeroth-order gradients), or the (1+1)-ES baseline; a spec's [compare] runs sever
 over seeds at one wall-clock budget. The result is evaluated with the hard controller on
 held-out (and shifted) pushes.
 
-Parameterisations (`tune.policy`, tkujax.studies.tune.policy): "scalars" (the default: the
+Parameterisations (`tune.policy`, tkujax.studies.tune.parameterisations): "scalars" (the default:
+the
 fields of `tune.params`), "sectorsN", "mlp[H]" and "mlpr[H]" (the scalars plus corrections
 of the `tune.schedule` fields as functions of the controller's filtered state, and for "mlpr"
 of its recovery state too, tkujax.control.policy).
-A [study] table runs the dimension study (policies x methods x seeds, tkujax.studies.tune.study;
+A [study] table runs the dimension study (policies x methods x seeds,
+tkujax.studies.tune.dimension_study;
 its seeds optionally side by side in one batch, tkujax.studies.tune.lockstep).
 
 Tuned (the spec's `tune.params` chooses; ControllerParams field names):
@@ -20,7 +22,7 @@ Reparameterisation (never clipped after a step): optax updates an unconstrained 
 parameter; the value is lo + (hi - lo) sigmoid(z) for linear parameters and
 10^(log10 lo + (log10 hi - log10 lo) sigmoid(z)) for the Kalman variances. Default ranges
 (`DEFAULT_RANGES`, user units; a spec's [tune.ranges] may narrow or move them within the
-ranges ControllerParams.validate allows, tkujax.control.io):
+ranges ControllerParams.validate allows, tkujax.control.params_files):
   step_period [0.15, 0.6] s, double_support_ratio [0, 0.6], lift_height [0.005, 0.06] m,
   eps_forward [8, 24] deg (absolute pitch; the robot stands at ~7 deg), eps_backward [0, 12] deg,
   cp_gain [0.3, 2.5], kalman_q [1e-6, 1e-2] rad^2 (log), kalman_r [1e-4, 3e-2] rad^2 (log).
@@ -52,7 +54,7 @@ Gradient notes (checked against central finite differences in float64, tests/tes
     tune.remat = true now checkpoints each physics substep instead (problem.TUNE_REMAT): on one
     H100, 1.55 GB peak and 2.98 s a step against 2.93 GB and 4.63 s per tick.
 
-Robots and harm (tkujax.studies.tune.spec, problem): [randomize] ensemble = "PATH"
+Robots and harm (tkujax.studies.tune.tune_spec, problem): [randomize] ensemble = "PATH"
 runs every training and held-out push on one member of a calibration ensemble, drawn
 uniformly (last, so specs without it draw the same pushes as before); [evaluate.shift]
 ensemble runs the shifted set on one. One RobotSet holds the default robot (row 0) and the
@@ -69,31 +71,31 @@ change.
 Evaluation (after tuning, always with the HARD controller, gate_temperature = 0): held-out
 pushes drawn from the same distribution with another seed (never used for tuning), and a grid
 of impulses x azimuths: fall rate, mean recovery time, max recoverable impulse per direction
-(tkujax.studies.maps.max_recoverable_impulse), hard loss, for the parameters before and after
+(tkujax.analysis.maps.max_recoverable_impulse), hard loss, for the parameters before and after
 tuning.
 
 Writes history.json, params_before.json and params_after.json (in the format
-tkujax.control.io.load_controller_params_json reads), loss_curve.png, evaluation.png,
+tkujax.control.params_files.load_controller_params_json reads), loss_curve.png, evaluation.png,
 summary.md.
 """
 
 from __future__ import annotations
 
-from tkujax.studies.tune.evaluate import evaluate, params_json
+from tkujax.studies.tune.held_out_gate import evaluate, params_json
 from tkujax.studies.tune.loss import LOSS_FIELDS, LossConfig, harm_weighted_mean, push_loss
 from tkujax.studies.tune.methods import (evolution_baseline, make_optimizer, optimise,
                                          temperature_schedule)
 from tkujax.studies.tune.benchmark import benchmark_gradient_step
-from tkujax.studies.tune.policy import PolicyReparam, parse_policy
+from tkujax.studies.tune.parameterisations import PolicyReparam, parse_policy
 from tkujax.studies.tune.problem import RECORD_KEYS, TuneProblem
 from tkujax.studies.tune.lockstep import run_search_lockstep
 from tkujax.studies.tune.reparam import (DEFAULT_RANGES, DEFAULT_TUNED, DEG, TUNABLE, Reparam)
-from tkujax.studies.tune.report import summary_markdown
+from tkujax.studies.tune.tune_outputs import summary_markdown
 from tkujax.studies.tune.search import METHODS, SearchConfig, alpha_order_mix, run_search
-from tkujax.studies.tune.run import run_tune
-from tkujax.studies.tune.study import run_study
-from tkujax.studies.tune.spec import (TuneSpec, grid_pushes, load_tune_spec, make_problem,
-                                      parse_tune_spec, robot_table, sample_pushes)
+from tkujax.studies.tune.tune_command import run_tune
+from tkujax.studies.tune.dimension_study import run_study
+from tkujax.studies.tune.tune_spec import (TuneSpec, grid_pushes, load_tune_spec, make_problem,
+                                           parse_tune_spec, robot_table, sample_pushes)
 
 __all__ = ["DEFAULT_RANGES", "DEFAULT_TUNED", "DEG", "LOSS_FIELDS", "RECORD_KEYS", "TUNABLE",
            "LossConfig", "Reparam", "TuneProblem", "TuneSpec", "benchmark_gradient_step",

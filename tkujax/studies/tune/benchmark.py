@@ -7,10 +7,10 @@ import time
 import jax
 import numpy as np
 
-from tkujax.studies.compile_cache import persistent_cache_hits
+from tkujax.sweeps.compile_cache import persistent_cache_hits
 from tkujax.studies.tune.problem import TuneProblem
 from tkujax.studies.tune.reparam import DEG, PAPER_TUNABLE
-from tkujax.studies.tune.spec import parse_tune_spec, sample_pushes
+from tkujax.studies.tune.tune_spec import parse_tune_spec, sample_pushes
 
 
 def bench_spec(batch: int, duration_s: float, remat, float64: bool = False,
@@ -74,7 +74,7 @@ def gradient_compile_times(batch: int, duration_s: float, remat: bool | str = Tr
     program (hlo_chars), which compile time grows with. step_repeats > 0: also the median time
     of that many calls of the compiled gradient after a warm-up (step_s), for compiler options
     that trade run time for compile time."""
-    from tkujax.studies.compile_cache import fresh_compilation_cache
+    from tkujax.sweeps.compile_cache import fresh_compilation_cache
 
     opts = dict(rollout_options or {})
     remat = opts.pop("remat", remat)
@@ -91,8 +91,7 @@ def gradient_compile_times(batch: int, duration_s: float, remat: bool | str = Tr
             problem = TuneProblem(reparam, base, spec.loss, duration_s, remat, False,
                                   compiler_options=compiler_options, rollout_options=opts)
             t0 = time.perf_counter()
-            lowered = problem._vg.lower(*problem.cast_args(z, DEG, recs, keys),
-                                        problem._robot_values)
+            lowered, args = problem.lower_value_and_grad(z, DEG, recs, keys)
             lower_s = time.perf_counter() - t0
             if label == "cold_s":
                 out["lower_s"] = round(lower_s, 2)
@@ -101,7 +100,6 @@ def gradient_compile_times(batch: int, duration_s: float, remat: bool | str = Tr
             exe = lowered.compile()
             out[label] = round(lower_s + time.perf_counter() - t0, 2)
     if step_repeats > 0:
-        args = (*problem.cast_args(z, DEG, recs, keys), problem._robot_values)
         jax.block_until_ready(exe(*args))                                  # warm-up
         out["step_s"] = round(_median_call_s(
             lambda: jax.block_until_ready(exe(*args)), step_repeats), 3)

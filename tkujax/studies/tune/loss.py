@@ -3,7 +3,7 @@
 LossConfig.kind selects the fall term:
   "soft"    (default) softplus((fall_margin_m - margin) / fall_width_m) of a soft minimum over
             the whole horizon of the fall test's clearance: unbounded (about 10 once fallen).
-  "margin"  the bounded DCM margin of tkujax.studies.gradient.margin: sigmoid((m - offset_m) /
+  "margin"  the bounded DCM margin of tkujax.gradients.margin: sigmoid((m - offset_m) /
             scale_m) in (0, 1), m the soft maximum (temperature softmax_m) of the DCM's distance
             outside the feet's hull from the push onset to the first tick whose clearance is
             below 1 cm, or window_s after the onset. The recovery term is then averaged over the
@@ -20,9 +20,9 @@ import jax
 import jax.numpy as jnp
 
 from tkujax.sim.metrics import FALL_BODY_CLEARANCE_M, FALL_PELVIS_HEIGHT_M
-from tkujax.studies.gradient.margin import MarginConfig, clearance_m, margin_loss
+from tkujax.gradients.margin import MarginConfig, clearance_m, margin_loss
 from tkujax.studies.tune.reparam import DEG
-from tkujax.studies.validation import SpecError, number, table
+from tkujax.spec.validation import SpecError, number, table
 
 
 @dataclasses.dataclass(frozen=True)

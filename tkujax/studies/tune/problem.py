@@ -4,7 +4,7 @@ Robots: a problem built with a RobotSet (`tkujax.sim.robots`) runs each push on 
 its record's robot_id column (ROBOT_ID_COLUMN, a row of the set: a traced index picks that
 robot's model and settled stand inside the one compiled program), then applies the push's own
 mass / CoM / friction / kp randomisation on top, as `tkujax sweep` does with [randomize]
-ensemble. The tuner's convention (`tkujax.studies.tune.spec.robot_table`): row 0 is the default
+ensemble. The tuner's convention (`tkujax.studies.tune.tune_spec.robot_table`): row 0 is the default
 robot (the spec's model), rows 1..n the members of the training ensemble, then the members of
 the shifted set's ensemble when it is another file. Without a RobotSet the records have no
 robot_id and the program is the single-robot one (a Python branch at trace time).
@@ -21,7 +21,7 @@ Gradient options (each off by default, the program then unchanged):
                     Only inside the loss: `reparam.params_np` stays a plain ControllerParams.
   bundle_sigma > 0  bundled (randomised-smoothing) gradients in `grouped_value_and_grad`: push
                     i runs at z + bundle_sigma * noise_i (noise (n, k) given by the caller,
-                    `tkujax.studies.gradient.bundled.bundle_noise`), so the gradient is that of
+                    `tkujax.gradients.bundled.bundle_noise`), so the gradient is that of
                     the loss smoothed by a Gaussian of width bundle_sigma.
   rollout_options   e.g. {"gradient_window_ticks": K}: truncated backpropagation windows.
 """
@@ -36,14 +36,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from tkujax.control.controller import with_timing_gradient
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
 from tkujax.sim.metrics import outcomes
 from tkujax.sim.push import Push
 from tkujax.sim.randomize import randomize_model
 from tkujax.sim.robots import RobotSet, put_leaves
 from tkujax.sim.rollout_mjx import Episode, ProgramOptions, RolloutConfig, rollout
 from tkujax.sim.setup import init
-from tkujax.studies.spec import RANDOMIZE_FIELDS, ROBOT_ID_COLUMN
+from tkujax.spec.sweep_spec import RANDOMIZE_FIELDS, ROBOT_ID_COLUMN
 from tkujax.studies.tune.loss import OFF_SURVIVED, LossConfig, harm_weighted_mean, push_loss
 from tkujax.studies.tune.reparam import CPU_COMPILER_OPTIONS, DEG, EVAL_KEYS, Reparam
 
@@ -76,14 +76,15 @@ class TuneProblem:
 
     All jitted functions are traced and called inside this problem's float64 context when
     `float64` is set (the MJX model and state are put on the device in float64 too).
-    reparam: a Reparam (scalars) or a PolicyReparam (tkujax.studies.tune.policy: scalars plus
+    reparam: a Reparam (scalars) or a PolicyReparam (tkujax.studies.tune.parameterisations: scalars
+    plus
     a state-dependent schedule). `loss(z, temperature, batch, keys)` -> (loss, aux);
     `value_and_grad` and `forward` are its jitted gradient and forward-only versions (one
     compile each per batch size).
 
     robots: None (one robot: `model_params`, None = the default robot), or a RobotSet whose
     row r is the robot of the pushes with robot_id r (a batch column then; the tuner's table,
-    `tkujax.studies.tune.spec.robot_table`, has the default robot in row 0 and the ensembles'
+    `tkujax.studies.tune.tune_spec.robot_table`, has the default robot in row 0 and the ensembles'
     members in rows 1..n). Float32 only. The push's randomisation applies on top of its robot.
     loss_cfg.w_harm > 0: the batch also needs OFF_SURVIVED (added by the methods below when it
     lacks it: one control-off forward pass; pass a batch that has it to avoid recomputing it,
@@ -276,6 +277,12 @@ class TuneProblem:
                                 if OFF_SURVIVED in missing else ""))
         cast = lambda x: jnp.asarray(x, self.dtype)  # noqa: E731
         return (cast(z), cast(temperature), {k: cast(batch[k]) for k in self.input_keys}, keys)
+
+    def lower_value_and_grad(self, z, temperature, batch, keys):
+        """The gradient program lowered for these arguments (`jax.stages.Lowered`), and the
+        arguments its compiled executable takes: what `tkujax bench` times."""
+        args = (*self.cast_args(z, temperature, batch, keys), self._robot_values)
+        return self._vg.lower(*args), args
 
     def value_and_grad(self, z, temperature, batch, keys):
         """(loss, aux, grad) as numpy (float64), computed in this problem's precision."""

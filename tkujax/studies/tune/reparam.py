@@ -10,7 +10,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from tkujax.control.params import ControllerParams
+from tkujax.control.controller_params import ControllerParams
+from tkujax.spec.validation import SpecError
 
 
 DEG = math.pi / 180.0
@@ -155,3 +156,12 @@ class Reparam:
     def user_ranges(self) -> dict[str, tuple[float, float]]:
         return {f: (a / user_factor(f), b / user_factor(f))
                 for f, a, b in zip(self.fields, self.lo, self.hi)}
+
+
+def check_start(spec) -> None:
+    """A TuneSpec's start values must lie strictly inside the ranges (their latents are finite)."""
+    for f, (a, b) in spec.reparam().user_ranges().items():
+        v = float(getattr(spec.start, f)) / user_factor(f)
+        if not a < v < b:
+            raise SpecError(f"{TUNABLE[f][0]}: start value {v:g} (from [controller], the paper "
+                            f"or the robot) must lie strictly inside tune.ranges ({a:g}, {b:g})")

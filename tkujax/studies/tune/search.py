@@ -20,7 +20,7 @@ calls then those they always were):
                        z + bundle_sigma * noise_i.
   diagnose_every = N   every gradient call computes per-push gradients (one compiled shape,
                        groups = n; the group means are then taken here) and records their
-                       diagnostics (`tkujax.studies.gradient.diagnostics.summary`: half-batch
+                       diagnostics (`tkujax.gradients.diagnostics.summary`: half-batch
                        cosine, top-5 share of the squared norm, norm quantiles); every N-th
                        call also checks the step the searcher actually takes from it: the
                        predicted change g . (z_next - z) of the differentiated loss (soft gate
@@ -39,11 +39,11 @@ from typing import Protocol
 
 import numpy as np
 
-from tkujax.studies.gradient.bundled import bundle_noise
-from tkujax.studies.gradient.diagnostics import cosine, summary
+from tkujax.gradients.bundled import bundle_noise
+from tkujax.gradients.diagnostics import cosine, summary
 from tkujax.studies.tune.reparam import DEG
 from tkujax.studies.tune.selection import ValidationSelector, incumbent
-from tkujax.studies.validation import SpecError, boolean, integer, number
+from tkujax.spec.validation import SpecError, boolean, integer, number
 from tkujax.studies.tune.searchers import (METHODS, SearchConfig, alpha_order_mix, finite_loss,
                                            searcher_class)
 

@@ -8,13 +8,11 @@ seed or for seeds side by side) does:
                                        # the (groups, k) gradient samples at `at` (None if none)
     searcher.tell(points, losses)      # their hard losses (P,)
 
-A zeroth-order searcher never asks for a gradient (`uses_gradient = False`); a first-order one
-asks every iteration or when it needs one. `population_width(cfg)` is the number of points each
-ask returns, or None for exactly one point evaluated by the plain forward call (the (1+1)-ES
-and the gradient method's iterate). `progress()` is the searcher's part of the progress line,
-`extra()` what it adds to the run record. The registry `SEARCHERS` maps the method name to
-its class; every class is built as cls(z0, loss0, cfg, seed) with the start latent, its hard
-loss and the search configuration.
+A zeroth-order searcher never asks for a gradient (`uses_gradient = False`).
+`population_width(cfg)` is the number of points each ask returns, or None for one point
+evaluated by the plain forward call (the (1+1)-ES, the gradient method's iterate).
+`progress()` is the searcher's part of the progress line, `extra()` what it adds to the run
+record. `SEARCHERS` maps the method name to its class, built as cls(z0, loss0, cfg, seed).
 
   cma       CMA-ES (the `cmaes` library): a population of `popsize` candidates per generation,
             all evaluated in one batched call on the hard loss. Accepts injected candidates
@@ -32,20 +30,18 @@ loss and the search configuration.
             mean trades a bias for far less variance.
   hybrid    the alpha-order gradient of Suh, Simchowitz, Zhang and Tedrake (ICML 2022): the
             first-order gradient (soft gate, per group of pushes, giving its variance) mixed
-            with a zeroth-order randomised-smoothing gradient of the hard loss (antithetic
-            pairs, giving its variance): alpha = var_ZO / (var_FO + var_ZO), and alpha = 0 when
+            with a zeroth-order smoothing gradient of the hard loss (antithetic pairs):
+            alpha = var_ZO / (var_FO + var_ZO), and alpha = 0 when
             the two disagree by more than 2 standard errors (the first-order gradient is then
             biased by a contact or gate discontinuity). Adam on the mix.
   linesearch  the clipped first-order gradient as a DIRECTION only, its step length measured
             on the hard loss along a ray, against the incumbent on the same pushes
             (`LineSearcher`). The dimension study's answer to the gradient's climb
-            (results/tune_dimension): on this rough loss a local gradient predicts the loss a
-            step away poorly, so the step is measured, not trusted.
+            (results/tune_dimension): on this rough loss the step is measured, not trusted.
   es        the (1+1)-ES with the 1/5 success rule on the hard loss (the simple baseline).
-  guided_sepcma, guided_cma  sep-CMA-ES / CMA-ES whose every generation also tries the
-            first-order gradient: candidates m - sigma sqrt(k) a g/|g| along the gradient g at
-            the mean, one per step multiplier a (`guided_steps`), injected in place of the
-            generation's last samples (`GuidedCMASearcher`).
+  guided_sepcma, guided_cma  sep-CMA-ES / CMA-ES whose generations also try m - sigma sqrt(k)
+            a g/|g| along the gradient g at the mean, one per step multiplier a (`guided_steps`),
+            in place of the last samples (`GuidedCMASearcher`).
 """
 
 from __future__ import annotations
@@ -61,7 +57,6 @@ import numpy as np
 import optax
 
 BIG_LOSS = 1e6      # the loss a non-finite candidate gets (never selected, keeps CMA-ES sane)
-
 
 @dataclasses.dataclass(frozen=True)
 class SearchConfig:
@@ -83,6 +78,11 @@ class SearchConfig:
     def pairs(self) -> int:
         """The hybrid's antithetic pairs per iteration."""
         return max((self.popsize - 1) // 2, 1)
+
+
+def cma_step_size(opt) -> float:
+    """The step size sigma of a `cmaes` optimiser, which has no public accessor for it."""
+    return float(opt._sigma)
 
 
 def finite_loss(x) -> float:
@@ -172,7 +172,7 @@ class CMASearcher(_ZerothOrder):
         self.opt.tell([(z, finite_loss(v)) for z, v in zip(points, losses)])
 
     def progress(self) -> str:
-        return f"{self.opt._sigma:.3f}"
+        return f"{cma_step_size(self.opt):.3f}"
 
 
 class SepCMASearcher(CMASearcher):
@@ -428,7 +428,7 @@ class GuidedCMASearcher(CMASearcher):
         self.injected_rank: list[int | None] = []
 
     def gradient_at(self) -> np.ndarray:
-        return np.asarray(self.opt._mean, float).copy()
+        return np.asarray(self.opt.mean, float).copy()
 
     def gradient_points(self, g) -> list[np.ndarray]:
         """The candidates along -g from the mean ([] for a non-finite or zero g)."""
@@ -436,7 +436,7 @@ class GuidedCMASearcher(CMASearcher):
         norm = float(np.linalg.norm(g)) if np.all(np.isfinite(g)) else 0.0
         if not norm > 0:
             return []
-        m, sigma = np.asarray(self.opt._mean, float), float(self.opt._sigma)
+        m, sigma = np.asarray(self.opt.mean, float), cma_step_size(self.opt)
         u = g / norm * sigma * math.sqrt(g.size)
         return [m - a * u for a in self.steps]
 
@@ -455,7 +455,7 @@ class GuidedCMASearcher(CMASearcher):
     def tell(self, points, losses) -> None:
         points, k = np.array(points, float), len(points[0])
         cap = math.sqrt(k) + 2.0 * k / (k + 2.0)
-        m, sigma = np.asarray(self.opt._mean, float), float(self.opt._sigma)
+        m, sigma = np.asarray(self.opt.mean, float), cma_step_size(self.opt)
         first = len(points) - self.n_injected
         for i in range(first, len(points)):
             y = (points[i] - m) / sigma

@@ -26,7 +26,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 # Seed offsets of the pushes the selection and the fresh batches draw, beside the evaluation
-# sets' (evaluate.seed + s, + 1000 + s, + 2000 + s; tkujax.studies.tune.study).
+# sets' (evaluate.seed + s, + 1000 + s, + 2000 + s; tkujax.studies.tune.dimension_study).
 VALIDATION_SEED_OFFSET = 3000
 FRESH_DRAW_SEED_STRIDE = 100_000
 

@@ -1,0 +1,36 @@
+"""`tkujax walk`: the robot walks from its controller's CPG; prints what was measured (JSON)."""
+
+from __future__ import annotations
+
+import json
+
+from tkujax.cli.errors import bounded_float
+
+
+def _cmd_walk(args) -> int:
+    from tkujax.walking.walk import simulate_walk
+
+    result = simulate_walk(args.robot, speed_mps=args.speed_mps, lateral_mps=args.lateral_mps,
+                           seconds=args.seconds, engine=args.engine,
+                           step_period_s=args.step_period_s, enabled=args.control == "on")
+    print(json.dumps(result, indent=2))
+    return 1 if result["fell"] else 0
+
+
+def add_walk_command(sub) -> None:
+    """walk."""
+    p = sub.add_parser("walk", help="walk the robot with its controller's CPG gait and print "
+                                    "what was measured (docs/walking.md)")
+    p.add_argument("--robot", default=None, metavar="FILE.toml",
+                   help="a robot file (docs/robots.md); default: TKU-X")
+    p.add_argument("--speed-mps", type=bounded_float(-1.0, 1.0), default=0.1,
+                   help="forward speed (negative: backward; 0: stepping in place)")
+    p.add_argument("--lateral-mps", type=bounded_float(-0.5, 0.5), default=0.0,
+                   help="sideways speed (positive: to the left)")
+    p.add_argument("--step-period-s", type=bounded_float(0.1, 2.0), default=None,
+                   help="the step period T (default: the robot's controller's T)")
+    p.add_argument("--seconds", type=bounded_float(0.1, 600.0), default=20.0)
+    p.add_argument("--engine", choices=["mujoco", "mjx"], default="mujoco")
+    p.add_argument("--control", choices=["on", "off"], default="on",
+                   help="the balance controller's stance feedback while walking")
+    p.set_defaults(func=_cmd_walk)

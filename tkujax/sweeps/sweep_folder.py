@@ -1,0 +1,163 @@
+"""A sweep folder's identity and provenance.
+
+- The claim of a folder (`claim_folder`): the check that the folder holds no other sweep and the
+  manifest's description of this one are one read-modify-write under the folder's lock, so of
+  two writers of different sweeps started at once into one folder exactly one gets it; the
+  other is refused, naming the folder and what differs (`tkujax.sweeps.sweep_hash.INPUT_NAMES`:
+  every input a record depends on, by content).
+- Provenance: each run appends an entry to the manifest's `runs` (run id, backend, devices, git
+  commit, versions, process), and earlier entries are never rewritten; each chunk's manifest
+  entry names the run, backend, device and commit that wrote it (`chunk_provenance`).
+- The output folder and the process arguments, checked before anything runs (`prepare_out`,
+  `processes`): errors name the path or the key and its range.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import errno
+import os
+import secrets
+import socket
+import time
+from pathlib import Path
+
+import jax
+
+from tkujax.control.fixed import FixedPointConfig
+from tkujax.control.controller_params import ControllerParams
+from tkujax.control.policy import Schedule, schedule_to_dict
+from tkujax.model import ModelParams
+from tkujax.sim.setup import RobotSetup
+from tkujax.sweeps import chunks
+from tkujax.sweeps.provenance import git_commit, versions
+from tkujax.sweeps.record_schema import SCHEMA_KEY, SCHEMA_VERSION, TREE_PASSES_KEY
+from tkujax.spec.sweep_spec import SpecError, SweepSpec
+from tkujax.sweeps.sweep_hash import changed_inputs
+
+RUNS_KEY = "runs"
+INPUTS_KEY = "inputs"
+# The manifest's top-level provenance: the first run's, kept as it was (a manifest written
+# before `runs` holds its only run's there); every run's is in `runs`.
+PROVENANCE_KEYS = ("versions", "git_commit", "devices", "num_processes", "backend")
+# Processes of one sweep: the most `num_processes` may be (a sanity bound on a typo).
+MAX_PROCESSES = 65_536
+
+
+def _integer_arg(key: str, value, lo: int, hi: int) -> int:
+    if isinstance(value, str):
+        try:
+            value = int(value.strip())
+        except ValueError:
+            raise SpecError(f"{key}: expected an integer in [{lo}, {hi}], got {value!r}") from None
+    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+        raise SpecError(f"{key}: expected an integer in [{lo}, {hi}], got {value!r}")
+    return value
+
+
+def processes(process_id, num_processes, coordinator) -> tuple[int, int, str | None]:
+    """(process_id, num_processes, coordinator) from the arguments or the TKUJAX_* environment
+    variables, checked: num_processes in [1, MAX_PROCESSES], process_id in [0, num_processes);
+    more than one process needs a coordinator HOST:PORT. SpecError names the key."""
+    n_key = "num_processes" if num_processes is not None else "TKUJAX_NUM_PROCESSES"
+    id_key = "process_id" if process_id is not None else "TKUJAX_PROCESS_ID"
+    n = _integer_arg(n_key, os.environ.get("TKUJAX_NUM_PROCESSES", "1")
+                     if num_processes is None else num_processes, 1, MAX_PROCESSES)
+    k = _integer_arg(id_key, os.environ.get("TKUJAX_PROCESS_ID", "0")
+                     if process_id is None else process_id, 0, n - 1)
+    coordinator = coordinator or os.environ.get("TKUJAX_COORDINATOR")
+    if n > 1 and not coordinator:
+        raise SpecError("coordinator: num_processes > 1 needs a coordinator address HOST:PORT")
+    return k, n, coordinator
+
+
+def prepare_out(out: Path) -> Path:
+    """`out` created (with its parents) as a folder; an OSError names the path and what is
+    wrong (a file in the way, no permission, a name too long)."""
+    for parent in (out, *out.parents):
+        if parent.exists() and not parent.is_dir():
+            raise NotADirectoryError(errno.ENOTDIR, "not a folder (a file has that name)",
+                                     str(parent))
+    out.mkdir(parents=True, exist_ok=True)
+    if not os.access(out, os.W_OK | os.X_OK):
+        raise PermissionError(errno.EACCES, "the folder is not writable", str(out))
+    return out
+
+
+def model_record(model_params: ModelParams | RobotSetup | None) -> dict:
+    """The manifest's model: ModelParams' fields, or a robot file's name, path and sha256."""
+    if isinstance(model_params, RobotSetup):
+        return dict(robot=model_params.name, robot_file=model_params.source,
+                    robot_sha256=model_params.digest)
+    return dataclasses.asdict(model_params or ModelParams())
+
+
+def describe(spec: SweepSpec, digest: str, n: int, n_chunks: int, padded: int,
+             params: ControllerParams, model_params: ModelParams | None, num_processes: int,
+             backend: str, schedule: Schedule | None = None) -> dict:
+    """The manifest's description of the sweep (every writer restates it, the provenance keys
+    only when absent), in the record schema's newest version
+    (`tkujax.sweeps.record_schema`)."""
+    manifest = {SCHEMA_KEY: SCHEMA_VERSION} | dict(
+        name=spec.name, spec=spec.raw, spec_hash=digest, n_pushes=n,
+        chunk_size=spec.chunk_size, n_chunks=n_chunks, padded_chunk=padded,
+        controller_params=dataclasses.asdict(params),
+        model_params=model_record(model_params),
+        versions=versions(), git_commit=git_commit(),
+        devices=[str(d) for d in jax.devices()], num_processes=num_processes,
+        backend=backend, format="npz chunks, one record per push",
+        **{TREE_PASSES_KEY: spec.tree_passes}, **spec.decisions.describe())
+    if spec.arithmetic == "fixed":
+        manifest["fixed_point_defaults"] = dataclasses.asdict(FixedPointConfig())
+    if spec.ensemble is not None:
+        manifest["ensemble"] = spec.ensemble.describe()
+    if schedule is not None:
+        manifest["schedule"] = schedule_to_dict(schedule)
+    return manifest
+
+
+def run_record(backend: str, process_id: int, num_processes: int) -> dict:
+    """This run's entry of the manifest's `runs`: a run id unique to it, where and on what it
+    ran."""
+    host = socket.gethostname()
+    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+    devices = ["cpu (MuJoCo C)"] if backend == "mujoco" else [str(d) for d in jax.local_devices()]
+    return dict(run_id=f"{stamp}-{host}-{os.getpid()}-{secrets.token_hex(3)}", started=stamp,
+                host=host, pid=os.getpid(), backend=backend, devices=devices,
+                git_commit=git_commit(), versions=versions(), process_id=process_id,
+                num_processes=num_processes)
+
+
+def chunk_provenance(run: dict) -> dict:
+    """What a chunk's manifest entry records of the run that wrote it."""
+    return dict(run_id=run["run_id"], backend=run["backend"], device=", ".join(run["devices"]),
+                git_commit=run["git_commit"])
+
+
+def refusal(out: Path, held: dict, description: dict, inputs: dict) -> str:
+    """The message refusing to write sweep `description` into `out`, which holds `held`."""
+    changed = changed_inputs(held.get(INPUTS_KEY), inputs)
+    what = (f"changed since it ran: {'; '.join(changed)}" if changed else
+            f"it holds sweep {held.get('name')!r}, this is {description.get('name')!r}")
+    return (f"{out} holds another spec's sweep (spec hash {held.get('spec_hash')} != "
+            f"{description['spec_hash']}): {what}. Nothing was written: choose another --out, "
+            "or restore the inputs to resume it")
+
+
+def claim_folder(out: Path, description: dict, inputs: dict, run: dict) -> dict:
+    """Check and claim `out` for the sweep `description` under one lock: SpecError (naming the
+    folder and what differs) when its manifest holds another sweep; else the manifest
+    (re)states the description, keeps the first run's provenance and its chunk entries, and
+    appends `run` to `runs`."""
+    def claim(held: dict) -> dict:
+        if held and held.get("spec_hash") != description["spec_hash"]:
+            raise SpecError(refusal(out, held, description, inputs))
+        runs = list(held.get(RUNS_KEY, []))
+        if held and not runs:   # written before `runs`: its top level is its one run
+            runs.append({"run_id": "before-run-history"} | {
+                k: held.get(k) for k in PROVENANCE_KEYS})
+        first = {k: held[k] for k in PROVENANCE_KEYS if k in held}
+        return {**description, **first, INPUTS_KEY: inputs, RUNS_KEY: runs + [run],
+                "complete": False, "wall_s": float(held.get("wall_s", 0.0)),
+                "chunks": held.get("chunks", {})}
+    return chunks.update_manifest(out, claim)
