@@ -93,7 +93,7 @@ def robot(hz: float, dz_m: float, ratio: float):
 
 
 def criterion(summary: dict) -> dict:
-    """The issue's done-when on one summary: every row at >= 80 %, no wrong-way step, and
+    """The acceptance of one summary: every row at >= 80 %, no wrong-way step, and
     (so that it does not hold by stepping nowhere) both volleyball rows with control step the
     paper's way in >= 80 % of their trials, as the paper's robot did."""
     worst = min(v["p"] for v in summary.values())

@@ -1,4 +1,4 @@
-"""1-D slices of the loss and the 'done when' score through a calibrated set (the other
+"""1-D slices of the loss and the acceptance score through a calibrated set (the other
 parameters held at the fit; a slice, not a re-optimised profile), for the parameters the
 sensitivities flag as pinned.
 

@@ -308,7 +308,7 @@ def test_ensemble_spec_errors():
 
 
 def test_criterion_shortfall_by_hand():
-    """The 'done when' penalty: 0.8 minus the probability of the paper's outcome where
+    """The acceptance penalty: 0.8 minus the probability of the paper's outcome where
     positive, plus for the stepping rows P(stand and step against the paper's way)."""
     from tkujax.studies.calibrate.calibrate_command import criterion_shortfall
 

@@ -148,7 +148,7 @@ def test_no_push_stands_whole_horizon(run, standing_pitch_deg, name):
 
 
 def test_no_push_stands_3s_mujoco_backend(standing_pitch_deg):
-    """The issue's "no push -> stands 3 s", control on and off (MuJoCo C physics, same loop)."""
+    """"No push -> stands 3 s", control on and off (MuJoCo C physics, same loop)."""
     config = sim.RolloutConfig(duration_s=3.0)
     pushes = push_lib.stack_pushes([make_push(0.0), make_push(0.0)])
     series, outcomes = backend_mujoco.simulate_mujoco(

@@ -76,6 +76,23 @@ def test_maps_leave_diverged_records_out():
     assert jmax[0] == 1.0 and len(azs) == 1               # 2.0 (diverged) is no cell at all
 
 
+def test_half_fall_impulse_interpolates_between_tested_impulses():
+    """Fall fractions 0, 1/4, 3/4 at 1, 2, 3 N s from the front: 1/2 lies half way from 2 to 3;
+    from behind nothing falls (inf); random records never count beside grid ones."""
+    from tkujax.analysis.map_cells import half_fall_impulse
+
+    j = np.repeat([1.0, 2.0, 3.0], 4)
+    front = np.array([0, 0, 0, 0, 1, 0, 0, 0, 1, 1, 1, 0], bool)
+    rec = dict(control=np.ones(30, bool), azimuth_deg=np.r_[np.zeros(12), np.full(12, 180.0),
+                                                               np.zeros(6)],
+               impulse_ns=np.r_[j, j, np.full(6, 0.5)], fell=np.r_[front, np.zeros(12, bool),
+                                                                    np.ones(6, bool)],
+               from_grid=np.r_[np.ones(24, bool), np.zeros(6, bool)])
+    azs, j50 = half_fall_impulse(rec, True)
+    np.testing.assert_allclose(azs, [0.0, 180.0])
+    assert j50[0] == pytest.approx(2.5) and j50[1] == np.inf
+
+
 @pytest.mark.parametrize("value, match", [
     ('{"step_period": "x"}', r"step_period must be a number in \(0, 2\] s, got 'x'"),
     ('{"lateral_steps": true}', r"lateral_steps must be a number in \{0, 1\}"),

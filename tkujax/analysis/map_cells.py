@@ -87,6 +87,29 @@ def _boundary_of_tested(js: np.ndarray, frac: np.ndarray) -> float:
     return float(jt[first - 1]) if first > 0 else 0.0
 
 
+def half_fall_impulse(rec: dict, control: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Per azimuth bin: the impulse (N s) where the fall fraction first reaches 1/2, linear
+    between the tested impulse bins (`cell_means`); the smallest tested impulse when it
+    already falls half the time, inf when no tested impulse does. Only a sweep's grid
+    records count when it has random ones too (`from_grid`)."""
+    if "from_grid" in rec:
+        grid = np.asarray(rec["from_grid"]).astype(bool)
+        rec = {k: np.asarray(v)[grid] for k, v in rec.items()
+               if np.ndim(v) and len(v) == len(grid)}
+    azs, js, frac = cell_means(rec, "fell", control)
+    out = np.full(len(azs), np.inf)
+    for i in range(len(azs)):
+        tested = np.isfinite(frac[i])
+        jt, ft = js[tested], frac[i][tested]
+        above = np.flatnonzero(ft >= 0.5)
+        if len(above) == 0:
+            continue
+        k = int(above[0])
+        out[i] = jt[0] if k == 0 else jt[k - 1] + (0.5 - ft[k - 1]) / (ft[k] - ft[k - 1]) * (
+            jt[k] - jt[k - 1])
+    return azs, out
+
+
 def member_boundaries(rec: dict, control: bool, min_pushes: int = MIN_MEMBER_PUSHES,
                       min_members: int = MIN_BAND_MEMBERS) -> dict:
     """The fall boundary of each ensemble member (rec["robot_id"]) and their spread.

@@ -49,7 +49,7 @@ def expected_rows(res: dict, samples, reading: str) -> dict:
 
 
 def criterion_shortfall(expected: dict, rows) -> float:
-    """The issue's 'done when' as a penalty (sum over `rows`): per row, how far the probability
+    """The calibration's acceptance as a penalty (sum over `rows`): per row, how far the probability
     of the paper's fall outcome is below 0.8; for the rows where the paper steps, the
     probability of standing and stepping (>= 5 mm) *against* the paper's way (every step must
     go the paper's way; a missing step is the table loss's business)."""

@@ -16,7 +16,7 @@ TABLE4 = [r for r in ROWS if r[0] == "back"]
 TABLE5 = [r for r in ROWS if r[0] == "front"]
 STAND_LEAN_DEG = (6.0, 8.0)          # 7 deg +- 1 deg [paper Sec. 4], hard constraint
 
-# "done when" tolerances of the paper-table calibration
+# acceptance tolerances of the paper-table calibration
 STEP_TOL = 0.30                       # +-30 % of the paper's step length
 REC_TOL = 0.50                        # +-50 % of the paper's no-control recovery time
 
@@ -79,7 +79,7 @@ def table_loss(results: dict, rows=ROWS) -> tuple[float, dict]:
 
 
 def score(results: dict, rows=ROWS) -> dict:
-    """The 'done when' counters of the paper-table calibration on `rows`."""
+    """The acceptance counters of the paper-table calibration on `rows`."""
     falls = sum((results[k]["fell"]) == (PAPER_TABLE[k][0] is None) for k in rows)
     steps_ok = steps_n = recs_ok = recs_n = order_ok = order_n = 0
     for k in rows:
