@@ -142,7 +142,7 @@ def main(argv=None) -> None:
     ap.add_argument("--out", default=None, help="also write the JSON here")
     args = ap.parse_args(argv)
     configure_runtime()
-    from tkujax.spec.sweep_spec import load_spec
+    from tkujax.dialects.sweep_spec import load_spec
 
     spec = load_spec(args.spec)
     if args.duration_s is not None:

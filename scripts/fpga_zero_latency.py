@@ -10,7 +10,7 @@ from tkujax.control.controller_params import ControllerParams
 from tkujax.sim.push import Push
 from tkujax.sim.rollout_mjx import RolloutConfig
 from tkujax.sim.rollout_mujoco import simulate_mujoco
-from tkujax.spec.sweep_spec import fixed_point_config
+from tkujax.dialects.sweep_spec import fixed_point_config
 
 
 def main() -> None:

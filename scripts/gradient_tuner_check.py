@@ -29,7 +29,7 @@ from tkujax.control.controller_params import ControllerParams
 from tkujax.gradients.diagnostics import step_check, summary
 from tkujax.studies.tune.reparam import DEG
 from tkujax.studies.tune.tune_spec import make_problem, parse_tune_spec, sample_pushes
-from tkujax.spec.validation import read_toml
+from tkujax.dialects.validation import read_toml
 
 SPEC = "specs/tune/tune_recovery_ensemble.toml"
 TAU = 0.5 * DEG

@@ -116,7 +116,7 @@ def heldout_spec(smoke: bool, name: str = "op3_heldout.toml") -> dict:
 
 def _sweep(spec: dict, out: Path, robot, deadline: float, params=None) -> dict:
     """Run (or resume) a sweep chunk by chunk until it is complete or the deadline passes."""
-    from tkujax.spec.sweep_spec import parse_spec
+    from tkujax.dialects.sweep_spec import parse_spec
     from tkujax.sweeps.sweep import run_sweep
 
     parsed = parse_spec(spec)

@@ -63,7 +63,7 @@ def main(argv=None) -> None:
     from tkujax.sweeps import early
     from tkujax.sweeps.chunk_program import (chunk_keys, make_chunk_fn, record_inputs,
                                              traced_params)
-    from tkujax.spec.sweep_spec import load_spec
+    from tkujax.dialects.sweep_spec import load_spec
 
     spec = load_spec(args.spec)
     recs = record_inputs(spec)

@@ -154,7 +154,7 @@ def baseline(spec: Path, pushes: int, lanes: int, log) -> dict:
             "sys.path.insert(0, 'scripts')\n"
             "from tkujax.cli.runtime import configure_runtime; configure_runtime()\n"
             "from bench_early import measure\n"
-            "from tkujax.spec.sweep_spec import load_spec\n"
+            "from tkujax.dialects.sweep_spec import load_spec\n"
             f"res = measure(load_spec({str(spec)!r}), {pushes}, {lanes})\n"
             "print('RESULT', json.dumps(res))\n")
     proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env_for(None),

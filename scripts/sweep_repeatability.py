@@ -19,7 +19,7 @@ import numpy as np
 
 from tkujax.control.controller_params import ControllerParams
 from tkujax.sweeps import chunk_program
-from tkujax.spec.sweep_spec import load_spec
+from tkujax.dialects.sweep_spec import load_spec
 
 
 def rows_differing(a: dict, b: dict) -> dict[str, int]:

@@ -19,7 +19,7 @@ from tkujax.studies.calibrate import fit_vector as P
 from tkujax.studies.calibrate import targets as T
 from tkujax.studies.calibrate.calibrate_command import run_calibrate
 from tkujax.studies.calibrate.calibrate_spec import parse_calibrate_spec
-from tkujax.spec.sweep_spec import SpecError
+from tkujax.dialects.sweep_spec import SpecError
 
 SEARCH = {"max_evals": 10, "popsize": 4, "restarts": 1, "seed": 3}
 

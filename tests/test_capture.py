@@ -20,7 +20,7 @@ from tkujax.sim.push import Push
 from tkujax.studies.capture import theory
 from tkujax.studies.capture.optimize import MarginProblem
 from tkujax.studies.capture.region import analyse
-from tkujax.spec.sweep_spec import SpecError, load_spec, parse_spec
+from tkujax.dialects.sweep_spec import SpecError, load_spec, parse_spec
 from tkujax.sweeps.sweep import run_sweep
 
 G = 9.81

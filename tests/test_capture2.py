@@ -14,7 +14,7 @@ from tkujax.control import ControllerParams, StepOverride
 from tkujax.control.controller import override_feet
 from tkujax.control.cpg import cpg_feet_lateral
 from tkujax.studies.capture.region import jn_table
-from tkujax.spec.sweep_spec import SpecError, load_spec, parse_spec
+from tkujax.dialects.sweep_spec import SpecError, load_spec, parse_spec
 from tkujax.sweeps.sweep import step_override
 
 P = ControllerParams.paper()      # T = 0.3 s, gamma = 0.2: lift 0.03 s, land 0.27 s after start

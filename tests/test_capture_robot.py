@@ -19,7 +19,7 @@ from tkujax.analysis.capturability import step_reach_m
 from tkujax.studies.capture import run_capture
 from tkujax.studies.capture.on_robot import check_capture_robot
 from tkujax.sweeps.replay import replay
-from tkujax.spec.sweep_spec import SpecError, load_spec, parse_spec
+from tkujax.dialects.sweep_spec import SpecError, load_spec, parse_spec
 
 from test_robot_file import REPO, needs_op3
 

@@ -9,7 +9,7 @@ import pytest
 from tkujax.sweeps import chunks
 from tkujax.analysis.compare import (Bands, compare_runs, difference_cells, load_run,
                                      sector_index)
-from tkujax.spec.sweep_spec import SpecError, parse_spec
+from tkujax.dialects.sweep_spec import SpecError, parse_spec
 from tkujax.sweeps.sweep import record_inputs
 
 
@@ -174,7 +174,7 @@ def test_unpaired_robots_accepts_other_draws_and_uses_independent_errors(tmp_pat
     unpaired_robots, with the standard error of a difference of two independent rates."""
     import numpy as np
     from tkujax.analysis.compare import Run, check_same_pushes, fall_difference
-    from tkujax.spec.sweep_spec import SpecError
+    from tkujax.dialects.sweep_spec import SpecError
 
     n = 200
     base = dict(impulse_ns=np.full(n, 1.0), azimuth_deg=np.zeros(n), onset_phase=np.zeros(n))

@@ -8,7 +8,7 @@ import pytest
 
 from tkujax import cli
 from tkujax.studies import converge as C
-from tkujax.spec.sweep_spec import SpecError
+from tkujax.dialects.sweep_spec import SpecError
 
 TINY = """
 [converge]

@@ -16,7 +16,7 @@ from tkujax.sweeps import chunks
 from tkujax.sweeps import early
 from tkujax.sweeps.chunk_program import chunk_keys, make_chunk_fn, record_inputs, traced_params
 from tkujax.sweeps.lane_stream import LaneStream
-from tkujax.spec.sweep_spec import SpecError, parse_spec
+from tkujax.dialects.sweep_spec import SpecError, parse_spec
 from tkujax.sweeps.sweep import load, run_sweep
 from tkujax.sweeps.sweep_hash import spec_hash
 from tkujax.model import ModelParams

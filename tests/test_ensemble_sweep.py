@@ -12,7 +12,7 @@ import pytest
 from tkujax.model.ensemble import save_ensemble
 from tkujax.analysis import maps
 from tkujax.studies.calibrate import fit_vector as P
-from tkujax.spec.sweep_spec import SpecError, load_spec, parse_spec
+from tkujax.dialects.sweep_spec import SpecError, load_spec, parse_spec
 from tkujax.sweeps.sweep_hash import spec_hash
 from tkujax.sweeps.sweep import choose_backend, record_inputs
 from tkujax.control.controller_params import ControllerParams

@@ -19,7 +19,7 @@ from tkujax.sim.rollout_mujoco import simulate_mujoco
 from tkujax.sim.tick import control_tick, control_tick_fx
 from tkujax.studies.fpga import analyse, float_reference_spec
 from tkujax.sweeps.record_schema import manifest_spec
-from tkujax.spec.sweep_spec import SpecError, fixed_point_config, parse_spec
+from tkujax.dialects.sweep_spec import SpecError, fixed_point_config, parse_spec
 from tkujax.sweeps.sweep_hash import spec_hash
 from tkujax.sweeps.sweep import load, run_sweep, shares_robot_draws
 

@@ -12,9 +12,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from tkujax.spec.sweep_spec import (MAX_RECORDS, PHASE_KEY, PUSH_FIELDS, SpecError, expand,
-                                    parse_spec, record_count)
-from tkujax.spec.validation import number, uniform, values
+from tkujax.dialects.sweep_spec import (MAX_RECORDS, PHASE_KEY, PUSH_FIELDS, SpecError, expand,
+                                        parse_spec, record_count)
+from tkujax.dialects.validation import number, uniform, values
 
 SETTINGS = settings(max_examples=150, deadline=None,
                     suppress_health_check=[HealthCheck.too_slow])

@@ -157,7 +157,7 @@ def test_a_bad_spec_value_is_refused_before_anything_runs(capsys, tmp_path, text
 
 
 def test_a_32_million_push_grid_is_refused_at_once(tmp_path):
-    from tkujax.spec.sweep_spec import MAX_RECORDS, SpecError, parse_spec
+    from tkujax.dialects.sweep_spec import MAX_RECORDS, SpecError, parse_spec
 
     text = dict(CASES_BY_ID)["grid_32_million"]
     spec = tmp_path / "big.toml"

@@ -10,7 +10,7 @@ import pytest
 import tkujax
 
 ROOT = Path(tkujax.__file__).parent
-LAYERS = ["model", "control", "sim", "robot", "gradients", "walking", "spec", "sweeps",
+LAYERS = ["model", "control", "sim", "robot", "gradients", "walking", "dialects", "sweeps",
           "analysis", "studies", "top"]   # top: bench, viewer, render, cli
 
 

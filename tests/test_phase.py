@@ -100,7 +100,7 @@ def test_default_imu_lowpass_narrows_the_phase_gap(runs):
 def test_sweep_runs_the_phase_axis_and_accel_gate_grid_on_mujoco_c(runs, tmp_path):
     """The same two pushes as a spec: onset_phase grid x [controller.grid] accel_gate, on the
     MuJoCo C backend (one batch per grid point): the records are the direct runs'."""
-    from tkujax.spec.sweep_spec import parse_spec
+    from tkujax.dialects.sweep_spec import parse_spec
     from tkujax.sweeps.sweep import load, run_sweep
 
     spec = parse_spec({

@@ -17,7 +17,7 @@ from tkujax.control.params_files import (load_controller_params_json, load_polic
                                          save_policy_json)
 from tkujax.control.controller_params import ControllerParams
 from tkujax.control.policy import Schedule, schedule_to_dict
-from tkujax.spec.sweep_spec import SpecError, parse_spec
+from tkujax.dialects.sweep_spec import SpecError, parse_spec
 from tkujax.sweeps.sweep import load, run_sweep
 
 FIELDS = ("cp_gain", "step_period")

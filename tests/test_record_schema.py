@@ -46,7 +46,7 @@ def test_an_added_field_enters_the_hash_only_when_set():
 
 
 def test_tree_passes_of_a_spec_enter_the_hash_and_an_older_manifest_ran_mjx():
-    from tkujax.spec.sweep_spec import SpecError, parse_spec
+    from tkujax.dialects.sweep_spec import SpecError, parse_spec
 
     raw = {"sweep": {"name": "t"}, "push": {"grid": {"impulse_ns": [1.0]}}}
     compact = parse_spec(raw)

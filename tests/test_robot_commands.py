@@ -18,7 +18,7 @@ from tkujax.analysis.compare import compare_runs
 from tkujax.analysis.maps import make_maps
 from tkujax.sweeps.replay import replay
 from tkujax.studies.robot_inputs import robot_lip, sweep_robot, tune_robot
-from tkujax.spec.sweep_spec import SpecError, parse_spec
+from tkujax.dialects.sweep_spec import SpecError, parse_spec
 from tkujax.sweeps.sweep import run_sweep
 from tkujax.studies.tune.robot_table import on_robot
 from tkujax.studies.tune.tune_spec import parse_tune_spec

@@ -18,7 +18,7 @@ from tkujax.sim.options import RolloutConfig
 from tkujax.sim.push import Push
 from tkujax.sim.rollout_mjx import simulate
 from tkujax.sim.rollout_mujoco import simulate_mujoco
-from tkujax.spec.sweep_spec import SpecError, parse_spec
+from tkujax.dialects.sweep_spec import SpecError, parse_spec
 from tkujax.sweeps.sweep import check_robot_sweep, load, run_sweep
 
 from test_robot_file import REPO, needs_op3

@@ -17,7 +17,7 @@ import pytest
 from tkujax.analysis import capturability
 from tkujax.control.controller_params import ControllerParams
 from tkujax.model import ModelParams
-from tkujax.spec.sweep_spec import SpecError, load_spec, parse_spec
+from tkujax.dialects.sweep_spec import SpecError, load_spec, parse_spec
 from tkujax.control.params_files import load_controller_params_json as load_params_json
 from tkujax.sweeps.sweep import load, run_sweep
 
@@ -412,7 +412,7 @@ def test_persistent_cache_serves_a_new_process(full_run):
         "jax.monitoring.register_event_listener("
         "lambda e, **k: hits.append(e) if e == '/jax/compilation_cache/cache_hits' else None)\n"
         "from tkujax.control import ControllerParams\n"
-        "from tkujax.spec.sweep_spec import load_spec\n"
+        "from tkujax.dialects.sweep_spec import load_spec\n"
         "from tkujax.sweeps.sweep import make_chunk_fn, traced_params, record_inputs\n"
         f"spec = load_spec({str(TINY)!r})\n"
         "recs = record_inputs(spec)\n"

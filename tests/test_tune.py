@@ -36,7 +36,7 @@ import numpy as np
 import pytest
 
 from tkujax.control.controller_params import ControllerParams
-from tkujax.spec.sweep_spec import RANDOMIZE_DEFAULTS, SpecError
+from tkujax.dialects.sweep_spec import RANDOMIZE_DEFAULTS, SpecError
 from tkujax.control.params_files import load_controller_params_json as load_params_json
 from tkujax.studies.tune import (DEG, LossConfig, Reparam, TuneProblem, evolution_baseline,
                                  make_optimizer, optimise, params_json, parse_tune_spec,
@@ -363,7 +363,7 @@ def test_warm_up_runs_the_calls_side_by_side_and_returns_what_each_returned():
 def test_iterations_override_is_checked_like_the_spec_key(tmp_path):
     from pathlib import Path
 
-    from tkujax.spec.sweep_spec import SpecError
+    from tkujax.dialects.sweep_spec import SpecError
     from tkujax.studies.tune import run_tune
 
     for bad in (0, -1, 2.5):

@@ -18,11 +18,11 @@ import pytest
 
 from tkujax.control.controller import Sensors, controller_init, controller_step
 from tkujax.control.controller_params import RECOMMENDED, ControllerParams
-from tkujax.spec.sweep_spec import SpecError
+from tkujax.dialects.sweep_spec import SpecError
 from tkujax.studies.tune import Reparam, parse_tune_spec
 from tkujax.studies.tune.parameterisations import PolicyReparam, parse_policy
 from tkujax.studies.tune.dimension_study import parse_only, plan, run_study, select
-from tkujax.spec.sweep_spec import read_toml
+from tkujax.dialects.sweep_spec import read_toml
 
 FIELDS = ("step_period", "cp_gain", "cp_trigger_forward_m", "cp_trigger_backward_m",
           "stance_ankle_kp", "stance_hip_kp", "stance_roll_kp", "accel_gate")
@@ -112,7 +112,7 @@ def test_wide_mlp_has_over_a_thousand_parameters():
     """mlp96 on the 16 scalars and 8 scheduled fields of the dimension study (the gradients
     spec's large policy): 16 + 5 x 96 + 97 x 8 = 1,272 parameters, starting with every
     correction exactly 0."""
-    from tkujax.spec.sweep_spec import read_toml
+    from tkujax.dialects.sweep_spec import read_toml
     from tkujax.studies.tune import parse_tune_spec
 
     spec = parse_tune_spec(read_toml("specs/tune/tune_dimension.toml"))

@@ -22,7 +22,7 @@ import pytest
 from tkujax.model import ModelParams
 from tkujax.model.ensemble import save_ensemble
 from tkujax.studies.calibrate import fit_vector as P
-from tkujax.spec.sweep_spec import SpecError
+from tkujax.dialects.sweep_spec import SpecError
 from tkujax.studies.tune.loss import OFF_SURVIVED, LossConfig, harm_weighted_mean
 from tkujax.studies.tune.problem import RECORD_KEYS, TuneProblem
 from tkujax.studies.tune.tune_spec import (ensembles_record, grid_pushes, make_problem,

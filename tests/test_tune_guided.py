@@ -115,7 +115,7 @@ def test_gradients_specs_parse():
     three seeds side by side, compile included, starting at the recommended controller on the
     default robot."""
     from tkujax.control.controller_params import ControllerParams
-    from tkujax.spec.sweep_spec import read_toml
+    from tkujax.dialects.sweep_spec import read_toml
     from tkujax.studies.tune import parse_tune_spec
 
     for path, batch in (("specs/tune/gradients.toml", 1024), ("specs/tune/gradients_cpu.toml", 16)):

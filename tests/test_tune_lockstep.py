@@ -187,7 +187,7 @@ def test_lockstep_matches_run_search_through_mjx():
     """The real problem (the CPU smoke spec's policy `scalars`, 2 pushes x 0.3 s, float32),
     (1+1)-ES, 3 iterations: lockstep over 2 seeds = run_search per seed (measured: identical
     iterates, losses within 3e-7 relative)."""
-    from tkujax.spec.sweep_spec import read_toml
+    from tkujax.dialects.sweep_spec import read_toml
     from tkujax.studies.tune import parse_tune_spec
     from tkujax.studies.tune.tune_spec import sample_pushes
 

@@ -15,7 +15,7 @@ import pytest
 from tkujax.control.controller_params import ControllerParams
 from tkujax.sim.records import Series
 from tkujax.gradients.bundled import bundle_noise
-from tkujax.spec.sweep_spec import SpecError
+from tkujax.dialects.sweep_spec import SpecError
 from tkujax.studies.tune import DEG, LossConfig, Reparam, TuneProblem, parse_tune_spec
 from tkujax.studies.tune.loss import push_loss
 from tkujax.studies.tune.reparam import PAPER_TUNABLE

@@ -20,7 +20,7 @@ from tkujax.control.params_files import load_policy_json, save_policy_json
 from tkujax.control.controller_params import ControllerParams
 from tkujax.control.policy import (RECOVERY_TIME_MAX_S, RECOVERY_TIME_SCALE_S, recovery_inputs,
                                    schedule_to_dict)
-from tkujax.spec.sweep_spec import SpecError, read_toml
+from tkujax.dialects.sweep_spec import SpecError, read_toml
 from tkujax.studies.tune import Reparam, parse_tune_spec
 from tkujax.studies.tune.parameterisations import PolicyReparam, parse_policy
 

@@ -17,7 +17,7 @@ from tkujax.studies.tune.searchers import searcher_class
 from tkujax.studies.tune.selection import (FRESH_DRAW_SEED_STRIDE, BatchStream,
                                            ValidationSelector, incumbent)
 from tkujax.studies.tune.tune_spec_tables import parse_study
-from tkujax.spec.validation import SpecError
+from tkujax.dialects.validation import SpecError
 from tests.test_tune_lockstep import N, SEEDS, Z0, StandIn, stand_keys, stand_records
 
 CFG = SearchConfig(budget_s=1e6, max_iterations=4, popsize=5, sigma0=0.3, groups=2,

@@ -91,8 +91,8 @@ def test_validate_names_the_gain_and_its_range(value):
 
 
 def test_sweep_spec_takes_the_gain_and_names_its_range():
-    from tkujax.spec.sweep_spec import parse_spec
-    from tkujax.spec.validation import SpecError
+    from tkujax.dialects.sweep_spec import parse_spec
+    from tkujax.dialects.validation import SpecError
 
     base = {"sweep": {"name": "w"}, "push": {"grid": {"impulse_ns": [0.5]}}}
     spec = parse_spec(base | {"controller": {"cp_gain_lateral": -1.0}})

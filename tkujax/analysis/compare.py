@@ -50,7 +50,7 @@ from tkujax.sweeps.sweep_robot import same_robot
 from tkujax.analysis.compare_report import (plot_by_sector, plot_difference_maps, summary_markdown,
                                             table_csv, table_markdown, write_text_atomic)
 from tkujax.analysis.map_cells import MAX_AZIMUTH_BINS, bin_axis
-from tkujax.spec.sweep_spec import PHASE_KEY, RANDOMIZE_FIELDS, SpecError
+from tkujax.dialects.sweep_spec import PHASE_KEY, RANDOMIZE_FIELDS, SpecError
 from tkujax.sweeps.sweep import load, outcome_keys
 
 SECTOR_NAMES = {4: ("behind", "right", "front", "left"),

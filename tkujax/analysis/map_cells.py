@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from tkujax.sim.push import onset_phase
-from tkujax.spec.sweep_spec import PHASE_KEY
+from tkujax.dialects.sweep_spec import PHASE_KEY
 
 ROUND = 6
 MAX_AZIMUTH_BINS = 72     # 5 deg

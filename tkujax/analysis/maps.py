@@ -34,7 +34,7 @@ from tkujax.analysis.map_cells import (BAND_QUANTILES, MIN_BAND_MEMBERS, MIN_MEM
                                        cell_means, fall_by_phase, max_recoverable_impulse,
                                        member_boundaries, polar_mesh)
 from tkujax.sweeps.sweep_robot import check_robot
-from tkujax.spec.sweep_spec import parse_spec
+from tkujax.dialects.sweep_spec import parse_spec
 from tkujax.sweeps.sweep import load
 
 

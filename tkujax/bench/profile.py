@@ -115,7 +115,7 @@ def loop_fn(duration_s: float, config_fields: dict | None = None, shared_model: 
     from tkujax.sim.push import Push
     from tkujax.sim.randomize import randomize_model
     from tkujax.sim.setup import init
-    from tkujax.spec.sweep_spec import SWEEP_TREE_PASSES
+    from tkujax.dialects.sweep_spec import SWEEP_TREE_PASSES
     from tkujax.sweeps.sweep import OUTCOME_KEYS, SWEEP_COMPILER_OPTIONS, SWEEP_LOOP
 
     host, model, index, state = init()

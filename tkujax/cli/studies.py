@@ -17,7 +17,7 @@ def _cmd_calibrate(args) -> int:
                               ("workers", args.workers)) if v is not None}
     if over:
         from tkujax.studies.calibrate.calibrate_spec import parse_calibrate_spec
-        from tkujax.spec.sweep_spec import read_toml
+        from tkujax.dialects.sweep_spec import read_toml
 
         raw = read_toml(args.spec)
         raw.setdefault("search", {}).update(over)      # re-validated like the spec's own keys
@@ -64,7 +64,7 @@ def _cmd_tune(args) -> int:
         return _cmd_tune_robot(args)
     from tkujax.studies.robot_inputs import tune_robot
     from tkujax.studies.tune import run_tune
-    from tkujax.spec.validation import read_toml
+    from tkujax.dialects.validation import read_toml
 
     record = run_tune(args.spec, args.out, iterations=args.iterations,
                       compare=not args.no_compare, evaluation=not args.no_eval,

@@ -32,7 +32,7 @@ def _cmd_sweep(args) -> int:
 def _robot_option(args):
     """The RobotSetup of --robot FILE, else of the spec's [robot] file, else None."""
     from tkujax.robot.robot_setup import robot_setup
-    from tkujax.spec.sweep_spec import load_spec
+    from tkujax.dialects.sweep_spec import load_spec
 
     path = args.robot or load_spec(args.spec).robot_file
     if path is None:

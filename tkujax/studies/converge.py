@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tkujax.spec.validation import SpecError, in_range, read_toml, table
+from tkujax.dialects.validation import SpecError, in_range, read_toml, table
 
 BACKENDS = ("mujoco", "mjx")
 CONTROLS = ("off", "on")

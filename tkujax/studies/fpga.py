@@ -33,9 +33,9 @@ from tkujax.control.fixed.support import check_supported
 from tkujax.control.controller_params import ControllerParams
 from tkujax.analysis.map_cells import max_recoverable_impulse
 from tkujax.control.fixed.config import FixedPointConfig
-from tkujax.spec.sweep_spec import (FPGA_COLUMN, SpecError, SweepSpec, fixed_point_config,
-                                    load_spec,
-                                    parse_spec)
+from tkujax.dialects.sweep_spec import (FPGA_COLUMN, SpecError, SweepSpec, fixed_point_config,
+                                        load_spec,
+                                        parse_spec)
 from tkujax.control.params_files import controller_params_from
 from tkujax.sweeps.sweep import load, run_sweep
 

@@ -20,7 +20,7 @@ from tkujax.analysis.capturability import LipModel, convex_hull, step_reach_m
 from tkujax.studies.capture.theory import Feet
 from tkujax.sweeps.chunks import read_manifest
 from tkujax.sweeps.sweep_robot import recorded_robot
-from tkujax.spec.sweep_spec import load_spec
+from tkujax.dialects.sweep_spec import load_spec
 from tkujax.studies.tune.robot_table import robot_file_of
 
 

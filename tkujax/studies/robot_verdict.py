@@ -21,7 +21,7 @@ import jax
 from tkujax.control.params_files import controller_params_from_dict, save_controller_params_json
 from tkujax.control.controller_params import ControllerParams
 from tkujax.analysis.compare import Bands, compare_runs
-from tkujax.spec.sweep_spec import parse_spec
+from tkujax.dialects.sweep_spec import parse_spec
 from tkujax.sweeps.sweep import run_sweep
 
 MIN_CELL_PUSHES, HARM_PP = 100, 2.0

@@ -25,8 +25,8 @@ from tkujax.sim.push import Push
 from tkujax.sim.randomize import randomize_model
 from tkujax.sim.rollout_mjx import Episode, ProgramOptions, RolloutConfig, rollout
 from tkujax.sim.setup import init
-from tkujax.spec.sweep_spec import (FPGA_COLUMN, RANDOMIZE_DEFAULTS, ROBOT_ID_COLUMN,
-                                    SWEEP_TREE_PASSES, EnsembleRef, SpecError, SweepSpec)
+from tkujax.dialects.sweep_spec import (FPGA_COLUMN, RANDOMIZE_DEFAULTS, ROBOT_ID_COLUMN,
+                                        SWEEP_TREE_PASSES, EnsembleRef, SpecError, SweepSpec)
 
 # lax.scan unrolling of each control tick's physics substeps in the sweeps' program
 # (RolloutConfig.unroll_substeps; 1: a rolled loop). Same arithmetic, another loop structure.

@@ -45,7 +45,7 @@ from tkujax.sim.options import ProgramOptions, RolloutConfig
 from tkujax.sim.push import CONTROL_PERIOD_S
 from tkujax.sweeps.chunk_program import (OUTCOME_KEYS, SWEEP_COMPILER_OPTIONS, record_episode,
                                          sweep_base)
-from tkujax.spec.sweep_spec import PHASE_KEY, PUSH_FIELDS, EnsembleRef
+from tkujax.dialects.sweep_spec import PHASE_KEY, PUSH_FIELDS, EnsembleRef
 
 DECIDED_COLUMN = "decided_s"   # early records: the time of the last simulated tick
 # The readings an early record takes up to the fall decision when the push fell (the full

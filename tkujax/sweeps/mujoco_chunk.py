@@ -13,7 +13,7 @@ from tkujax.sim.metrics import capture_outcomes
 from tkujax.sim.push import Push
 from tkujax.sim.rollout_mjx import RolloutConfig
 from tkujax.sweeps.chunk_program import OUTCOME_KEYS, step_override
-from tkujax.spec.sweep_spec import FPGA_COLUMN, ROBOT_ID_COLUMN, EnsembleRef, fixed_point_config
+from tkujax.dialects.sweep_spec import FPGA_COLUMN, ROBOT_ID_COLUMN, EnsembleRef, fixed_point_config
 
 
 @jax.jit

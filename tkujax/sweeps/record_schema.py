@@ -43,8 +43,8 @@ from tkujax.control.params_files import controller_params_from_dict
 from tkujax.control.controller_params import ControllerParams
 from tkujax.model import ModelParams
 from tkujax.model.params_json import model_params_from_dict
-from tkujax.spec.sweep_spec import SweepSpec, parse_spec
-from tkujax.spec.program_keys import decisions_of
+from tkujax.dialects.sweep_spec import SweepSpec, parse_spec
+from tkujax.dialects.program_keys import decisions_of
 
 SCHEMA_VERSION = 6
 UNVERSIONED = 1               # the version of a manifest that records none

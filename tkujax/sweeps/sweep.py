@@ -42,8 +42,8 @@ from tkujax.sweeps.lane_stream import LaneStream
 from tkujax.sweeps.mujoco_chunk import mujoco_chunk
 from tkujax.sweeps.progress import Progress
 from tkujax.sim.push import CONTROL_PERIOD_S
-from tkujax.spec.sweep_spec import SpecError, SweepSpec, load_spec
-from tkujax.spec.program_keys import with_decisions
+from tkujax.dialects.sweep_spec import SpecError, SweepSpec, load_spec
+from tkujax.dialects.program_keys import with_decisions
 from tkujax.sweeps.sweep_folder import (chunk_provenance, claim_folder, describe, prepare_out,
                                         processes, run_record)
 from tkujax.sweeps.sweep_hash import input_digests, spec_hash

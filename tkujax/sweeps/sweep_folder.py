@@ -32,7 +32,7 @@ from tkujax.sim.setup import RobotSetup
 from tkujax.sweeps import chunks
 from tkujax.sweeps.provenance import git_commit, versions
 from tkujax.sweeps.record_schema import SCHEMA_KEY, SCHEMA_VERSION, TREE_PASSES_KEY
-from tkujax.spec.sweep_spec import SpecError, SweepSpec
+from tkujax.dialects.sweep_spec import SpecError, SweepSpec
 from tkujax.sweeps.sweep_hash import changed_inputs
 
 RUNS_KEY = "runs"

@@ -18,8 +18,8 @@ from tkujax.control.policy import Schedule, schedule_to_dict
 from tkujax.model import ModelParams
 from tkujax.sim.setup import RobotSetup
 from tkujax.sweeps.record_schema import TREE_PASSES_BEFORE, hashed_fields
-from tkujax.spec.sweep_spec import SweepSpec
-from tkujax.spec.program_keys import hashed_raw
+from tkujax.dialects.sweep_spec import SweepSpec
+from tkujax.dialects.program_keys import hashed_raw
 
 
 def shares_robot_draws(spec: SweepSpec) -> bool:

@@ -10,7 +10,7 @@ names both.
 
 from __future__ import annotations
 
-from tkujax.spec.validation import SpecError
+from tkujax.dialects.validation import SpecError
 
 
 def recorded_robot(manifest: dict) -> dict | None:

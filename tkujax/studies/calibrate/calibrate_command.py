@@ -25,7 +25,7 @@ import numpy as np
 from tkujax.studies.calibrate import fit_vector as P
 from tkujax.sweeps.progress import StatusLog
 from tkujax.studies.calibrate.calibrate_spec import CalibrateSpec, load_calibrate_spec
-from tkujax.spec.validation import SpecError
+from tkujax.dialects.validation import SpecError
 from tkujax.studies.calibrate.scoring import (CRITERION_P, FAILED_LOSS, OBJECTIVE_ROWS, Evaluator,
                                               criterion_shortfall, expected_rows, score)
 from tkujax.studies.calibrate.calibration_outputs import score_many, write_report

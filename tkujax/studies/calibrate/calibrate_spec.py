@@ -37,8 +37,8 @@ import json
 from pathlib import Path
 
 from tkujax.studies.calibrate import fit_vector as P
-from tkujax.spec.validation import (SpecError, boolean, choice, distinct_list, integer,
-                                    names, number, read_toml, string, table)
+from tkujax.dialects.validation import (SpecError, boolean, choice, distinct_list, integer,
+                                        names, number, read_toml, string, table)
 
 ROWS_CHOICES = ("all", "table4")
 MAX_PHASE_MS = 30.0                  # the controller's sampling period

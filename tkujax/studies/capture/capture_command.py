@@ -16,7 +16,7 @@ from tkujax.control.controller_params import ControllerParams
 from tkujax.studies.capture import figures, theory
 from tkujax.studies.capture.on_robot import check_capture_robot
 from tkujax.studies.capture.region import analyse
-from tkujax.spec.sweep_spec import SpecError, SweepSpec, load_spec
+from tkujax.dialects.sweep_spec import SpecError, SweepSpec, load_spec
 from tkujax.control.params_files import controller_params_from
 from tkujax.sweeps.sweep import run_sweep
 

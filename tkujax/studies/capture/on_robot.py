@@ -19,8 +19,8 @@ import numpy as np
 from tkujax.control.controller_params import ControllerParams
 from tkujax.sim.setup import RobotSetup
 from tkujax.analysis.capturability import step_reach_m
-from tkujax.spec.sweep_spec import STEP_FIELDS, SweepSpec
-from tkujax.spec.validation import SpecError
+from tkujax.dialects.sweep_spec import STEP_FIELDS, SweepSpec
+from tkujax.dialects.validation import SpecError
 
 
 def _grid(spec: SweepSpec, key: str) -> np.ndarray:

@@ -22,7 +22,7 @@ import jax.numpy as jnp
 from tkujax.sim.metrics import FALL_BODY_CLEARANCE_M, FALL_PELVIS_HEIGHT_M
 from tkujax.gradients.margin import MarginConfig, clearance_m, margin_loss
 from tkujax.studies.tune.reparam import DEG
-from tkujax.spec.validation import SpecError, number, table
+from tkujax.dialects.validation import SpecError, number, table
 
 
 @dataclasses.dataclass(frozen=True)

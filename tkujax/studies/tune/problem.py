@@ -43,7 +43,7 @@ from tkujax.sim.randomize import randomize_model
 from tkujax.sim.robots import RobotSet, put_leaves
 from tkujax.sim.rollout_mjx import Episode, ProgramOptions, RolloutConfig, rollout
 from tkujax.sim.setup import init
-from tkujax.spec.sweep_spec import RANDOMIZE_FIELDS, ROBOT_ID_COLUMN
+from tkujax.dialects.sweep_spec import RANDOMIZE_FIELDS, ROBOT_ID_COLUMN
 from tkujax.studies.tune.loss import OFF_SURVIVED, LossConfig, harm_weighted_mean, push_loss
 from tkujax.studies.tune.reparam import CPU_COMPILER_OPTIONS, DEG, EVAL_KEYS, Reparam
 

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from tkujax.control.controller_params import ControllerParams
-from tkujax.spec.validation import SpecError
+from tkujax.dialects.validation import SpecError
 
 
 DEG = math.pi / 180.0

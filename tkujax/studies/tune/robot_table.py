@@ -15,7 +15,7 @@ from pathlib import Path
 
 from tkujax.control.params_files import controller_params_from
 from tkujax.studies.tune.reparam import check_start
-from tkujax.spec.validation import SpecError, robot_file_of
+from tkujax.dialects.validation import SpecError, robot_file_of
 
 
 

@@ -43,7 +43,7 @@ from tkujax.gradients.bundled import bundle_noise
 from tkujax.gradients.diagnostics import cosine, summary
 from tkujax.studies.tune.reparam import DEG
 from tkujax.studies.tune.selection import ValidationSelector, incumbent
-from tkujax.spec.validation import SpecError, boolean, integer, number
+from tkujax.dialects.validation import SpecError, boolean, integer, number
 from tkujax.studies.tune.searchers import (METHODS, SearchConfig, alpha_order_mix, finite_loss,
                                            searcher_class)
 

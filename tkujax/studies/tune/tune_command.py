@@ -29,7 +29,7 @@ from tkujax.studies.tune.problem import x64
 from tkujax.studies.tune.parameterisations import PolicyReparam, save_policy
 from tkujax.studies.tune.tune_outputs import plot_outputs, summary_markdown
 from tkujax.studies.tune.search import GradientOptions, SearchConfig, calls_used, run_search
-from tkujax.spec.validation import integer, number
+from tkujax.dialects.validation import integer, number
 from tkujax.studies.tune.robot_table import on_robot, robot_record
 from tkujax.studies.tune.tune_spec import (TuneSpec, ensembles_record, grid_pushes,
                                            load_tune_spec, make_problem, parse_tune_spec,

@@ -31,9 +31,9 @@ import numpy as np
 from tkujax.control.controller_params import ControllerParams
 from tkujax.control.params_files import allowed_range, controller_params_from
 from tkujax.model.model_params import ModelParams
-from tkujax.spec.sweep_spec import (CONTROLLER_FIELDS, ENSEMBLE_KEY, PUSH_FIELDS,
-                                    RANDOMIZE_DEFAULTS, RANDOMIZE_FIELDS, ROBOT_ID_COLUMN,
-                                    EnsembleRef, controller_value, parse_ensemble, parse_randomize)
+from tkujax.dialects.sweep_spec import (CONTROLLER_FIELDS, ENSEMBLE_KEY, PUSH_FIELDS,
+                                        RANDOMIZE_DEFAULTS, RANDOMIZE_FIELDS, ROBOT_ID_COLUMN,
+                                        EnsembleRef, controller_value, parse_ensemble, parse_randomize)
 from tkujax.studies.tune.loss import LossConfig, parse_loss
 from tkujax.studies.tune.parameterisations import DEFAULT_SCHEDULE, PolicyReparam
 from tkujax.studies.tune.problem import RECORD_KEYS, TuneProblem
@@ -41,8 +41,8 @@ from tkujax.studies.tune.reparam import DEFAULT_TUNED, TUNABLE, Reparam, check_s
 from tkujax.studies.tune.search import parse_gradient_options
 from tkujax.studies.tune.searchers import METHODS
 from tkujax.studies.tune.tune_spec_tables import parse_compare, parse_study, policy_name
-from tkujax.spec.validation import (SpecError, boolean, integer, number, read_toml,
-                                    robot_file_of, table, uniform, values)
+from tkujax.dialects.validation import (SpecError, boolean, integer, number, read_toml,
+                                        robot_file_of, table, uniform, values)
 
 
 @dataclasses.dataclass(frozen=True)

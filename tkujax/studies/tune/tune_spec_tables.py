@@ -3,11 +3,11 @@ one wall-clock budget, and the search settings they share."""
 
 from __future__ import annotations
 
-from tkujax.spec.sweep_spec import PUSH_FIELDS
+from tkujax.dialects.sweep_spec import PUSH_FIELDS
 from tkujax.studies.tune.parameterisations import parse_policy
 from tkujax.studies.tune.searchers import METHODS
 from tkujax.studies.tune.selection import SELECT_MODES
-from tkujax.spec.validation import SpecError, boolean, integer, number, table
+from tkujax.dialects.validation import SpecError, boolean, integer, number, table
 
 
 def policy_name(key: str, value) -> str:

@@ -10,8 +10,8 @@ import math
 import numpy as np
 
 from tkujax.sim.push import CONTROL_PERIOD_S, onset_from_phase
-from tkujax.spec.step_table import step_count
-from tkujax.spec.validation import SpecError
+from tkujax.dialects.step_table import step_count
+from tkujax.dialects.validation import SpecError
 
 # name: (lo, hi, default, unit). Push fields in user units.
 PUSH_FIELDS = {
@@ -27,7 +27,7 @@ PUSH_FIELDS = {
 # (the tune specs share PUSH_FIELDS and have no phase).
 PHASE_KEY = "onset_phase"
 PHASE_UNIT = "(fraction of the 30 ms control period; 1 excluded)"
-# The push's phase in the control period (tkujax.spec.sweep_spec's docstring): its own key, not
+# The push's phase in the control period (tkujax.dialects.sweep_spec's docstring): its own key, not
 # in PUSH_FIELDS (the tune specs share PUSH_FIELDS and have no phase).
 PHASE_KEY = "onset_phase"
 PHASE_UNIT = "(fraction of the 30 ms control period; 1 excluded)"
@@ -88,6 +88,6 @@ def check_limits(spec):
     if n > MAX_RECORDS:
         raise SpecError(f"[push]: the spec expands to {n:,} records (pushes x settings x steps), "
                         f"above the limit of {MAX_RECORDS:,} per sweep "
-                        "(tkujax.spec.sweep_spec.MAX_RECORDS); split it into several sweeps")
+                        "(tkujax.dialects.sweep_spec.MAX_RECORDS); split it into several sweeps")
     check_push_window(spec)
     return spec

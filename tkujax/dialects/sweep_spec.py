@@ -82,14 +82,15 @@ from tkujax.control.params_files import checked_value
 from tkujax.model.ensemble import load_ensemble
 from tkujax.model.model_params import ModelParams
 from tkujax.sim.push import onset_from_phase, onset_phase
-from tkujax.spec.program_keys import (SWEEP_TREE_PASSES, Decisions, decisions_of,
-                                      tree_passes_of)
-from tkujax.spec.push_limits import (MAX_CHUNK_SIZE, MAX_RECORDS, MAX_SEED, PHASE_KEY,
-                                     PHASE_UNIT, PUSH_FIELDS, check_limits, record_count)
-from tkujax.spec.step_table import STEP_FIELDS, cross_steps, parse_step
-from tkujax.spec.fpga_table import (ARITHMETIC, FPGA_COLUMN, FPGA_FIELDS, check_fixed_controller,
-                                    fixed_point_config, parse_fpga)
-from tkujax.spec.validation import SpecError, number, read_toml, table, uniform, values
+from tkujax.dialects.program_keys import (SWEEP_TREE_PASSES, Decisions, decisions_of,
+                                          tree_passes_of)
+from tkujax.dialects.push_limits import (MAX_CHUNK_SIZE, MAX_RECORDS, MAX_SEED, PHASE_KEY,
+                                         PHASE_UNIT, PUSH_FIELDS, check_limits, record_count)
+from tkujax.dialects.step_table import STEP_FIELDS, cross_steps, parse_step
+from tkujax.dialects.fpga_table import (ARITHMETIC, FPGA_COLUMN, FPGA_FIELDS,
+                                        check_fixed_controller,
+                                        fixed_point_config, parse_fpga)
+from tkujax.dialects.validation import SpecError, number, read_toml, table, uniform, values
 
 # Re-exported: the names other modules import from here.
 __all__ = ["ARITHMETIC", "SWEEP_TREE_PASSES", "Decisions", "FPGA_COLUMN", "FPGA_FIELDS",

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tkujax.spec.validation import SpecError, table, values
+from tkujax.dialects.validation import SpecError, table, values
 
 # [step.grid]: commanded steps (StepOverride fields); recorded as step_<name> columns.
 STEP_FIELDS = {

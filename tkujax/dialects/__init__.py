@@ -1,4 +1,4 @@
-"""The sweep spec dialect (TOML) and the validation every dialect shares.
+"""The spec dialects: the sweep spec (TOML) and the validation every dialect shares.
 
   sweep_spec.py      sweep specs: schema, parsing, expansion into push records
   program_keys.py    the [sweep] keys that choose how a sweep's program runs

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from tkujax.spec.validation import SpecError
+from tkujax.dialects.validation import SpecError
 
 # The sweeps' passes over the body tree (ProgramOptions.tree_passes): "compact" sums the tree
 # in a fixed order, so a GPU gives the same records from run to run (results/scale/README.md:

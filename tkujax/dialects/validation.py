@@ -1,4 +1,4 @@
-"""Validation of spec values, shared by every spec dialect (sweep specs `spec.sweep_spec`, tune
+"""Validation of spec values, shared by every spec dialect (sweep specs `dialects.sweep_spec`, tune
 specs `studies.tune.tune_spec`, calibrate specs `studies.calibrate.calibrate_spec`, converge
 specs `studies.converge`).
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from tkujax.control.fixed.config import GROUP_INT_BITS, MAX_GROUP_WORD_BITS, FixedPointConfig
 from tkujax.control.fixed.qformat import ROUNDING_MODES, QFormat
-from tkujax.spec.validation import SpecError, number, table
+from tkujax.dialects.validation import SpecError, number, table
 
 ARITHMETIC = ("float", "fixed")
 # [fpga] keys -> FixedPointConfig fields: name: (lo, hi, unit). All integers except latency_frac
