@@ -33,7 +33,8 @@ from tkujax.control.params_files import allowed_range, controller_params_from
 from tkujax.model.model_params import ModelParams
 from tkujax.dialects.sweep_spec import (CONTROLLER_FIELDS, ENSEMBLE_KEY, PUSH_FIELDS,
                                         RANDOMIZE_DEFAULTS, RANDOMIZE_FIELDS, ROBOT_ID_COLUMN,
-                                        EnsembleRef, controller_value, parse_ensemble, parse_randomize)
+                                        EnsembleRef, controller_value, parse_ensemble,
+                                        parse_randomize)
 from tkujax.studies.tune.loss import LossConfig, parse_loss
 from tkujax.studies.tune.parameterisations import DEFAULT_SCHEDULE, PolicyReparam
 from tkujax.studies.tune.problem import RECORD_KEYS, TuneProblem
