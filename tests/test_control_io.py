@@ -52,3 +52,23 @@ def test_dict_and_json_round_trip(tmp_path):
     with pytest.raises(ValueError, match="cannot read JSON"):
         load_controller_params_json(tmp_path / "bad.json")
     assert json.loads(path.read_text())["step_period"] == 0.25
+
+
+def test_a_params_file_restates_the_control_period_never_changes_it(tmp_path):
+    """One source for the period: the controller ticks at the rollout's period
+    (RolloutConfig.control_period_s), so a file giving another control_period is refused,
+    naming the key and the period; the same period loads."""
+    from tkujax.sim.options import RolloutConfig
+
+    same = tmp_path / "same.json"
+    same.write_text(json.dumps({"control_period": 0.03, "cp_gain": 1.5}))
+    loaded = load_controller_params_json(same)
+    assert loaded.control_period == RolloutConfig().control_period_s == 0.03
+    assert loaded.cp_gain == 1.5
+    for period in (0.02, 0.0300001, 0.06):
+        other = tmp_path / "other.json"
+        other.write_text(json.dumps({"control_period": period}))
+        with pytest.raises(ValueError, match=r"other.json: .*control_period must be in \{0.03\}"):
+            load_controller_params_json(other)
+    with pytest.raises(ValueError, match="controller: 0.02 is out of range: .*control_period"):
+        checked_value("controller", "control_period", 0.02)

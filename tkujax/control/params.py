@@ -13,6 +13,11 @@ import math
 import jax
 import numpy as np
 
+# The controller's period (paper Sec. 4: 30 ms; it ticks at t = k * period), every robot's: the
+# rollout's RolloutConfig.control_period_s, which sets `ControllerParams.control_period` for
+# the controller it runs. A parameter file may restate it, never change it (`validate`).
+CONTROL_PERIOD_S = 0.030
+
 
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
@@ -20,7 +25,10 @@ class ControllerParams:
     """Parameters of the balance controller (Sec. 3, Table 2, Sec. 4 of the paper).
 
     Timing
-      control_period        s      controller and Kalman sampling time (30 ms, Sec. 4).
+      control_period        s      controller and Kalman sampling time (30 ms, Sec. 4): the
+                                   rollout's period (RolloutConfig.control_period_s, which the
+                                   rollout writes here), not a free parameter: `validate`
+                                   admits CONTROL_PERIOD_S only.
       step_period           s      T, duration of the recovery step (0.3 s, Sec. 3.3).
       double_support_ratio  -      gamma, double-support share of T (0.2, Sec. 3.3).
       lift_height           m      H_Sup, swing-foot lift (3 cm, Sec. 3.3).
@@ -111,7 +119,7 @@ class ControllerParams:
       com_height            m      h, CoM height (Eq. 6).
     """
 
-    control_period: float = 0.030
+    control_period: float = CONTROL_PERIOD_S
     step_period: float = 0.3
     double_support_ratio: float = 0.2
     lift_height: float = 0.03
@@ -205,7 +213,10 @@ class ControllerParams:
                 raise ValueError(f"ControllerParams.{name} must be in {rng}, got {v!r}")
 
         half_pi = math.pi / 2
-        check("control_period", lambda v: 0.0 < v <= 1.0, "(0, 1] s")
+        check("control_period", lambda v: math.isclose(v, CONTROL_PERIOD_S, rel_tol=0.0,
+                                                       abs_tol=1e-12),
+              f"{{{CONTROL_PERIOD_S}}} s (the robot's control period, the rollout's; leave the "
+              "key out)")
         check("step_period", lambda v: 0.0 < v <= 2.0, "(0, 2] s")
         check("double_support_ratio", lambda v: 0.0 <= v < 0.9, "[0, 0.9)")
         check("lift_height", lambda v: 0.0 <= v <= 0.1, "[0, 0.1] m")

@@ -29,7 +29,6 @@ from tkujax.control.params import ControllerParams
 from tkujax.model import ModelParams
 from tkujax.sim import physics
 from tkujax.sim.mjx_import import mjx
-from tkujax.sim.push import CONTROL_PERIOD_S
 from tkujax.sim.setup import SETTLE_S, ModelIndex, SimSetup, init
 
 BUILTIN_NAME = "TKU-X"
@@ -48,7 +47,6 @@ class Robot:
     name, digest (sha256, hex: of the robot file and its model files, or of the ModelParams),
     source (the robot file's path; BUILTIN_SOURCE for TKU-X), controller (where `params`
     came from). model_params: TKU-X's generator parameters; None for a robot file.
-    control_period_s: the controller's period on this robot (every robot: CONTROL_PERIOD_S).
     """
 
     setup: SimSetup
@@ -60,7 +58,6 @@ class Robot:
     controller: str = ""
     defaults: ControllerParams | None = None
     model_params: ModelParams | None = None
-    control_period_s: float = CONTROL_PERIOD_S
 
     def __repr__(self) -> str:
         return f"Robot({self.name!r}, source={self.source!r}, digest={self.digest[:12]!r})"
