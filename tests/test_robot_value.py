@@ -11,7 +11,7 @@ import pytest
 
 from tkujax.control.params import ControllerParams
 from tkujax.model import ModelParams
-from tkujax.robot import Robot, as_robot, builtin, robot_from_file
+from tkujax.robot import Robot, as_robot, builtin_robot, robot_from_file
 from tkujax.robot.builtin import GENERATED_SECOND, write_generated_robot
 from tkujax.robot.closed_loop import file_digest
 from tkujax.sim import physics
@@ -30,21 +30,22 @@ LIGHT = dataclasses.replace(ModelParams(), leg_mass_kg=0.9,
 
 
 def test_builtin_is_one_value_per_parameter_set():
-    assert builtin() is builtin(None) is builtin(ModelParams()) is as_robot() is as_robot(None)
-    light = builtin(LIGHT)
-    assert light is builtin(dataclasses.replace(LIGHT)) is not builtin()
+    tkux = builtin_robot()
+    assert tkux is builtin_robot(None) is builtin_robot(ModelParams()) is as_robot(None)
+    light = builtin_robot(LIGHT)
+    assert light is builtin_robot(dataclasses.replace(LIGHT)) is not builtin_robot()
     assert light.builtin and light.model_params == LIGHT and light.name == "TKU-X"
-    assert light.digest != builtin().digest
+    assert light.digest != builtin_robot().digest
     # The setup is the cached init() of the same parameters: the rollouts share its objects.
-    assert builtin().setup is init(None) and light.setup is init(LIGHT)
+    assert builtin_robot().setup is init(None) and light.setup is init(LIGHT)
     assert light.index.leg_actuators.tolist() == model_index(LIGHT).leg_actuators.tolist()
     assert light.params == ControllerParams.paper(LIGHT) == light.defaults
-    assert light.params.com_height != builtin().params.com_height   # its own geometry
+    assert light.params.com_height != builtin_robot().params.com_height   # its own geometry
 
 
 def test_builtin_settled_stand_is_physics_settled_stand():
     """The C rollout's start (Robot.settled) is the keyframe held SETTLE_S, as MJX's."""
-    robot = builtin(LIGHT)
+    robot = builtin_robot(LIGHT)
     ref = physics.settled_stand_data(physics.host_model(LIGHT), SETTLE_S)
     np.testing.assert_array_equal(robot.settled.qpos, ref.qpos)
     np.testing.assert_array_equal(robot.settled.qvel, ref.qvel)
@@ -52,7 +53,7 @@ def test_builtin_settled_stand_is_physics_settled_stand():
 
 
 def test_as_robot_resolves_once_and_refuses_what_is_no_robot(tmp_path):
-    robot = builtin(LIGHT)
+    robot = builtin_robot(LIGHT)
     assert as_robot(robot) is robot and as_robot(model_params=robot) is robot
     assert as_robot(LIGHT) is robot and as_robot(model_params=LIGHT) is robot
     with pytest.raises(ValueError, match="robot= or model_params=, not both"):
@@ -80,11 +81,11 @@ def test_what_a_sweep_records_and_hashes_of_tkux_is_its_model_params():
     spec = parse_spec({"sweep": {"name": "t", "chunk_size": 2},
                        "push": {"grid": {"impulse_ns": [0.3], "azimuth_deg": [0.0]}}})
     params = ControllerParams.paper()
-    assert model_record(builtin(LIGHT)) == dataclasses.asdict(LIGHT)
+    assert model_record(builtin_robot(LIGHT)) == dataclasses.asdict(LIGHT)
     assert model_record(None) == dataclasses.asdict(ModelParams())
-    assert spec_hash(spec, params, builtin(LIGHT)) == spec_hash(spec, params, LIGHT)
-    assert spec_hash(spec, params, builtin()) == spec_hash(spec, params, ModelParams())
-    assert spec_hash(spec, params, builtin()) != spec_hash(spec, params, LIGHT)
+    assert spec_hash(spec, params, builtin_robot(LIGHT)) == spec_hash(spec, params, LIGHT)
+    assert spec_hash(spec, params, builtin_robot()) == spec_hash(spec, params, ModelParams())
+    assert spec_hash(spec, params, builtin_robot()) != spec_hash(spec, params, LIGHT)
 
 
 def test_simulate_takes_the_robot_or_its_model_params_alike():
@@ -93,7 +94,8 @@ def test_simulate_takes_the_robot_or_its_model_params_alike():
     config = RolloutConfig(duration_s=0.3)
     params = ControllerParams.paper(LIGHT)
     a = simulate_mujoco(pushes, 1.0, params, model_params=LIGHT, config=config, n_threads=1)[0]
-    b = simulate_mujoco(pushes, 1.0, params, robot=builtin(LIGHT), config=config, n_threads=1)[0]
+    b = simulate_mujoco(pushes, 1.0, params, robot=builtin_robot(LIGHT), config=config,
+                        n_threads=1)[0]
     for k in ("pitch", "com", "pitch_est"):
         np.testing.assert_array_equal(getattr(a, k), getattr(b, k))
     # ... and another model is another simulation.

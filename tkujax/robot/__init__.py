@@ -3,12 +3,12 @@ read from the model, numeric leg IK and a standing pose (see docs/robots.md).
 
 The Robot value every simulation takes (tkujax.sim.robot.Robot), from either constructor:
 
-  builtin(model_params)   TKU-X, its MJCF generated from ModelParams (None: the default)
+  builtin_robot(model_params)   TKU-X, its MJCF generated from ModelParams (None: the default)
   robot_from_file(path)   a robot file
   as_robot(x)             a Robot, ModelParams or None resolved to a Robot (the public edges)
 """
 
 from tkujax.robot.closed_loop import robot_from_file
-from tkujax.sim.robot import Robot, as_robot, builtin
+from tkujax.sim.robot import Robot, as_robot, builtin_robot
 
-__all__ = ["Robot", "as_robot", "builtin", "robot_from_file"]
+__all__ = ["Robot", "as_robot", "builtin_robot", "robot_from_file"]

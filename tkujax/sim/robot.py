@@ -7,7 +7,7 @@ parameters for it and their scaled defaults, and its name, digest and source.
 
 Two constructors, one value:
 
-  builtin(model_params)                 TKU-X, its MJCF generated from `ModelParams` (None: the
+  builtin_robot(model_params)           TKU-X, its MJCF generated from `ModelParams` (None: the
                                         default robot); cached per parameter set
   tkujax.robot.robot_from_file(path)    a robot file (docs/robots.md); cached per file content
 
@@ -112,7 +112,7 @@ def params_digest(model_params: ModelParams) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def builtin(model_params: ModelParams | None = None) -> Robot:
+def builtin_robot(model_params: ModelParams | None = None) -> Robot:
     """TKU-X built from `model_params` (None: the default robot), cached: one Robot per
     parameter set, None and ModelParams() alike."""
     p = model_params or ModelParams()
@@ -133,8 +133,8 @@ def _builtin(model_params: ModelParams | None) -> Robot:
 def as_robot(robot: Robot | ModelParams | None = None,
              model_params: ModelParams | Robot | None = None) -> Robot:
     """The Robot a simulation runs: `robot`, else `model_params` (the older keyword), as a
-    Robot: a Robot as it is, a ModelParams or None as TKU-X (`builtin`). The one place where
-    what a caller gives is resolved to a Robot."""
+    Robot: a Robot as it is, a ModelParams or None as TKU-X (`builtin_robot`). The one place
+    where what a caller gives is resolved to a Robot."""
     if robot is not None and model_params is not None:
         raise ValueError("give the robot once: robot= or model_params=, not both")
     given = robot if robot is not None else model_params
@@ -143,4 +143,4 @@ def as_robot(robot: Robot | ModelParams | None = None,
     if given is not None and not isinstance(given, ModelParams):
         raise TypeError(f"expected a Robot (tkujax.robot.robot_from_file loads a robot file) "
                         f"or ModelParams, got {given!r}")
-    return builtin(given)
+    return builtin_robot(given)

@@ -123,7 +123,7 @@ def batched_rollout(robot: Robot | ModelParams | None = None,
                     config: RolloutConfig = RolloutConfig()):
     """jit(vmap(rollout)) over episodes (push, enabled, key) for one robot, plus outcomes.
 
-    robot: a Robot (`tkujax.robot.builtin`, `tkujax.robot.robot_from_file`), or a ModelParams
+    robot: a Robot (`tkujax.robot.builtin_robot`, `tkujax.robot.robot_from_file`), or a ModelParams
     or None for TKU-X (`as_robot`). Returns f(pushes, enabled, keys, params, gyro_noise_std,
     accel_noise_std, schedule=None, walk=None) -> (series, outcomes), batched along axis 0;
     params (and a scheduled policy's Schedule, `tkujax.control.policy`) shared by the batch;
@@ -158,7 +158,7 @@ def simulate(pushes: Push, enabled, params: ControllerParams, seed: int = 0,
              walk: WalkCommand | None = None) -> tuple[Series, Outcomes]:
     """Run a batch of pushes (stacked Push, leading axis) and return numpy (series, outcomes).
     schedule: a scheduled policy's Schedule (`tkujax.recommended_policy()` gives one with its
-    params); None: the plain controller. robot: the Robot (`tkujax.robot.builtin`,
+    params); None: the plain controller. robot: the Robot (`tkujax.robot.builtin_robot`,
     `tkujax.robot.robot_from_file`; its `params` are the controller's for it); model_params:
     TKU-X's ModelParams instead (None and None: the default TKU-X). walk: the robots walk
     (`tkujax.control.gait.WalkCommand`, one for the batch or stacked along axis 0); None:

@@ -335,7 +335,7 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
               robot: Robot | None = None) -> dict:
     """Run (or resume) a sweep into `out`. Returns the manifest.
 
-    robot: the Robot (`tkujax.robot.robot_from_file`, `tkujax.robot.builtin`); model_params:
+    robot: the Robot (`tkujax.robot.robot_from_file`, `tkujax.robot.builtin_robot`); model_params:
     TKU-X's ModelParams instead (or a Robot, the older keyword); neither: the spec's [robot]
     file, else the default TKU-X. params: the controller's (None: the robot's own).
     max_chunks: stop after computing this many new chunks (for tests and partial runs).

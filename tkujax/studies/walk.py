@@ -29,7 +29,7 @@ import numpy as np
 
 from tkujax.control.gait import WalkCommand
 from tkujax.control.params import ControllerParams
-from tkujax.robot import Robot, builtin, robot_from_file
+from tkujax.robot import Robot, builtin_robot, robot_from_file
 from tkujax.sim.metrics import fall_indicator
 from tkujax.sim.options import RolloutConfig
 from tkujax.sim.push import Push, make_push, stack_pushes
@@ -53,7 +53,7 @@ class Walker:
 def walker(robot_file: str | None = None) -> Walker:
     """TKU-X (None) or a robot file's robot: the controller the file names (its scaled
     defaults otherwise), the gait from the scaled defaults (`Robot.defaults`)."""
-    robot = builtin() if robot_file is None else robot_from_file(robot_file)
+    robot = builtin_robot() if robot_file is None else robot_from_file(robot_file)
     return Walker(robot=robot, params=robot.params, gait_params=robot.defaults or robot.params,
                   name="tkux" if robot.builtin else robot.name)
 
