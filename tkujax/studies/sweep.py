@@ -351,15 +351,15 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
     decisions: "full" or "early" in place of the spec's [sweep] decisions (None: the spec's);
     early decisions run on MJX (docs/sweeps.md).
     """
+    process_id, num_processes, coordinator = processes(process_id, num_processes, coordinator)
+    if num_processes > 1:   # before any JAX call (the robot's model goes onto a device)
+        jax.distributed.initialize(coordinator_address=coordinator, num_processes=num_processes,
+                                   process_id=process_id)
     spec, params, robot = _checked_inputs(spec, params, robot, model_params, max_chunks,
                                           schedule)
     spec = with_decisions(spec, decisions)
-    process_id, num_processes, coordinator = processes(process_id, num_processes, coordinator)
     backend = choose_backend(backend, spec)
     out = prepare_out(Path(out))
-    if num_processes > 1:
-        jax.distributed.initialize(coordinator_address=coordinator, num_processes=num_processes,
-                                   process_id=process_id)
     digest = spec_hash(spec, params, robot, schedule)
     recs = record_inputs(spec)
     n = len(recs["push_id"])
