@@ -254,6 +254,25 @@ class ControllerParams:
         return self
 
 
+# ControllerParams' fields by meaning, each in one group (the pytree stays flat: parameter
+# files, manifests and spec hashes name the fields as they are):
+#   TIMING_FIELDS    the rollout's period (validate admits CONTROL_PERIOD_S only);
+#   PHYSICAL_FIELDS  the world's constants;
+#   GEOMETRY_FIELDS  what the robot gives: measured from a robot file's model at its stand
+#                    (tkujax.robot.geometry), TKU-X's from its ModelParams (`paper`);
+#   MODE_FIELDS      discrete switches ({0, 1}; max_steps {1, 2, 3}): floats selected by `where`
+#                    inside the controller, so one compiled program serves every setting;
+#   GAIN_FIELDS      the rest: thresholds, gains, timings and noises (tuned, scheduled, traced).
+TIMING_FIELDS = ("control_period",)
+PHYSICAL_FIELDS = ("gravity",)
+GEOMETRY_FIELDS = ("standing_lean", "hip_offset_y", "hip_to_ankle_z", "thigh_length",
+                   "calf_length", "leg_length", "com_height")
+MODE_FIELDS = ("cp_excess", "lateral_steps", "cp_trigger", "max_steps")
+GAIN_FIELDS = tuple(f.name for f in dataclasses.fields(ControllerParams)
+                    if f.name not in TIMING_FIELDS + PHYSICAL_FIELDS + GEOMETRY_FIELDS
+                    + MODE_FIELDS)
+
+
 # The Kalman noises before calibration (ControllerParams.paper(..., variant="estimated")).
 KALMAN_ESTIMATED = dict(kalman_q=1e-4, kalman_r=3e-3)
 
