@@ -42,7 +42,7 @@ from tkujax.sim.options import (LOOPS, REMAT_MODES, TREE_PASSES, Episode,  # noq
 from tkujax.sim.push import Push
 from tkujax.sim.records import Outcomes, Series
 from tkujax.sim.robot import Robot, as_robot
-from tkujax.sim.setup import ModelIndex, model_index
+from tkujax.sim.setup import SETTLE_S, ModelIndex, model_index
 
 
 def _is_float(x) -> bool:
@@ -120,7 +120,7 @@ def run_tick_pieces(pieces: TickPieces, state: mjx.Data, episode: Episode,
 
 
 def batched_rollout(robot: Robot | ModelParams | None = None,
-                    config: RolloutConfig = RolloutConfig()):
+                    config: RolloutConfig = RolloutConfig(), settle_s: float = SETTLE_S):
     """jit(vmap(rollout)) over episodes (push, enabled, key) for one robot, plus outcomes.
 
     robot: a Robot (`tkujax.robot.builtin_robot`, `tkujax.robot.robot_from_file`), or a ModelParams
@@ -128,17 +128,19 @@ def batched_rollout(robot: Robot | ModelParams | None = None,
     accel_noise_std, schedule=None, walk=None) -> (series, outcomes), batched along axis 0;
     params (and a scheduled policy's Schedule, `tkujax.control.policy`) shared by the batch;
     walk (a WalkCommand, batched along axis 0; None: standing). Compiled once per batch shape
-    (and schedule layout, and walking or not); cached per robot and config.
+    (and schedule layout, and walking or not); cached per robot and config. settle_s: the
+    stand's settling before t = 0 (`Robot.sim_setup`; a robot file's: SETTLE_S only).
     """
-    return robot_rollout(as_robot(robot), config)
+    return robot_rollout(as_robot(robot), config, float(settle_s))
 
 
 @functools.lru_cache(maxsize=8)
-def robot_rollout(robot: Robot, config: RolloutConfig = RolloutConfig()):
-    """`batched_rollout` of a Robot (cached per robot, by identity, and config)."""
+def robot_rollout(robot: Robot, config: RolloutConfig = RolloutConfig(),
+                  settle_s: float = SETTLE_S):
+    """`batched_rollout` of a Robot (cached per robot, by identity, config and settle_s)."""
     from tkujax.sim.metrics import outcomes
 
-    model, index, state = robot.device_model, robot.index, robot.stand_state
+    _, model, index, state = robot.sim_setup(settle_s)
 
     def one(push, enabled, key, params, gyro_std, accel_std, schedule, walk):
         series = rollout(model, state, Episode(push, enabled, key, gyro_std, accel_std, walk),
@@ -169,7 +171,7 @@ def simulate(pushes: Push, enabled, params: ControllerParams, seed: int = 0,
     n = int(np.shape(pushes.impulse_ns)[0])
     enabled = jnp.broadcast_to(jnp.asarray(enabled, jnp.float32), (n,))
     keys = jax.random.split(jax.random.PRNGKey(seed), n)
-    f = robot_rollout(robot, config)
+    f = robot_rollout(robot, config, SETTLE_S)
     if walk is not None:
         walk = batch_walk(walk, n)
     out = f(pushes, enabled, keys, params, jnp.float32(gyro_noise_std),
