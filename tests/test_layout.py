@@ -1,6 +1,7 @@
 """The package layout: imports go one way (model <- control <- sim <- robot <- studies <- cli),
 no import cycle, no module over 500 lines nor function over 80, no private name imported from
-another module, the public API resolves, and the typed records expose the columns sweeps write."""
+another module, the public API resolves, the typed records expose the columns sweeps write, and
+one function (tkujax.sim.robot.as_robot) resolves what a caller gives for a robot."""
 
 import ast
 from pathlib import Path
