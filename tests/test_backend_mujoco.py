@@ -16,6 +16,7 @@ import pytest
 
 from tkujax.sim import rollout_mujoco as bm
 from tkujax.sim.closed_loop import push_wrench
+from tkujax.sim.robot import builtin_robot
 from tkujax.sim import push as push_lib
 from tkujax.sim import rollout_mjx as sim
 from tkujax.control.controller_params import ControllerParams
@@ -118,7 +119,7 @@ def test_period_start_wrench_approximation(runs):
 
 def test_push_wrench_twin_matches_sim():
     """_force/_wrench reproduce push.force_at and closed_loop.push_wrench on tilted chest poses."""
-    setup = bm._setup(None)
+    setup = bm._setup(builtin_robot())
     m, idx = setup.model, setup.index
     data = mujoco.MjData(m)
     mujoco.mj_setState(m, data, np.asarray(setup.state0), bm._FULL)
@@ -146,7 +147,7 @@ def test_push_wrench_twin_matches_sim():
 
 def test_chunked_rollout_is_one_trajectory():
     """Chaining rollout chunks with the recovered warm start = one uninterrupted mj_step loop."""
-    setup = bm._setup(None)
+    setup = bm._setup(builtin_robot())
     m = setup.model
     ctrl = np.array(m.key("stand").ctrl) + 0.05 * np.random.default_rng(0).standard_normal(m.nu)
     data = mujoco.MjData(m)
@@ -189,6 +190,6 @@ def test_noise_threads_and_validation():
     assert np.abs(noisy_a["pitch_est"] - s1["pitch_est"]).max() > 1e-4
     rec, _ = bm.simulate_mujoco(pushes, 0.0, params, config=dataclasses.replace(
         config, record_qpos=True))
-    assert rec["qpos"].shape == (2, 10, bm._setup(None).model.nq)
+    assert rec["qpos"].shape == (2, 10, bm._setup(builtin_robot()).model.nq)
     with pytest.raises(ValueError, match="push_wrench"):
         run(push_wrench="sometimes")

@@ -133,7 +133,7 @@ def test_targets_beyond_the_reach_name_the_key(robot, tmp_path):
 def test_mismatches_are_refused(robot, tmp_path):
     setup, feet = robot
     spec = _spec(robot)
-    with pytest.raises(SpecError, match="--robot: expected a RobotSetup"):
+    with pytest.raises(SpecError, match="--robot: expected a Robot"):
         run_capture(spec, tmp_path, robot=setup.source, feet=feet)
     with pytest.raises(SpecError, match="need its capture geometry"):
         run_capture(spec, tmp_path, robot=setup)

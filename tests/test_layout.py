@@ -1,6 +1,7 @@
 """The package layout: imports go one way (model <- control <- sim <- robot <- studies <- cli),
 no import cycle, no module over 500 lines nor function over 80, no private name imported from
-another module, the public API resolves, and the typed records expose the columns sweeps write."""
+another module, the public API resolves, the typed records expose the columns sweeps write, and
+one function (tkujax.sim.robot.as_robot) resolves what a caller gives for a robot."""
 
 import ast
 from pathlib import Path
@@ -159,3 +160,24 @@ def test_no_private_name_is_imported_from_another_module(path):
             private = {a.name for a in node.names
                        if a.name.startswith("_") and not a.name.startswith("__")}
             assert not private, f"{rel} imports {sorted(private)} from {node.module}"
+
+
+def _isinstance_names(tree: ast.AST):
+    """(function name, class names) of every isinstance(x, ...) call, by enclosing function."""
+    for fn in ast.walk(tree):
+        if not isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            continue
+        for node in ast.walk(fn):
+            if isinstance(node, ast.Call) and getattr(node.func, "id", "") == "isinstance" \
+                    and len(node.args) == 2:
+                kinds = node.args[1].elts if isinstance(node.args[1], ast.Tuple) else [node.args[1]]
+                yield fn.name, {getattr(k, "id", getattr(k, "attr", "")) for k in kinds}
+
+
+def test_the_robot_is_resolved_in_one_place():
+    """What a caller gives for a robot (a Robot, ModelParams or None) is sorted out by one
+    function, tkujax.sim.robot.as_robot: no other module asks whether a value is a Robot."""
+    sites = [(str(path.relative_to(ROOT)), fn)
+             for path in SOURCES for fn, names in _isinstance_names(ast.parse(path.read_text()))
+             if names & {"Robot", "RobotSetup"}]
+    assert sites == [("sim/robot.py", "as_robot")]

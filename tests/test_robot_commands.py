@@ -140,10 +140,10 @@ def test_tkux_sweep_refuses_a_robot(setups, tmp_path):
 
 
 def test_capture_wants_a_robot_setup(files, tmp_path):
-    """capture on a robot takes its RobotSetup and geometry
+    """capture on a robot takes its Robot and geometry
     (tkujax.studies.robot_inputs.capture_robot), not a path (tests/test_capture_robot.py runs
     it)."""
-    with pytest.raises(SpecError, match="--robot: expected a RobotSetup"):
+    with pytest.raises(SpecError, match="--robot: expected a Robot"):
         run_capture(REPO / "specs" / "capture" / "capture_region_cpu.toml", tmp_path,
                     robot=files[0])
 
@@ -158,7 +158,7 @@ def test_tune_starts_from_the_robots_defaults(files):
     assert resolved.start.thigh_length == pytest.approx(robot.defaults.thigh_length)
     assert resolved.start.cp_gain == pytest.approx(1.25)
     assert resolved.model_params() is robot
-    with pytest.raises(SpecError, match="robot.file: the spec names .* give its RobotSetup"):
+    with pytest.raises(SpecError, match="robot.file: the spec names .* give its Robot"):
         on_robot(spec)
 
 

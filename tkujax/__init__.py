@@ -1,6 +1,6 @@
 """tkujax: a JAX-vectorised, differentiable simulator for humanoid push-recovery sweeps.
 
-Layers (imports go one way, left to right): model <- control <- sim <- studies <- cli.
+Layers (imports go one way, left to right): model <- control <- sim <- robot <- studies <- cli.
 
 The public API, in one place (submodules are imported lazily so that the CLI can set
 MUJOCO_GL and XLA options first):
@@ -20,6 +20,8 @@ MUJOCO_GL and XLA options first):
   tkujax.compare_runs                        runs of one spec compared: difference maps, no harm
   tkujax.replay                              one sweep record re-simulated
   tkujax.init                                the set-up of a model (tkujax.sim.setup)
+  tkujax.Robot, tkujax.builtin_robot,        the one value every simulation takes: TKU-X
+  tkujax.robot_from_file                     from ModelParams, or a robot file (tkujax.robot)
   tkujax.run_tune                            controller tuning (CMA-ES, gradients, ...)
   tkujax.run_calibrate                       fit the model to the paper's Tables 4-5
   tkujax.run_capture, tkujax.StepOverride    capture regions, commanded recovery steps
@@ -42,6 +44,8 @@ _API = {
     "ProgramOptions": "tkujax.sim.options", "Episode": "tkujax.sim.options",
     "simulate_mujoco": "tkujax.sim.rollout_mujoco",
     "init": "tkujax.sim.setup", "SimSetup": "tkujax.sim.setup",
+    "Robot": "tkujax.sim.robot", "builtin_robot": "tkujax.sim.robot",
+    "robot_from_file": "tkujax.robot.robot_setup",
     "run_paper": "tkujax.studies.paper",
     "run_sweep": "tkujax.sweeps.sweep", "load": "tkujax.sweeps.table_export",
     "make_maps": "tkujax.analysis.maps", "compare_runs": "tkujax.analysis.compare",

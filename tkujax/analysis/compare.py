@@ -375,7 +375,7 @@ def compare_runs(run_args: list[str], out: str | Path, labels: list[str] | None 
     before the draws were shared); the standard errors are then unpaired.
 
     run_args: 'DIR', 'DIR:on' or 'DIR:off' each. labels: one per run (default: the folder's
-    name and the control setting). robot: the RobotSetup the runs ran on (None: TKU-X;
+    name and the control setting). robot: the Robot the runs ran on (None: TKU-X;
     checked against their manifests; the runs must share one robot). Returns dict(verdict,
     table, files, summary)."""
     if len(run_args) < 2:

@@ -350,7 +350,7 @@ def completeness(out_dir: Path, manifest: dict) -> tuple[int, int]:
 def make_maps(out_dir: str | Path, params: ControllerParams | None = None, robot=None,
               lip: capturability.LipModel | None = None, allow_incomplete: bool = False) -> dict:
     """Write maps/*.png and maps/summary.md (+ .json) for the sweep in `out_dir`. A sweep on a
-    robot file needs that robot (a RobotSetup, checked against the manifest's sha256) and its
+    robot file needs that robot (a Robot, checked against the manifest's sha256) and its
     LIP (`tkujax.studies.robot_inputs.robot_lip`), which the theory overlays use. An
     incomplete sweep is refused (ValueError "incomplete: k of n chunks"); with
     allow_incomplete its figures and summary are marked "incomplete: k of n chunks" (the

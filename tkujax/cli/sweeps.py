@@ -30,8 +30,8 @@ def _cmd_sweep(args) -> int:
 
 
 def _robot_option(args):
-    """The RobotSetup of --robot FILE, else of the spec's [robot] file, else None."""
-    from tkujax.robot.robot_setup import robot_setup
+    """The Robot of --robot FILE, else of the spec's [robot] file, else None."""
+    from tkujax.robot import robot_from_file
     from tkujax.dialects.sweep_spec import load_spec
 
     path = args.robot or load_spec(args.spec).robot_file
@@ -39,7 +39,7 @@ def _robot_option(args):
         return None
     if args.model:
         raise ValueError("--model: give --robot (or a spec's [robot] file) or --model, not both")
-    robot = robot_setup(path)
+    robot = robot_from_file(path)
     if getattr(args, "params", None) is None:
         print(f"{robot.name}: controller: {robot.controller}", file=sys.stderr)
     return robot
@@ -82,10 +82,9 @@ def _write_replay_video(result: dict, args) -> None:
         print(f"tkujax replay: no video written: offscreen rendering is unavailable: {why}. "
               f"{RENDER_HELP}", file=sys.stderr)
         return
-    from tkujax.sim import physics
+    from tkujax.sim.robot import as_robot
 
-    model = result["model_params"]
-    host = model.setup.host_model if hasattr(model, "setup") else physics.host_model(model)
+    host = as_robot(result["model_params"]).host_model
     frames = render.render_frames(host, result["qpos"], args.width, args.height)
     print(render.save_gif(frames, args.out, fps=1.0 / result["control_period_s"]))
 

@@ -13,6 +13,11 @@ import math
 import jax
 import numpy as np
 
+# The controller's period (paper Sec. 4: 30 ms; it ticks at t = k * period), every robot's: the
+# rollout's RolloutConfig.control_period_s, which sets `ControllerParams.control_period` for
+# the controller it runs. A parameter file may restate it, never change it (`validate`).
+CONTROL_PERIOD_S = 0.030
+
 
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
@@ -20,7 +25,10 @@ class ControllerParams:
     """Parameters of the balance controller (Sec. 3, Table 2, Sec. 4 of the paper).
 
     Timing
-      control_period        s      controller and Kalman sampling time (30 ms, Sec. 4).
+      control_period        s      controller and Kalman sampling time (30 ms, Sec. 4): the
+                                   rollout's period (RolloutConfig.control_period_s, which the
+                                   rollout writes here), not a free parameter: `validate`
+                                   admits CONTROL_PERIOD_S only.
       step_period           s      T, duration of the recovery step (0.3 s, Sec. 3.3).
       double_support_ratio  -      gamma, double-support share of T (0.2, Sec. 3.3).
       lift_height           m      H_Sup, swing-foot lift (3 cm, Sec. 3.3).
@@ -111,7 +119,7 @@ class ControllerParams:
       com_height            m      h, CoM height (Eq. 6).
     """
 
-    control_period: float = 0.030
+    control_period: float = CONTROL_PERIOD_S
     step_period: float = 0.3
     double_support_ratio: float = 0.2
     lift_height: float = 0.03
@@ -205,7 +213,10 @@ class ControllerParams:
                 raise ValueError(f"ControllerParams.{name} must be in {rng}, got {v!r}")
 
         half_pi = math.pi / 2
-        check("control_period", lambda v: 0.0 < v <= 1.0, "(0, 1] s")
+        check("control_period", lambda v: math.isclose(v, CONTROL_PERIOD_S, rel_tol=0.0,
+                                                       abs_tol=1e-12),
+              f"{{{CONTROL_PERIOD_S}}} s (the robot's control period, the rollout's; leave the "
+              "key out)")
         check("step_period", lambda v: 0.0 < v <= 2.0, "(0, 2] s")
         check("double_support_ratio", lambda v: 0.0 <= v < 0.9, "[0, 0.9)")
         check("lift_height", lambda v: 0.0 <= v <= 0.1, "[0, 0.1] m")
@@ -241,6 +252,25 @@ class ControllerParams:
         check("hip_to_ankle_z", lambda v: 0.0 < v <= reach,
               f"(0, thigh_length + calf_length] = (0, {reach:g}] m")
         return self
+
+
+# ControllerParams' fields by meaning, each in one group (the pytree stays flat: parameter
+# files, manifests and spec hashes name the fields as they are):
+#   TIMING_FIELDS    the rollout's period (validate admits CONTROL_PERIOD_S only);
+#   PHYSICAL_FIELDS  the world's constants;
+#   GEOMETRY_FIELDS  what the robot gives: measured from a robot file's model at its stand
+#                    (tkujax.robot.geometry), TKU-X's from its ModelParams (`paper`);
+#   MODE_FIELDS      discrete switches ({0, 1}; max_steps {1, 2, 3}): floats selected by `where`
+#                    inside the controller, so one compiled program serves every setting;
+#   GAIN_FIELDS      the rest: thresholds, gains, timings and noises (tuned, scheduled, traced).
+TIMING_FIELDS = ("control_period",)
+PHYSICAL_FIELDS = ("gravity",)
+GEOMETRY_FIELDS = ("standing_lean", "hip_offset_y", "hip_to_ankle_z", "thigh_length",
+                   "calf_length", "leg_length", "com_height")
+MODE_FIELDS = ("cp_excess", "lateral_steps", "cp_trigger", "max_steps")
+GAIN_FIELDS = tuple(f.name for f in dataclasses.fields(ControllerParams)
+                    if f.name not in TIMING_FIELDS + PHYSICAL_FIELDS + GEOMETRY_FIELDS
+                    + MODE_FIELDS)
 
 
 # The Kalman noises before calibration (ControllerParams.paper(..., variant="estimated")).

@@ -48,12 +48,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from tkujax.control.cpg import unit_oscillators
-from tkujax.control.controller_params import ControllerParams
+from tkujax.control.controller_params import (GEOMETRY_FIELDS, MODE_FIELDS, PHYSICAL_FIELDS,
+                                              TIMING_FIELDS,
+                                              ControllerParams)
 
-UNSCHEDULABLE = frozenset({"kalman_q", "kalman_r", "accel_gate", "control_period", "cp_excess",
-                           "lateral_steps", "cp_trigger", "max_steps", "gravity",
-                           "hip_offset_y", "hip_to_ankle_z", "thigh_length", "calf_length",
-                           "leg_length", "com_height", "gate_temperature", "standing_lean"})
+# The period, the world, the robot's geometry and the switches, and the gains read before the
+# state is known (the Kalman filter's noises, the accelerometer gate, the detection gate).
+UNSCHEDULABLE = frozenset(TIMING_FIELDS + PHYSICAL_FIELDS + GEOMETRY_FIELDS + MODE_FIELDS + (
+    "kalman_q", "kalman_r", "accel_gate", "gate_temperature"))
 # Input scales of the MLP (rad, rad/s): pitch deviation, pitch rate, roll, roll rate.
 MLP_INPUT_SCALE = (0.1, 1.0, 0.1, 1.0)
 # Inputs of each MLP kind: the four IMU quantities; "mlpr" adds the four of `recovery_inputs`.

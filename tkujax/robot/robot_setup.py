@@ -1,4 +1,5 @@
-"""A robot file ready for the closed loop: `robot_setup(path)` -> tkujax.sim.setup.RobotSetup.
+"""A robot file ready for the closed loop: `robot_from_file(path)` -> tkujax.sim.robot.Robot
+(`robot_setup`, its older name, is the same function).
 
 What it adds to `init_robot`'s SimSetup:
 
@@ -45,7 +46,8 @@ from tkujax.robot.own_controller import robot_controller
 from tkujax.robot.simsetup import floor_geoms, robot_index, settled_data
 from tkujax.robot.stand import stand_pose
 from tkujax.sim.mjx_import import mjx
-from tkujax.sim.setup import SETTLE_S, ModelIndex, RobotSetup, SimSetup
+from tkujax.sim.robot import Robot
+from tkujax.sim.setup import SETTLE_S, ModelIndex, SimSetup
 
 
 def _without_controller(text: bytes) -> bytes:
@@ -118,7 +120,7 @@ def _params(robot: RobotModel, pose, data: mujoco.MjData) -> ControllerParams:
 
 
 @functools.lru_cache(maxsize=8)
-def _robot_setup(path: str, digest: str, controller: str) -> RobotSetup:
+def _robot_from_file(path: str, digest: str, controller: str) -> Robot:
     robot = load_robot(path)
     _check_layout(robot)
     pose = stand_pose(robot)
@@ -129,19 +131,22 @@ def _robot_setup(path: str, digest: str, controller: str) -> RobotSetup:
     setup = SimSetup(robot.model, mjx.put_model(robot.model, device=device),
                      closed_loop_index(robot, pose, scaled),
                      mjx.put_data(robot.model, data, device=device))
-    return RobotSetup(setup=setup, settled=data, params=params, name=robot.name, digest=digest,
+    return Robot(setup=setup, settled=data, params=params, name=robot.name, digest=digest,
                       source=path, controller=controller, defaults=scaled)
 
 
-def robot_setup(path: str | Path) -> RobotSetup:
-    """The RobotSetup of a robot file (cached per file path and content)."""
+def robot_from_file(path: str | Path) -> Robot:
+    """The Robot of a robot file (cached per file path and content)."""
     path = str(Path(path).resolve())
-    return _robot_setup(path, file_digest(path), controller_digest(path))
+    return _robot_from_file(path, file_digest(path), controller_digest(path))
+
+
+robot_setup = robot_from_file   # the older name
 
 
 def controller_digest(path: str | Path) -> str:
     """sha256 of the robot file's controller line and of the file it names ("" without one):
-    with file_digest, what a loaded RobotSetup depends on."""
+    with file_digest, what a loaded Robot depends on."""
     desc = load_description(path)
     if desc.controller_path is None:
         return ""

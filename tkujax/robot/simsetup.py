@@ -7,7 +7,7 @@ base as the pushed body, tkujax's IMU and touch sensors, the ankle sites, the st
 and as the fall test's bodies the non-foot collision spheres and boxes that can touch the floor
 (mesh geoms are not in it). The IMU has no low-pass (TKU-X's is a model of TKU-X's sensor).
 
-For the closed loop use `tkujax.robot.robot_setup.robot_setup`: it adds the leg map (the
+For the closed loop use `tkujax.robot.robot_setup.robot_from_file`: it adds the leg map (the
 controller's joint conventions to the robot's), the mesh fall test and the controller's
 parameters. See docs/robots.md.
 """

@@ -22,13 +22,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from tkujax.control.controller_params import CONTROL_PERIOD_S
+
 G = 9.81
 RELEASE_ANGLE_RAD = math.radians(45.0)
 FALLING_TIME_S = 0.34               # paper Table 3: release to impact
 PAPER_ONSET_S = 0.75                # paper Sec. 4: hit at 0.75 s
 DEFAULT_HEIGHT_M = 0.36             # mid-chest of the stand pose [est]; the rig's ball height
 DEFAULT_DURATION_S = 0.020          # ball-on-robot contact time [est]
-CONTROL_PERIOD_S = 0.030            # paper Sec. 4; the controller ticks at t = k * period
 PHYSICS_DT_S = 0.002                # the model's time step (tkujax.model: 2 ms)
 MAX_IMPULSE_NS = 200.0              # a 50 kg robot's falls need tens of N s
 MIN_HEIGHT_M, MAX_HEIGHT_M = 0.05, 2.0

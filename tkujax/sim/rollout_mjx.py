@@ -41,7 +41,8 @@ from tkujax.sim.options import (LOOPS, REMAT_MODES, TREE_PASSES, Episode,  # noq
                                 ProgramOptions, RolloutConfig)
 from tkujax.sim.push import Push
 from tkujax.sim.records import Outcomes, Series
-from tkujax.sim.setup import ModelIndex, init, model_index
+from tkujax.sim.robot import Robot, as_robot
+from tkujax.sim.setup import SETTLE_S, ModelIndex, model_index
 
 
 def _is_float(x) -> bool:
@@ -118,20 +119,28 @@ def run_tick_pieces(pieces: TickPieces, state: mjx.Data, episode: Episode,
     return flat_loop(pieces, config.program, carry, tick_keys)
 
 
-@functools.lru_cache(maxsize=8)
-def batched_rollout(model_params: ModelParams | None = None,
-                    config: RolloutConfig = RolloutConfig(), settle_s: float = 1.0):
-    """jit(vmap(rollout)) over episodes (push, enabled, key) for one model, plus outcomes.
+def batched_rollout(robot: Robot | ModelParams | None = None,
+                    config: RolloutConfig = RolloutConfig(), settle_s: float = SETTLE_S):
+    """jit(vmap(rollout)) over episodes (push, enabled, key) for one robot, plus outcomes.
 
-    Returns f(pushes, enabled, keys, params, gyro_noise_std, accel_noise_std, schedule=None,
-    walk=None) -> (series, outcomes), batched along axis 0; params (and a scheduled policy's
-    Schedule, `tkujax.control.policy`) shared by the batch; walk (a WalkCommand, batched
-    along axis 0; None: standing). Compiled once per batch shape (and schedule layout, and
-    walking or not); cached per model and config.
+    robot: a Robot (`tkujax.robot.builtin_robot`, `tkujax.robot.robot_from_file`), or a ModelParams
+    or None for TKU-X (`as_robot`). Returns f(pushes, enabled, keys, params, gyro_noise_std,
+    accel_noise_std, schedule=None, walk=None) -> (series, outcomes), batched along axis 0;
+    params (and a scheduled policy's Schedule, `tkujax.control.policy`) shared by the batch;
+    walk (a WalkCommand, batched along axis 0; None: standing). Compiled once per batch shape
+    (and schedule layout, and walking or not); cached per robot and config. settle_s: the
+    stand's settling before t = 0 (`Robot.sim_setup`; a robot file's: SETTLE_S only).
     """
+    return robot_rollout(as_robot(robot), config, float(settle_s))
+
+
+@functools.lru_cache(maxsize=8)
+def robot_rollout(robot: Robot, config: RolloutConfig = RolloutConfig(),
+                  settle_s: float = SETTLE_S):
+    """`batched_rollout` of a Robot (cached per robot, by identity, config and settle_s)."""
     from tkujax.sim.metrics import outcomes
 
-    _, model, index, state = init(model_params, settle_s)
+    _, model, index, state = robot.sim_setup(settle_s)
 
     def one(push, enabled, key, params, gyro_std, accel_std, schedule, walk):
         series = rollout(model, state, Episode(push, enabled, key, gyro_std, accel_std, walk),
@@ -147,21 +156,22 @@ def simulate(pushes: Push, enabled, params: ControllerParams, seed: int = 0,
              gyro_noise_std: float = 0.0, accel_noise_std: float = 0.0,
              model_params: ModelParams | None = None,
              config: RolloutConfig = RolloutConfig(), schedule=None,
-             robot=None, walk: WalkCommand | None = None) -> tuple[Series, Outcomes]:
+             robot: Robot | None = None,
+             walk: WalkCommand | None = None) -> tuple[Series, Outcomes]:
     """Run a batch of pushes (stacked Push, leading axis) and return numpy (series, outcomes).
     schedule: a scheduled policy's Schedule (`tkujax.recommended_policy()` gives one with its
-    params); None: the plain controller. robot: a robot file's `RobotSetup`
-    (`tkujax.robot.robot_setup.robot_setup`; its `params` are the controller's for it) in place
-    of model_params. walk: the robots walk (`tkujax.control.gait.WalkCommand`, one for the
-    batch or stacked along axis 0); None: they stand."""
-    if robot is not None:   # a robot file's RobotSetup (tkujax.robot.robot_setup)
-        model_params = robot
+    params); None: the plain controller. robot: the Robot (`tkujax.robot.builtin_robot`,
+    `tkujax.robot.robot_from_file`; its `params` are the controller's for it); model_params:
+    TKU-X's ModelParams instead (None and None: the default TKU-X). walk: the robots walk
+    (`tkujax.control.gait.WalkCommand`, one for the batch or stacked along axis 0); None:
+    they stand."""
+    robot = as_robot(robot, model_params)
     if config.fixed is not None:   # options the fixed-point twin lacks: refused, not ignored
         check_supported(params)
     n = int(np.shape(pushes.impulse_ns)[0])
     enabled = jnp.broadcast_to(jnp.asarray(enabled, jnp.float32), (n,))
     keys = jax.random.split(jax.random.PRNGKey(seed), n)
-    f = batched_rollout(model_params, config)
+    f = robot_rollout(robot, config, SETTLE_S)
     if walk is not None:
         walk = batch_walk(walk, n)
     out = f(pushes, enabled, keys, params, jnp.float32(gyro_noise_std),

@@ -80,7 +80,8 @@ from tkujax.sim.metrics import outcomes as _outcomes
 from tkujax.sim.push import Push
 from tkujax.sim.records import SERIES_FIELDS, Outcomes, Series
 from tkujax.sim.rollout_mjx import RolloutConfig
-from tkujax.sim.setup import SETTLE_S, ModelIndex, RobotSetup, model_index
+from tkujax.sim.robot import Robot, as_robot
+from tkujax.sim.setup import ModelIndex
 from tkujax.sim.tick import control_tick, control_tick_fx
 
 PUSH_WRENCH_MODES = ("exact", "period_start")
@@ -102,12 +103,8 @@ class _Setup:
 
 
 @functools.lru_cache(maxsize=8)
-def _setup(model_params: ModelParams | RobotSetup | None) -> _Setup:
-    if isinstance(model_params, RobotSetup):
-        model, data = model_params.setup.host_model, model_params.settled
-    else:
-        model = physics.host_model(model_params)
-        data = None
+def _setup(robot: Robot) -> _Setup:
+    model, data = robot.host_model, robot.settled
     # FULLPHYSICS layout: time, qpos, qvel, act, history, plugin (state bits in ascending order).
     nt = mujoco.mj_stateSize(model, int(mujoco.mjtState.mjSTATE_TIME))
     nq = mujoco.mj_stateSize(model, int(mujoco.mjtState.mjSTATE_QPOS))
@@ -118,12 +115,10 @@ def _setup(model_params: ModelParams | RobotSetup | None) -> _Setup:
     if not model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_EULERDAMP:
         raise ValueError("tkujax.sim.rollout_mujoco recovers the warm start assuming eulerdamp "
                          "is disabled")
-    if data is None:   # the state setup.init starts MJX from
-        data = physics.settled_stand_data(model, SETTLE_S)
     state0 = np.empty(mujoco.mj_stateSize(model, _FULL))
     mujoco.mj_getState(model, data, state0, _FULL)
     state0.setflags(write=False)
-    return _Setup(model=model, index=model_index(model_params), state0=state0,
+    return _Setup(model=model, index=robot.index, state0=state0,
                   warmstart0=np.array(data.qacc_warmstart), sensordata0=np.array(data.sensordata),
                   qpos_slice=slice(nt, nt + nq), qvel_slice=slice(nt + nq, nt + nq + nv))
 
@@ -382,7 +377,7 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
                     model_params: ModelParams | None = None,
                     config: RolloutConfig = RolloutConfig(), n_threads: int | None = None,
                     push_wrench: str = "exact", overrides: StepOverride | None = None,
-                    schedule=None, robot=None,
+                    schedule=None, robot: Robot | None = None,
                     walk: WalkCommand | None = None) -> tuple[Series, Outcomes]:
     """Run a batch of pushes with MuJoCo C physics; returns numpy (series, outcomes).
 
@@ -393,11 +388,9 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
     `tkujax.control.policy.Schedule`, shared by the batch; not with a fixed-point controller)
     and walk (a `tkujax.control.gait.WalkCommand`, one or stacked; None: standing).
     """
-    if robot is not None:   # a robot file's RobotSetup (tkujax.robot.robot_setup)
-        model_params = robot
     if push_wrench not in PUSH_WRENCH_MODES:
         raise ValueError(f"push_wrench must be one of {PUSH_WRENCH_MODES}, got {push_wrench!r}")
-    setup = _setup(model_params)
+    setup = _setup(as_robot(robot, model_params))
     idx = setup.index
     n = int(np.shape(pushes.impulse_ns)[0])
     phys = _Physics(setup, n, n_threads)

@@ -3,6 +3,7 @@
 
 Cached per (model_params, settle_s, float64): the rollouts, sweeps, tuning, the capture-step
 optimiser, the calibration refinement and the paper's GIF build the same objects once.
+A `tkujax.sim.robot.Robot` carries its SimSetup with the rest of what a simulation takes.
 """
 
 from __future__ import annotations
@@ -119,8 +120,7 @@ def imu_indices(model: mujoco.MjModel, gyro: str = "gyro", accel: str = "accel")
 
 @functools.lru_cache(maxsize=8)
 def model_index(params: ModelParams | None = None) -> ModelIndex:
-    if isinstance(params, RobotSetup):
-        return params.setup.index
+    """The ModelIndex of TKU-X built from `params` (a robot's own: `Robot.index`)."""
     return index_of(physics.host_model(params), params)
 
 
@@ -141,34 +141,14 @@ class SimSetup(NamedTuple):
     stand_state: mjx.Data          # the stand keyframe, settled for settle_s, clock at 0
 
 
-@dataclasses.dataclass(frozen=True, eq=False)
-class RobotSetup:
-    """A robot file's simulation (`tkujax.robot.simsetup.robot_setup`): its SimSetup, the
-    settled stand as MuJoCo C data (the C rollout's start), the controller's parameters for
-    it, and the robot file's name and content hash. Given where a `ModelParams` goes
-    (`model_params=`), the rollouts simulate this robot; compared and hashed by identity."""
-
-    setup: SimSetup
-    settled: mujoco.MjData
-    params: object                 # tkujax.control.controller_params.ControllerParams
-    name: str
-    digest: str                    # sha256 of the robot file and its model file
-    source: str                    # the robot file's path
-    controller: str = ""           # where `params` came from (tkujax.robot.own_controller)
-    defaults: object = None        # the controller's scaled defaults (the leg map's)
-
-
 def init(model_params: ModelParams | None = None, settle_s: float = SETTLE_S,
          float64: bool = False) -> SimSetup:
-    """The SimSetup of a model (None: the default robot), cached.
+    """The SimSetup of TKU-X built from `model_params` (None: the default robot), cached (a
+    robot's: `tkujax.sim.robot.Robot.setup`).
 
     float64: the MJX model and state put in float64 (built under jax.enable_x64; callers run
     their programs under it too), for derivative checks; the state's integer fields take the
     types `mjx.step` returns under x64, so it can be a lax.scan carry."""
-    if isinstance(model_params, RobotSetup):
-        if float64 or float(settle_s) != SETTLE_S:
-            raise ValueError("a robot file's setup is float32, settled SETTLE_S")
-        return model_params.setup
     # One cache key however the arguments are spelled (lru_cache keys f(a) and f(a, 1.0) apart).
     return _init(model_params, float(settle_s), bool(float64))
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from tkujax.robot.robot_setup import robot_setup
+from tkujax.robot import robot_from_file
 from tkujax.robot.loader import geom_points
 from tkujax.analysis.capturability import LipModel, convex_hull, step_reach_m
 from tkujax.studies.capture.theory import Feet
@@ -25,19 +25,19 @@ from tkujax.studies.tune.robot_table import robot_file_of
 
 
 def sweep_robot(run_dir: str | Path, given: str | None = None):
-    """The RobotSetup of `given`, else of the robot file the sweep in `run_dir` recorded, else
+    """The Robot of `given`, else of the robot file the sweep in `run_dir` recorded, else
     None (a TKU-X sweep); the caller checks it against the manifest."""
     if given is not None:
-        return robot_setup(given)
+        return robot_from_file(given)
     recorded = recorded_robot(read_manifest(Path(run_dir)) or {})
-    return None if recorded is None else robot_setup(recorded["robot_file"])
+    return None if recorded is None else robot_from_file(recorded["robot_file"])
 
 
 def tune_robot(raw: dict, given: str | None = None):
-    """The RobotSetup of `given`, else of the tune spec's [robot] file (raw: its TOML dict),
+    """The Robot of `given`, else of the tune spec's [robot] file (raw: its TOML dict),
     else None."""
     path = given or robot_file_of(raw)
-    return None if path is None else robot_setup(path)
+    return None if path is None else robot_from_file(path)
 
 
 def _foot_points(robot, body: int) -> np.ndarray:
@@ -51,7 +51,7 @@ def _foot_points(robot, body: int) -> np.ndarray:
 
 
 def robot_lip(robot) -> LipModel:
-    """The LIP of a RobotSetup's settled stand: total mass, whole-body CoM height and (x, y),
+    """The LIP of a Robot's settled stand: total mass, whole-body CoM height and (x, y),
     the support polygon the hull of the feet's collision geoms."""
     model, data = robot.setup.host_model, robot.settled
     feet = sorted({int(model.site_bodyid[s]) for s in robot.setup.index.ankle_sites})
@@ -63,7 +63,7 @@ def robot_lip(robot) -> LipModel:
 
 
 def capture_feet(robot) -> Feet:
-    """A RobotSetup's capture-region geometry (tkujax.studies.capture.theory.Feet): its LIP,
+    """A Robot's capture-region geometry (tkujax.studies.capture.theory.Feet): its LIP,
     the settled stand's ankle sites, one sole box around its ankle (the two feet's collision
     footprints relative to their ankles, the right one mirrored, averaged; centred in y) and
     the leg reach l_max of its controller parameters."""
@@ -83,10 +83,10 @@ def capture_feet(robot) -> Feet:
 
 
 def capture_robot(spec_path: str | Path, given: str | None = None):
-    """(RobotSetup, Feet) of `tkujax capture`: the --robot file `given`, else the spec's
+    """(Robot, Feet) of `tkujax capture`: the --robot file `given`, else the spec's
     [robot] file; (None, None) for TKU-X."""
     path = given or load_spec(spec_path).robot_file
     if path is None:
         return None, None
-    robot = robot_setup(path)
+    robot = robot_from_file(path)
     return robot, capture_feet(robot)

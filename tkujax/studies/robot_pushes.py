@@ -68,7 +68,7 @@ def _probe(robot, impulses: np.ndarray) -> np.ndarray:
 
 
 def robot_pushes(robot) -> RobotPushes:
-    """The push distributions of `robot` (a RobotSetup; see the module doc): the probe runs in
+    """The push distributions of `robot` (a Robot; see the module doc): the probe runs in
     rungs of eight impulses, stopping at the first rung that reaches FALL_TARGET."""
     h = float(robot.defaults.com_height)
     mass_kg = float(robot.setup.host_model.body_subtreemass[1])   # body 1: the floating base

@@ -24,7 +24,7 @@ import math
 import time
 from pathlib import Path
 
-from tkujax.robot.robot_setup import robot_setup
+from tkujax.robot import robot_from_file
 from tkujax.sweeps.progress import StatusLog
 from tkujax.studies.robot_pushes import robot_pushes
 from tkujax.studies.robot_structure import STRUCTURES, choose_structure, structure_start
@@ -144,7 +144,7 @@ def tune_robot_controller(robot_file: str | Path, out: str | Path, budget_s: flo
     out.mkdir(parents=True, exist_ok=True)
     log = log or StatusLog(budget_s=budget_s, desc="tune --robot ")
     robot_file = str(Path(robot_file).resolve())
-    robot = robot_setup(robot_file)
+    robot = robot_from_file(robot_file)
     pushes = _stage_pushes(out, robot, log)
     structure = _stage_structure(out, robot, pushes, log)
     name = structure["chosen"]

@@ -24,7 +24,7 @@ from tkujax.sim.metrics import outcomes as rollout_outcomes
 from tkujax.sim.push import Push
 from tkujax.sim.randomize import randomize_model
 from tkujax.sim.rollout_mjx import Episode, ProgramOptions, RolloutConfig, rollout
-from tkujax.sim.setup import init
+from tkujax.sim.robot import Robot, as_robot
 from tkujax.dialects.sweep_spec import (FPGA_COLUMN, RANDOMIZE_DEFAULTS, ROBOT_ID_COLUMN,
                                         SWEEP_TREE_PASSES, EnsembleRef, SpecError, SweepSpec)
 
@@ -118,12 +118,13 @@ def ensemble_robots(ensemble: EnsembleRef):
         raise SpecError(f"randomize.ensemble: {ensemble.path}: {err}") from None
 
 
-def sweep_base(model_params: ModelParams | None, ensemble: EnsembleRef | None):
-    """(model, index, stand state, RobotSet or None) of a sweep: its one robot, or an
-    ensemble's base model with its members' RobotSet."""
+def sweep_base(model_params: Robot | ModelParams | None, ensemble: EnsembleRef | None):
+    """(model, index, stand state, RobotSet or None) of a sweep: its one robot (a Robot, or
+    TKU-X's ModelParams: `as_robot`), or an ensemble's base model with its members'
+    RobotSet."""
     if ensemble is None:
-        _, model, index, state = init(model_params)
-        return model, index, state, None
+        robot = as_robot(model_params)
+        return robot.device_model, robot.index, robot.stand_state, None
     robots = ensemble_robots(ensemble)
     return robots.base_model, robots.index, robots.base_state, robots
 

@@ -80,7 +80,7 @@ def replay(run_dir: str | Path, index: int, robot=None, exact: bool = False,
     {column: (stored, replayed)}, qpos (n_ticks, nq), control_period_s, model_params (the
     record's robot: its ensemble member, or the sweep's model; None: the default),
     fields_missing (`tkujax.sweeps.record_schema.fields_missing`: what an older
-    manifest lacks, and the value used)). robot: the RobotSetup a robot sweep ran on (checked
+    manifest lacks, and the value used)). robot: the Robot a robot sweep ran on (checked
     against the manifest's sha256; `tkujax.studies.robot_inputs.sweep_robot` loads it). exact (MJX):
     the outcomes by the sweep's own program (`tkujax.sweeps.replay_exact`); identical then
     means equal bit for bit, in every outcome column the chunk stores. backend: None, the one

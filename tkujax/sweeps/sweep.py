@@ -32,8 +32,7 @@ from tkujax.control.params_files import controller_params_from
 from tkujax.control.controller_params import ControllerParams
 from tkujax.control.policy import Schedule
 from tkujax.model import ModelParams
-from tkujax.robot.robot_setup import robot_setup
-from tkujax.sim.setup import RobotSetup
+from tkujax.robot import Robot, as_robot, robot_from_file
 from tkujax.sweeps import chunks
 from tkujax.sweeps.chunk_program import (chunk_keys, fpga_groups, make_chunk_fn, record_inputs,
                                          traced_params)
@@ -88,7 +87,7 @@ class _ChunkJob:
     spec: SweepSpec
     recs: dict
     base: ControllerParams
-    model_params: ModelParams | None
+    robot: Robot | None              # None: a [randomize] ensemble gives the robots
     backend: str
     schedule: Schedule | None
     padded: int
@@ -112,7 +111,7 @@ class _ChunkJob:
         steps = bool(spec.step_grid)
         if self.backend == "mujoco":
             res = mujoco_chunk({k: recs[k][lo:hi] for k in self.input_keys}, spec.seed + i,
-                               self.base, spec.duration_s, self.model_params, varied=varied,
+                               self.base, spec.duration_s, self.robot, varied=varied,
                                steps=steps, fpga=spec.fpga if spec.arithmetic == "fixed" else None,
                                fpga_varied=tuple(sorted(spec.fpga_grid)), ensemble=spec.ensemble,
                                schedule=self.schedule)
@@ -127,7 +126,7 @@ class _ChunkJob:
             rows = np.resize(sel, self.padded)
             batch = {k: jax.device_put(recs[k][lo:hi][rows].astype(np.float32), self.sharding)
                      for k in self.input_keys}
-            fn = make_chunk_fn(varied, spec.duration_s, self.model_params, steps=steps,
+            fn = make_chunk_fn(varied, spec.duration_s, self.robot, steps=steps,
                                fixed=fixed, ensemble=spec.ensemble, tree_passes=spec.tree_passes)
             part = fn(batch, jax.device_put(keys[rows], self.sharding), traced_params(self.base),
                       self.schedule)
@@ -151,7 +150,7 @@ class _ChunkJob:
         parts = []
         for fixed, sel in fpga_groups(spec, {k: self.recs[k][lo:hi] for k in self.recs}):
             fns = make_lane_fns(tuple(sorted(spec.controller_grid)), spec.duration_s,
-                                self.model_params, bool(spec.step_grid), fixed, spec.ensemble,
+                                self.robot, bool(spec.step_grid), fixed, spec.ensemble,
                                 spec.tree_passes, spec.decisions.segment_ticks)
             parts.append(stream.part((i, sel), fns, {k: self.recs[k][lo:hi][sel]
                                                      for k in self.input_keys}, keys[sel]))
@@ -232,28 +231,31 @@ def _compute_early(out: Path, job: _ChunkJob, claims: chunks.Claims, progress: P
 
 
 def _checked_inputs(spec: SweepSpec | str | Path, params: ControllerParams | None,
-                    model_params: ModelParams | None, max_chunks: int | None,
-                    schedule: Schedule | None) -> tuple[SweepSpec, ControllerParams]:
-    """The spec (loaded from its path) and the controller parameters (default: the paper's),
-    after refusing the combinations a sweep cannot run."""
+                    robot: Robot | None, model_params: Robot | ModelParams | None,
+                    max_chunks: int | None,
+                    schedule: Schedule | None) -> tuple[SweepSpec, ControllerParams, Robot]:
+    """The spec (loaded from its path), the controller parameters (default: the robot's) and
+    the Robot (`model_params`, else the spec's [robot] file, else TKU-X), after refusing the
+    combinations a sweep cannot run."""
     if max_chunks is not None and (isinstance(max_chunks, bool) or not isinstance(max_chunks, int)
                                    or max_chunks < 1):
         raise ValueError(f"max_chunks must be an integer >= 1 (or None: all), got {max_chunks!r}")
     spec = spec if isinstance(spec, SweepSpec) else load_spec(spec)
     check_control_period(params)
-    if spec.ensemble is not None and model_params is not None:
+    if spec.ensemble is not None and (robot is not None or model_params is not None):
         raise SpecError("[randomize] ensemble gives the sweep's robots: give either it or a "
                         "model (--model), not both")
     if schedule is not None and spec.arithmetic == "fixed":
         raise SpecError("a scheduled policy (--params with a 'schedule') has no fixed-point "
                         "controller twin: use a plain parameter file with arithmetic = 'fixed'")
-    if model_params is None and spec.robot_file is not None:
-        model_params = robot_setup(spec.robot_file)      # [robot] file, as the command line
-    if isinstance(model_params, RobotSetup):
-        check_robot_sweep(spec, model_params)
-        return spec, params or model_params.params, model_params
-    check_tkux_pushes(spec)
-    return spec, params or ControllerParams.paper(), model_params
+    if robot is None and model_params is None and spec.robot_file is not None:
+        robot = robot_from_file(spec.robot_file)          # [robot] file, as the command line
+    robot = as_robot(robot, model_params)
+    if robot.builtin:
+        check_tkux_pushes(spec)
+    else:
+        check_robot_sweep(spec, robot)
+    return spec, params or robot.params, robot
 
 
 TKUX_HEIGHT_M = (0.25, 0.46)   # TKU-X's trunk, from the hips to the shoulders
@@ -280,7 +282,7 @@ def check_control_period(params: ControllerParams | None) -> None:
                         "the key out")
 
 
-def check_robot_sweep(spec: SweepSpec, robot: RobotSetup) -> None:
+def check_robot_sweep(spec: SweepSpec, robot: Robot) -> None:
     """Refuse a sweep a robot file cannot run: another [robot] file, an ensemble, the
     fixed-point twin, or push heights off the robot (outside 0.3-1.6 x its CoM height)."""
     if spec.robot_file is not None and spec.robot_file != robot.source:
@@ -325,13 +327,17 @@ def _wait_for_others(out: Path, n_chunks: int, deadline: float) -> None:
 
 
 def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerParams | None = None,
-              model_params: ModelParams | None = None, max_chunks: int | None = None,
+              model_params: Robot | ModelParams | None = None, max_chunks: int | None = None,
               process_id: int | None = None, num_processes: int | None = None,
               coordinator: str | None = None, quiet: bool = False,
               wait_for_others_s: float = 3600.0, backend: str = "auto",
-              schedule: Schedule | None = None, decisions: str | None = None) -> dict:
+              schedule: Schedule | None = None, decisions: str | None = None,
+              robot: Robot | None = None) -> dict:
     """Run (or resume) a sweep into `out`. Returns the manifest.
 
+    robot: the Robot (`tkujax.robot.robot_from_file`, `tkujax.robot.builtin_robot`); model_params:
+    TKU-X's ModelParams instead (or a Robot, the older keyword); neither: the spec's [robot]
+    file, else the default TKU-X. params: the controller's (None: the robot's own).
     max_chunks: stop after computing this many new chunks (for tests and partial runs).
     Multi-process: process 0 waits up to `wait_for_others_s` for the other processes' chunks
     before writing the final manifest. backend: "auto" (see `choose_backend`), "mjx" or
@@ -345,16 +351,16 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
     decisions: "full" or "early" in place of the spec's [sweep] decisions (None: the spec's);
     early decisions run on MJX (docs/sweeps.md).
     """
-    spec, params, model_params = _checked_inputs(spec, params, model_params, max_chunks,
-                                                 schedule)
-    spec = with_decisions(spec, decisions)
     process_id, num_processes, coordinator = processes(process_id, num_processes, coordinator)
-    backend = choose_backend(backend, spec)
-    out = prepare_out(Path(out))
-    if num_processes > 1:
+    if num_processes > 1:   # before any JAX call (the robot's model goes onto a device)
         jax.distributed.initialize(coordinator_address=coordinator, num_processes=num_processes,
                                    process_id=process_id)
-    digest = spec_hash(spec, params, model_params or ModelParams(), schedule)
+    spec, params, robot = _checked_inputs(spec, params, robot, model_params, max_chunks,
+                                          schedule)
+    spec = with_decisions(spec, decisions)
+    backend = choose_backend(backend, spec)
+    out = prepare_out(Path(out))
+    digest = spec_hash(spec, params, robot, schedule)
     recs = record_inputs(spec)
     n = len(recs["push_id"])
     n_chunks = math.ceil(n / spec.chunk_size)
@@ -363,9 +369,9 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
     padded = math.ceil(spec.chunk_size / len(devices)) * len(devices)
     run = run_record(backend, process_id, num_processes)
     # The check that the folder holds no other sweep and the claim of it: one locked update.
-    claim_folder(out, describe(spec, digest, n, n_chunks, padded, params, model_params,
+    claim_folder(out, describe(spec, digest, n, n_chunks, padded, params, robot,
                                num_processes, backend, schedule),
-                 input_digests(spec, params, model_params or ModelParams(), schedule), run)
+                 input_digests(spec, params, robot, schedule), run)
     chunks.clean_temporaries(out)
     mine = [i for i in range(n_chunks) if i % num_processes == process_id]
     done = chunks.done_chunks(out, n_chunks)
@@ -375,7 +381,8 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
     if spec.arithmetic == "fixed":   # the twin lacks some float options: refuse, do not ignore
         check_supported(base)
     job = _ChunkJob(spec=spec, recs=recs, base=base,
-                    model_params=model_params, backend=backend, schedule=schedule, padded=padded,
+                    robot=None if spec.ensemble is not None else robot, backend=backend,
+                    schedule=schedule, padded=padded,
                     sharding=NamedSharding(Mesh(np.array(devices), ("push",)),
                                            PartitionSpec("push")),
                     spec_hash=digest, provenance=chunk_provenance(run))

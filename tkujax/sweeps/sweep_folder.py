@@ -28,7 +28,7 @@ from tkujax.control.fixed import FixedPointConfig
 from tkujax.control.controller_params import ControllerParams
 from tkujax.control.policy import Schedule, schedule_to_dict
 from tkujax.model import ModelParams
-from tkujax.sim.setup import RobotSetup
+from tkujax.sim.robot import Robot, as_robot
 from tkujax.sweeps import chunks
 from tkujax.sweeps.provenance import git_commit, versions
 from tkujax.sweeps.record_schema import SCHEMA_KEY, SCHEMA_VERSION, TREE_PASSES_KEY
@@ -84,16 +84,14 @@ def prepare_out(out: Path) -> Path:
     return out
 
 
-def model_record(model_params: ModelParams | RobotSetup | None) -> dict:
-    """The manifest's model: ModelParams' fields, or a robot file's name, path and sha256."""
-    if isinstance(model_params, RobotSetup):
-        return dict(robot=model_params.name, robot_file=model_params.source,
-                    robot_sha256=model_params.digest)
-    return dataclasses.asdict(model_params or ModelParams())
+def model_record(robot: Robot | ModelParams | None) -> dict:
+    """The manifest's model: TKU-X's ModelParams fields, or a robot file's name, path and
+    sha256 (`Robot.record`)."""
+    return as_robot(robot).record()
 
 
 def describe(spec: SweepSpec, digest: str, n: int, n_chunks: int, padded: int,
-             params: ControllerParams, model_params: ModelParams | None, num_processes: int,
+             params: ControllerParams, robot: Robot | None, num_processes: int,
              backend: str, schedule: Schedule | None = None) -> dict:
     """The manifest's description of the sweep (every writer restates it, the provenance keys
     only when absent), in the record schema's newest version
@@ -102,7 +100,7 @@ def describe(spec: SweepSpec, digest: str, n: int, n_chunks: int, padded: int,
         name=spec.name, spec=spec.raw, spec_hash=digest, n_pushes=n,
         chunk_size=spec.chunk_size, n_chunks=n_chunks, padded_chunk=padded,
         controller_params=dataclasses.asdict(params),
-        model_params=model_record(model_params),
+        model_params=model_record(robot),
         versions=versions(), git_commit=git_commit(),
         devices=[str(d) for d in jax.devices()], num_processes=num_processes,
         backend=backend, format="npz chunks, one record per push",

@@ -16,7 +16,7 @@ from tkujax.control.fixed import FixedPointConfig
 from tkujax.control.controller_params import ControllerParams
 from tkujax.control.policy import Schedule, schedule_to_dict
 from tkujax.model import ModelParams
-from tkujax.sim.setup import RobotSetup
+from tkujax.sim.robot import Robot, as_robot
 from tkujax.sweeps.record_schema import TREE_PASSES_BEFORE, hashed_fields
 from tkujax.dialects.sweep_spec import SweepSpec
 from tkujax.dialects.program_keys import hashed_raw
@@ -47,19 +47,21 @@ INPUT_NAMES = {
 }
 
 
-def hash_parts(spec: SweepSpec, params: ControllerParams, model_params: ModelParams,
+def hash_parts(spec: SweepSpec, params: ControllerParams, robot: Robot | ModelParams | None,
                schedule: Schedule | None = None) -> dict[str, object]:
     """{input name (INPUT_NAMES): what of it fixes the records}, in the spec hash's order:
-    every input a record depends on, by content (files by their sha256)."""
+    every input a record depends on, by content (files by their sha256). robot: the Robot, or
+    TKU-X's ModelParams (`as_robot`)."""
+    robot = as_robot(robot)
     # Fields added later enter the hash only when set, so older sweeps still resume. The model
     # enters in full otherwise: a changed default robot (e.g. the calibration) is another sweep.
     parts: dict[str, object] = {"spec": hashed_raw(spec.raw),
                                 "controller_params": hashed_fields(
                                     "controller_params", dataclasses.asdict(params))}
-    if isinstance(model_params, RobotSetup):   # a robot file: by its content and its model's
-        parts["robot"] = {"robot sha256": model_params.digest}
-    else:
-        parts["model"] = hashed_fields("model_params", dataclasses.asdict(model_params))
+    if robot.builtin:
+        parts["model"] = hashed_fields("model_params", dataclasses.asdict(robot.model_params))
+    else:   # a robot file: by its content and its model's
+        parts["robot"] = {"robot sha256": robot.digest}
     if spec.arithmetic == "fixed":   # the FixedPointConfig defaults fill every unset [fpga] key
         parts["fixed_point_defaults"] = {
             "fixed_point_defaults": dataclasses.asdict(FixedPointConfig())}
@@ -85,18 +87,19 @@ def _digest(value) -> str:
     return hashlib.sha256(json.dumps(value, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
-def spec_hash(spec: SweepSpec, params: ControllerParams, model_params: ModelParams,
+def spec_hash(spec: SweepSpec, params: ControllerParams, robot: Robot | ModelParams | None,
               schedule: Schedule | None = None) -> str:
     """16 hex digits of sha256 over everything that fixes the sweep's records and outcomes
     (not the backend: a sweep may resume on another machine)."""
-    return _digest(list(hash_parts(spec, params, model_params, schedule).values()))
+    return _digest(list(hash_parts(spec, params, robot, schedule).values()))
 
 
-def input_digests(spec: SweepSpec, params: ControllerParams, model_params: ModelParams,
+def input_digests(spec: SweepSpec, params: ControllerParams,
+                  robot: Robot | ModelParams | None,
                   schedule: Schedule | None = None) -> dict[str, str]:
     """{input name: 16 hex digits of its part}: the manifest's `inputs`, which lets a refusal
     name the input that changed (`changed_inputs`)."""
-    return {k: _digest(v) for k, v in hash_parts(spec, params, model_params, schedule).items()}
+    return {k: _digest(v) for k, v in hash_parts(spec, params, robot, schedule).items()}
 
 
 def changed_inputs(recorded: dict | None, now: dict[str, str]) -> list[str]:

@@ -3,7 +3,7 @@ compare, replay): `check_robot(manifest, robot, where)`.
 
 A robot sweep's manifest records the robot file's path and sha256 (with its model file's and
 the collision mode's: `tkujax.robot.robot_setup.file_digest`) under model_params. The robot a
-reading command is given (a RobotSetup: `tkujax.studies.robot_inputs.sweep_robot` loads the
+reading command is given (a Robot: `tkujax.studies.robot_inputs.sweep_robot` loads the
 manifest's file, or the --robot file) must be that robot, the same sha256, else a SpecError
 names both.
 """
@@ -20,7 +20,7 @@ def recorded_robot(manifest: dict) -> dict | None:
 
 
 def check_robot(manifest: dict, robot, where: str):
-    """`robot` (a RobotSetup, or None for TKU-X) after checking that the sweep at `where`
+    """`robot` (a Robot, or None for TKU-X) after checking that the sweep at `where`
     ran on it; SpecError naming both files otherwise."""
     recorded = recorded_robot(manifest)
     if recorded is None:
@@ -30,7 +30,7 @@ def check_robot(manifest: dict, robot, where: str):
         return None
     if robot is None:
         raise SpecError(f"--robot: {where} ran on the robot file {recorded['robot_file']}: "
-                        "give its RobotSetup (tkujax.studies.robot_inputs.sweep_robot loads it)")
+                        "give its Robot (tkujax.studies.robot_inputs.sweep_robot loads it)")
     if robot.digest != recorded["robot_sha256"]:
         raise SpecError(f"--robot: {where} ran on {recorded['robot_file']} (sha256 "
                         f"{recorded['robot_sha256'][:12]}...); --robot gives {robot.source} "

@@ -22,8 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tkujax.sim import physics
-from tkujax.sim.setup import RobotSetup, model_index
+from tkujax.sim.robot import as_robot
 from tkujax.viewer.scene_meshes import (VISIBLE_GROUPS, GeomShape, com_positions, geom_poses,
                                         geom_shapes, site_positions)
 
@@ -253,9 +252,7 @@ def scene_from_replay(result: dict, model, ankle_sites, groups=VISIBLE_GROUPS) -
 
 def host_model_of(model_params):
     """The MuJoCo model a replay ran on: a robot file's, or the TKU-X model of its parameters."""
-    if isinstance(model_params, RobotSetup):
-        return model_params.setup.host_model
-    return physics.host_model(model_params)
+    return as_robot(model_params).host_model
 
 
 def replay_scenes(run_dir: str | Path, indices, robot=None, progress=None,
@@ -274,7 +271,7 @@ def replay_scenes(run_dir: str | Path, indices, robot=None, progress=None,
     if not results:
         return []
     scenes = [scene_from_replay(r, host_model_of(r["model_params"]),
-                                model_index(r["model_params"]).ankle_sites, groups)
+                                as_robot(r["model_params"]).index.ankle_sites, groups)
               for r in results]
     height = max(s.height_m for s in scenes)
     per_ns = ARROW_FRACTION * height / (max(s.impulse_ns for s in scenes) or 1.0)

@@ -29,7 +29,7 @@ import numpy as np
 
 from tkujax.control.gait import WalkCommand
 from tkujax.control.controller_params import ControllerParams
-from tkujax.robot.robot_setup import robot_setup
+from tkujax.robot import Robot, builtin_robot, robot_from_file
 from tkujax.sim.metrics import fall_indicator
 from tkujax.sim.options import RolloutConfig
 from tkujax.sim.push import Push, make_push, stack_pushes
@@ -41,10 +41,10 @@ MIN_TOUCHDOWN_M = 0.002
 
 @dataclasses.dataclass(frozen=True)
 class Walker:
-    """A robot ready to walk: its simulation (None: TKU-X's default model, or a robot file's
-    `RobotSetup`), the controller it runs and the gait's defaults (`WalkCommand.for_params`)."""
+    """A robot ready to walk: its Robot (TKU-X's default model or a robot file's), the
+    controller it runs and the gait's defaults (`WalkCommand.for_params`)."""
 
-    robot: object
+    robot: Robot
     params: ControllerParams
     gait_params: ControllerParams
     name: str
@@ -52,14 +52,10 @@ class Walker:
 
 def walker(robot_file: str | None = None) -> Walker:
     """TKU-X (None) or a robot file's robot: the controller the file names (its scaled
-    defaults otherwise), the gait from the scaled defaults (`RobotSetup.defaults`)."""
-    if robot_file is None:
-        params = ControllerParams.paper()
-        return Walker(robot=None, params=params, gait_params=params, name="tkux")
-    setup = robot_setup(robot_file)
-    return Walker(robot=setup, params=setup.params,
-                  gait_params=setup.defaults if setup.defaults is not None else setup.params,
-                  name=setup.name)
+    defaults otherwise), the gait from the scaled defaults (`Robot.defaults`)."""
+    robot = builtin_robot() if robot_file is None else robot_from_file(robot_file)
+    return Walker(robot=robot, params=robot.params, gait_params=robot.defaults or robot.params,
+                  name="tkux" if robot.builtin else robot.name)
 
 
 def stack_commands(commands: list[WalkCommand]) -> WalkCommand:

@@ -14,7 +14,7 @@ import numpy as np
 
 from tkujax.control.controller_params import ControllerParams
 from tkujax.studies.capture import figures, theory
-from tkujax.studies.capture.on_robot import check_capture_robot
+from tkujax.studies.capture.on_robot import capture_robot_value, check_capture_robot
 from tkujax.studies.capture.region import analyse
 from tkujax.dialects.sweep_spec import SpecError, SweepSpec, load_spec
 from tkujax.control.params_files import controller_params_from
@@ -146,7 +146,7 @@ def run_capture(spec: SweepSpec | str | Path, out: str | Path,
                 **sweep_kwargs) -> dict:
     """Run (or resume) the [step] sweep, then write DIR/capture/: regions.json, j1.json,
     optimise.json, summary.md and the figures. optimise: how many pushes get a
-    gradient-optimal step (0 skips it; TKU-X only). robot, feet: a robot file's RobotSetup and
+    gradient-optimal step (0 skips it; TKU-X only). robot, feet: a robot file's Robot and
     its capture geometry (`tkujax.studies.robot_inputs.capture_robot` loads both; the spec's [robot]
     file needs them), None for TKU-X. sweep_kwargs go to run_sweep (backend, max_chunks,
     process ids, ...)."""
@@ -156,13 +156,14 @@ def run_capture(spec: SweepSpec | str | Path, out: str | Path,
     if not 0 <= optimise <= 1000 or not 1 <= iterations <= 1000:
         raise SpecError(f"optimise must be in [0, 1000] and iterations in [1, 1000], got "
                         f"{optimise}, {iterations}")
-    params = params or getattr(robot, "params", None) or ControllerParams.paper()
+    robot = capture_robot_value(robot)
+    params = params or (ControllerParams.paper() if robot is None else robot.params)
     base = controller_params_from(params, spec.controller)
     feet = check_capture_robot(spec, robot, feet, base)
     if robot is not None:
         # The gradient study's MJX problem is built on TKU-X's model.
         optimise = 0
-        sweep_kwargs["model_params"] = robot
+        sweep_kwargs["robot"] = robot
     manifest = run_sweep(spec, out, params=params, **sweep_kwargs)
     if not manifest["complete"]:
         return dict(manifest=manifest, complete=False)

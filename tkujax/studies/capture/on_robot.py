@@ -17,7 +17,7 @@ import itertools
 import numpy as np
 
 from tkujax.control.controller_params import ControllerParams
-from tkujax.sim.setup import RobotSetup
+from tkujax.sim.robot import Robot, as_robot
 from tkujax.analysis.capturability import step_reach_m
 from tkujax.dialects.sweep_spec import STEP_FIELDS, SweepSpec
 from tkujax.dialects.validation import SpecError
@@ -51,26 +51,33 @@ def check_targets(spec: SweepSpec, reach_m: float, name: str) -> None:
                     f"sqrt((x2_m - x_m)^2 + (y2_m - y_m)^2) <= {reach_m:.3f} m")
 
 
+def capture_robot_value(robot) -> Robot | None:
+    """`robot` as a Robot (`as_robot`; None stays None: TKU-X); SpecError for anything else."""
+    if robot is None:
+        return None
+    try:
+        return as_robot(robot)
+    except TypeError as err:
+        raise SpecError(f"--robot: {err} (tkujax.studies.robot_inputs.capture_robot loads a "
+                        "robot file and its capture geometry)") from None
+
+
 def check_capture_robot(spec: SweepSpec, robot, feet, params: ControllerParams):
     """The robot's capture geometry `feet` with the reach of `params` (its controller with the
     spec's [controller] applied), None for TKU-X, after refusing what capture regions on a
-    robot cannot use: a robot that is not a RobotSetup, a robot without its geometry or
+    robot cannot use: a robot without its geometry or
     geometry without a robot, a spec naming another robot file, targets beyond the reach
     (`check_targets`)."""
     if robot is None:
         if spec.robot_file is not None:
             raise SpecError(f"robot.file: the spec runs on {spec.robot_file}: give its "
-                            "RobotSetup and capture geometry (robot=, feet=: "
+                            "Robot and capture geometry (robot=, feet=: "
                             "tkujax.studies.robot_inputs.capture_robot loads both), or run `tkujax "
                             "capture`")
         if feet is not None:
             raise SpecError("feet: a robot's capture geometry was given without its robot "
-                            "(robot=, a RobotSetup)")
+                            "(robot=, a Robot)")
         return None
-    if not isinstance(robot, RobotSetup):
-        raise SpecError(f"--robot: expected a RobotSetup "
-                        f"(tkujax.studies.robot_inputs.capture_robot loads a robot file), "
-                        f"got {robot!r}")
     if feet is None:
         raise SpecError(f"--robot: capture regions on {robot.name} need its capture geometry "
                         "(feet=, tkujax.studies.robot_inputs.capture_feet)")

@@ -42,7 +42,7 @@ from tkujax.sim.push import Push
 from tkujax.sim.randomize import randomize_model
 from tkujax.sim.robots import RobotSet, put_leaves
 from tkujax.sim.rollout_mjx import Episode, ProgramOptions, RolloutConfig, rollout
-from tkujax.sim.setup import init
+from tkujax.sim.robot import as_robot
 from tkujax.dialects.sweep_spec import RANDOMIZE_FIELDS, ROBOT_ID_COLUMN
 from tkujax.studies.tune.loss import OFF_SURVIVED, LossConfig, harm_weighted_mean, push_loss
 from tkujax.studies.tune.reparam import CPU_COMPILER_OPTIONS, DEG, EVAL_KEYS, Reparam
@@ -113,7 +113,8 @@ class TuneProblem:
                                         **(rollout_options or {})}))
         self.robots = robots
         if robots is None:
-            host, self.model, self.index, self.state = init(model_params, float64=float64)
+            host, self.model, self.index, self.state = as_robot(model_params).sim_setup(
+                float64=float64)
             self._robot_values = None
             timestep = host.opt.timestep
         else:

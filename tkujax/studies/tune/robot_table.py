@@ -1,6 +1,6 @@
 """Tuning on a robot file: `[robot] file` in a tune spec, or `tkujax tune --robot FILE`.
 
-`on_robot(spec, robot)` applies a robot once: its RobotSetup (tkujax.studies.robot_inputs.tune_robot
+`on_robot(spec, robot)` applies a robot once: its Robot (tkujax.studies.robot_inputs.tune_robot
 loads it) becomes the problem's model, and the start is the robot's scaled controller defaults
 (`controller_params_for`) with the spec's [controller] applied. Refused, each a SpecError
 naming the key: a --robot other than the spec's [robot] file, [model] overrides, robot
@@ -18,18 +18,17 @@ from tkujax.studies.tune.reparam import check_start
 from tkujax.dialects.validation import SpecError, robot_file_of
 
 
-
 def _same_file(a: str, b: str) -> bool:
     return Path(a).resolve() == Path(b).resolve()
 
 
 def on_robot(spec, robot=None) -> object:
-    """`spec` on `robot` (a RobotSetup: `tkujax.studies.robot_inputs.tune_robot` loads the
+    """`spec` on `robot` (a Robot: `tkujax.studies.robot_inputs.tune_robot` loads the
     spec's [robot] file or --robot's; None: TKU-X, refused when the spec names a robot file)."""
     own = robot_file_of(spec.raw)
     if robot is None:
         if own is not None:
-            raise SpecError(f"robot.file: the spec names {own}: give its RobotSetup "
+            raise SpecError(f"robot.file: the spec names {own}: give its Robot "
                             "(tkujax.studies.robot_inputs.tune_robot loads it)")
         return spec
     if own is not None and not _same_file(robot.source, own):
@@ -52,6 +51,6 @@ def on_robot(spec, robot=None) -> object:
 def robot_record(spec) -> dict | None:
     """The robot file's name, path and sha256 for the tune's outputs (None: TKU-X)."""
     robot = spec.robot
-    if robot is None or not hasattr(robot, "digest"):
+    if robot is None or robot.builtin:
         return None
-    return dict(robot=robot.name, robot_file=robot.source, robot_sha256=robot.digest)
+    return robot.record()

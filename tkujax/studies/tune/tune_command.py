@@ -51,7 +51,7 @@ def run_tune(spec: TuneSpec | dict | str | Path, out_dir: str | Path, quiet: boo
     A spec with a [study] table runs the dimension study instead
     (tkujax.studies.tune.dimension_study;
     only: its run filters, deadline_s: start no run that would end after it). robot: the
-    RobotSetup to tune on (tkujax.studies.robot_inputs.tune_robot loads the spec's [robot]
+    Robot to tune on (tkujax.studies.robot_inputs.tune_robot loads the spec's [robot]
     file). budget_s:
     stop the search after this many seconds of generations (compile excluded); with a [study]
     table it replaces study.budget_s (each run records the budget it had).
