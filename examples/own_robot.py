@@ -17,7 +17,6 @@ from pathlib import Path
 
 import tkujax
 from tkujax.robot.builtin import write_generated_robot
-from tkujax.robot.robot_setup import robot_setup
 from tkujax.studies.robot_inputs import robot_lip
 from tkujax.robot.file_summary import robot_stand_summary
 
@@ -54,9 +53,9 @@ def main(argv=None) -> dict:
     spec.write_text(SPEC.format(duration=1.5 if args.small else 2.0,
                                 azimuths="[0, 180]" if args.small else
                                 "{start = 0, stop = 360, num = 8, endpoint = false}"))
-    robot = robot_setup(robot_file)     # the robot with the controller scaled to it
+    robot = tkujax.robot_from_file(robot_file)   # the robot, its controller scaled to it
     sweep = out / "sweep"
-    tkujax.run_sweep(spec, sweep, model_params=robot, backend="mujoco")
+    tkujax.run_sweep(spec, sweep, robot=robot, backend="mujoco")
     maps = tkujax.make_maps(sweep, robot=robot, lip=robot_lip(robot))
     records = tkujax.load(sweep)
     print(f"{records['fell'].mean():.1%} of {records['fell'].size} pushes fell")
