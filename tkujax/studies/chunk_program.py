@@ -19,7 +19,7 @@ from tkujax.control.fixed import FixedPointConfig
 from tkujax.control.io import controller_params_from
 from tkujax.control.params import ControllerParams
 from tkujax.model import ModelParams
-from tkujax.sim.metrics import CAPTURE_KEYS, capture_outcomes
+from tkujax.sim.metrics import CAPTURE_KEYS, WALK_KEYS, capture_outcomes, walk_outcomes
 from tkujax.sim.metrics import outcomes as rollout_outcomes
 from tkujax.sim.push import Push
 from tkujax.sim.randomize import randomize_model
@@ -27,6 +27,7 @@ from tkujax.sim.rollout_mjx import Episode, ProgramOptions, RolloutConfig, rollo
 from tkujax.sim.setup import init
 from tkujax.studies.spec import (FPGA_COLUMN, RANDOMIZE_DEFAULTS, ROBOT_ID_COLUMN,
                                  SWEEP_TREE_PASSES, EnsembleRef, SpecError, SweepSpec)
+from tkujax.studies.spec_walk import walk_commands
 
 # lax.scan unrolling of each control tick's physics substeps in the sweeps' program
 # (RolloutConfig.unroll_substeps; 1: a rolled loop). Same arithmetic, another loop structure.
@@ -58,9 +59,10 @@ def step_override(rec: dict) -> StepOverride:
                            if f"step_{k}" in rec})
 
 
-def outcome_keys(steps: bool) -> tuple[str, ...]:
-    """Columns a chunk writes: the outcomes, plus the capture-region ones for [step] sweeps."""
-    return OUTCOME_KEYS + (CAPTURE_KEYS if steps else ())
+def outcome_keys(steps: bool, walking: bool = False) -> tuple[str, ...]:
+    """Columns a chunk writes: the outcomes, plus the capture-region ones for [step] sweeps
+    and the walking ones (WALK_KEYS) for [walk] sweeps."""
+    return OUTCOME_KEYS + (CAPTURE_KEYS if steps else ()) + (WALK_KEYS if walking else ())
 
 
 def traced_params(params: ControllerParams) -> ControllerParams:
@@ -73,7 +75,7 @@ def make_chunk_fn(varied: tuple[str, ...], duration_s: float,
                   model_params: ModelParams | None = None, with_qpos: bool = False,
                   steps: bool = False, fixed: FixedPointConfig | None = None,
                   ensemble: EnsembleRef | None = None, unroll_substeps: int | None = None,
-                  tree_passes: str = SWEEP_TREE_PASSES[0]):
+                  tree_passes: str = SWEEP_TREE_PASSES[0], walk=None):
     """jit(vmap) of push records -> outcomes: f(batch, keys, params) with `params` a
     ControllerParams shared by the batch (pass it through `traced_params`), and `varied` the
     controller fields given per record instead (a [controller.grid]).
@@ -95,7 +97,10 @@ def make_chunk_fn(varied: tuple[str, ...], duration_s: float,
     unroll_substeps: the loop structure (RolloutConfig.unroll_substeps); None: the sweeps'
     SWEEP_UNROLL_SUBSTEPS. The outcomes do not depend on it (tests/test_perf_equivalence).
     tree_passes: ProgramOptions.tree_passes (SweepSpec.tree_passes; the sweeps' default sums
-    the tree in a fixed order, repeatable on a GPU)."""
+    the tree in a fixed order, repeatable on a GPU).
+    walk: a [walk] sweep's base WalkCommand (python floats: part of the cache key; the
+    records' walk_* columns set its speeds, step period and recovery, traced), with the
+    WALK_KEYS outcomes; None: the robots stand."""
     if ensemble is not None and model_params is not None:
         raise SpecError("[randomize] ensemble gives the robots: pass no model_params with it")
     unroll = SWEEP_UNROLL_SUBSTEPS if unroll_substeps is None else int(unroll_substeps)
@@ -104,7 +109,7 @@ def make_chunk_fn(varied: tuple[str, ...], duration_s: float,
     # Positional call into the cache: lru_cache keys f(a, b) and f(a, b, steps=False) apart,
     # which would compile the same program twice.
     return _make_chunk_fn(tuple(varied), duration_s, model_params, with_qpos, steps, fixed,
-                          ensemble, unroll, tree_passes)
+                          ensemble, unroll, tree_passes, walk)
 
 
 @functools.lru_cache(maxsize=4)
@@ -129,11 +134,11 @@ def sweep_base(model_params: ModelParams | None, ensemble: EnsembleRef | None):
 
 
 def record_episode(base, rec: dict, key, base_params: ControllerParams, varied: tuple[str, ...],
-                   steps: bool, robot_values=None):
+                   steps: bool, robot_values=None, walk=None):
     """One record's (model, stand state, Episode, ControllerParams, StepOverride or None):
     its push, its controller-grid values over `base_params`, its ensemble member (with
-    `robot_values`, the RobotSet's values) and its [randomize] draws. `base` from
-    `sweep_base`."""
+    `robot_values`, the RobotSet's values) and its [randomize] draws; with `walk` (a [walk]
+    sweep's base WalkCommand) its walk. `base` from `sweep_base`."""
     from tkujax.sim.robots import put_leaves
 
     model, index, state, robots = base
@@ -148,13 +153,15 @@ def record_episode(base, rec: dict, key, base_params: ControllerParams, varied: 
     m = randomize_model(m, index.chest_body, mass_scale=rec["link_mass_scale"],
                         torso_com_dx_m=rec["torso_com_offset_x_m"],
                         friction=rec["floor_friction"], kp_scale=rec["servo_kp_scale"])
-    episode = Episode(push, rec["control"], key, rec["gyro_noise_std"], rec["accel_noise_std"])
+    command = None if walk is None else walk_commands(walk, rec)
+    episode = Episode(push, rec["control"], key, rec["gyro_noise_std"], rec["accel_noise_std"],
+                      command)
     return m, s, episode, params, (step_override(rec) if steps else None)
 
 
 @functools.lru_cache(maxsize=16)
 def _make_chunk_fn(varied, duration_s, model_params, with_qpos, steps, fixed, ensemble, unroll,
-                   tree_passes):
+                   tree_passes, walk):
     base = sweep_base(model_params, ensemble)
     index, robots = base[1], base[3]
     config = RolloutConfig(duration_s=duration_s, record_qpos=with_qpos, fixed=fixed,
@@ -163,10 +170,12 @@ def _make_chunk_fn(varied, duration_s, model_params, with_qpos, steps, fixed, en
 
     def one(rec, key, base_params, schedule, robot_values=None):
         m, s, episode, params, override = record_episode(base, rec, key, base_params, varied,
-                                                         steps, robot_values)
+                                                         steps, robot_values, walk)
         series = rollout(m, s, episode, params, config, index, override, schedule)
         out = rollout_outcomes(series, episode.push.onset_s)
         res = {k: out[k] for k in OUTCOME_KEYS} | ({"qpos": series.qpos} if with_qpos else {})
+        if walk is not None:
+            res |= walk_outcomes(series, walk.start_s)
         return res | (capture_outcomes(series, episode.push.onset_s, params.gravity)
                       if steps else {})
 

@@ -58,7 +58,7 @@ SECTOR_NAMES = {4: ("behind", "right", "front", "left"),
                     "left", "behind-left")}
 # Columns that are not inputs of a push: outcomes, the control setting (selected on), the
 # record number (differs between the control blocks of one spec), a replay's state.
-NOT_INPUTS = set(outcome_keys(True)) | {"control", "push_id", "qpos"}
+NOT_INPUTS = set(outcome_keys(True, True)) | {"control", "push_id", "qpos"}
 SUBSETS = ("all", "grid", "random")
 MATCH_ATOL = 1e-9
 

@@ -9,11 +9,17 @@ import numpy as np
 from tkujax.control.io import controller_params_from
 from tkujax.control.params import ControllerParams
 from tkujax.model import ModelParams
-from tkujax.sim.metrics import capture_outcomes
+from tkujax.sim.metrics import capture_outcomes, walk_outcomes
 from tkujax.sim.push import Push
 from tkujax.sim.rollout_mjx import RolloutConfig
 from tkujax.studies.chunk_program import OUTCOME_KEYS, step_override
+from tkujax.studies.spec_walk import WALK_COLUMNS, walk_commands
 from tkujax.studies.spec import FPGA_COLUMN, ROBOT_ID_COLUMN, EnsembleRef, fixed_point_config
+
+
+@jax.jit
+def _walk_outcomes_batch(series, start_s):
+    return jax.vmap(walk_outcomes, in_axes=(0, None))(series, start_s)
 
 
 @jax.jit
@@ -25,7 +31,7 @@ def mujoco_chunk(batch: dict, seed: int, base: ControllerParams, duration_s: flo
                  model_params: ModelParams | None, with_qpos: bool = False,
                  varied: tuple[str, ...] = (), steps: bool = False,
                  fpga: dict | None = None, fpga_varied: tuple[str, ...] = (),
-                 ensemble: EnsembleRef | None = None, schedule=None) -> dict:
+                 ensemble: EnsembleRef | None = None, schedule=None, walk=None) -> dict:
     """One chunk on MuJoCo C (tkujax.sim.rollout_mujoco), outcomes (and qpos) as numpy: one
     batch per controller-grid point present in the chunk (`varied` names the grid's fields; the
     controller's parameters are shared by a batch there). steps: records carry a commanded step
@@ -34,7 +40,8 @@ def mujoco_chunk(batch: dict, seed: int, base: ControllerParams, duration_s: flo
     (columns fpga_<key>): one batch per (controller-grid point, FixedPointConfig). ensemble: a
     [randomize] ensemble: one batch per member too (column robot_id; model_params is then
     unused: each batch runs its member's ModelParams). schedule: a scheduled policy's Schedule
-    (None: the plain controller)."""
+    (None: the plain controller). walk: a [walk] sweep's base WalkCommand (the records'
+    walk_* columns set each robot's walk) with the WALK_KEYS outcomes; None: standing."""
     from tkujax.sim.rollout_mujoco import simulate_mujoco
 
     n = len(batch["impulse_ns"])
@@ -56,15 +63,21 @@ def mujoco_chunk(batch: dict, seed: int, base: ControllerParams, duration_s: flo
             batch["duration_s"], batch["onset_s"])))
         overrides = step_override({k: jnp.asarray(v[sel], jnp.float32) for k, v in batch.items()}
                                   ) if steps else None
+        walks = None if walk is None else walk_commands(walk, {
+            k: np.asarray(batch[k][sel], np.float32) for k in WALK_COLUMNS})
         series, out = simulate_mujoco(
             pushes, batch["control"][sel].astype(np.float32), params, seed=seed,
             gyro_noise_std=float(batch["gyro_noise_std"][0]),
             accel_noise_std=float(batch["accel_noise_std"][0]), model_params=robot,
             config=RolloutConfig(duration_s=duration_s, record_qpos=with_qpos, fixed=fixed),
-            overrides=overrides, schedule=schedule)
+            overrides=overrides, schedule=schedule, walk=walks)
         fields = {k: np.asarray(out[k]) for k in OUTCOME_KEYS}
         if with_qpos:
             fields["qpos"] = np.asarray(series.qpos)
+        if walk is not None:
+            moved = _walk_outcomes_batch(jax.tree_util.tree_map(jnp.asarray, series),
+                                         float(walk.start_s))
+            fields |= {k: np.asarray(v) for k, v in moved.items()}
         if steps:
             cap = _capture_outcomes_batch(jax.tree_util.tree_map(jnp.asarray, series),
                                           pushes.onset_s, float(params.gravity))

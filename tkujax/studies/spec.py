@@ -87,6 +87,11 @@ from tkujax.studies.spec_program import (SWEEP_TREE_PASSES, Decisions, decisions
 from tkujax.studies.spec_limits import (MAX_CHUNK_SIZE, MAX_RECORDS, MAX_SEED, PHASE_KEY,
                                         PHASE_UNIT, PUSH_FIELDS, check_limits, record_count)
 from tkujax.studies.spec_steps import STEP_FIELDS, cross_steps, parse_step
+from tkujax.studies.spec_walk import (GAIT_PHASE_KEY, GAIT_PHASE_UNIT, WalkSpec,
+                                      check_gait_phase_keys, check_walk_sweep, cross_walk,
+                                      gait_params_of,
+                                      gait_phase_values, onsets_at_phase, parse_walk,
+                                      resolve_walk)
 from tkujax.studies.spec_fpga import (ARITHMETIC, FPGA_COLUMN, FPGA_FIELDS, check_fixed_controller,
                                       fixed_point_config, parse_fpga)
 from tkujax.studies.validation import SpecError, number, read_toml, table, uniform, values
@@ -198,6 +203,7 @@ class SweepSpec:
     tree_passes: str = SWEEP_TREE_PASSES[0]   # [sweep] tree_passes (SWEEP_TREE_PASSES)
     robot_file: str | None = None   # [robot] file: a robot file (tkujax.robot), absolute
     decisions: Decisions = Decisions()   # [sweep] decisions, lanes, segment_ticks
+    walk: WalkSpec | None = None   # [walk]: the robot walks (tkujax.studies.spec_walk)
 
     def fixed_point_config(self, rec: dict | None = None) -> FixedPointConfig | None:
         """The FixedPointConfig of a record (its fpga_* columns over [fpga]); None for float."""
@@ -246,6 +252,17 @@ def _phase_values(key: str, value) -> np.ndarray:
     return vals
 
 
+def _random_phase(key: str, value, unit: str) -> tuple[float, float]:
+    """push.random.KEY = {uniform = [lo, hi]} of a phase: draws in [lo, hi), lo < 1."""
+    try:
+        lo, hi = uniform(f"push.random.{key}", value, 0.0, 1.0, unit)
+    except SpecError as err:
+        raise SpecError(str(err).replace("[0.0, 1.0]", "[0, 1)")) from None
+    if lo >= 1.0:   # draws are in [lo, hi): hi = 1 is fine, lo = 1 would give phase 1
+        raise SpecError(f"push.random.{key}.uniform[0]: {lo!r} is out of range [0, 1) {unit}")
+    return lo, hi
+
+
 def parse_randomize(data: dict) -> dict[str, Any]:
     """The validated [randomize] table: {key: (lo, hi) for uniform draws, or a fixed value}."""
     rand = table("randomize", data.get("randomize", {}), RANDOMIZE_FIELDS)
@@ -258,8 +275,11 @@ def parse_randomize(data: dict) -> dict[str, Any]:
 
 
 def _parse_sweep(data: dict) -> dict:
-    """The checked [sweep] table (with chunk_size, duration_s, control and seed filled in)."""
+    """The checked [sweep] table (with chunk_size, duration_s, control and seed filled in;
+    a walking sweep's control defaults to ["on"]: the walking recovery needs the controller)."""
     sweep = dict(table("sweep", data.get("sweep", {}), SWEEP_FIELDS))
+    if "walk" in data:
+        sweep.setdefault("control", ["on"])
     for k, types in SWEEP_FIELDS.items():
         if k in sweep and (isinstance(sweep[k], bool) or not isinstance(sweep[k], types)):
             raise SpecError(f"sweep.{k}: expected {getattr(types, '__name__', 'a number')}, "
@@ -284,34 +304,36 @@ def _parse_sweep(data: dict) -> dict:
 def parse_spec(data: dict) -> SweepSpec:
     """Validate a parsed TOML document."""
     table("top level", data, {"sweep", "push", "controller", "randomize", "step", "fpga",
-                              "robot"})
+                              "robot", "walk"})
     sweep = _parse_sweep(data)
+    robot_file = _robot_file(data)
+    walk = parse_walk(data)
+    if walk is not None:
+        walk = resolve_walk(walk, gait_params_of(robot_file))
     chunk, duration, control = sweep["chunk_size"], sweep["duration_s"], tuple(sweep["control"])
     tree_passes = tree_passes_of(sweep)
 
     push = table("push", data.get("push", {}), {"grid", "random"})
-    grid = table("push.grid", push.get("grid", {}), set(PUSH_FIELDS) | {PHASE_KEY})
+    phase_keys = {PHASE_KEY, GAIT_PHASE_KEY}
+    grid = table("push.grid", push.get("grid", {}), set(PUSH_FIELDS) | phase_keys)
+    check_gait_phase_keys("grid", grid, walk, PHASE_KEY)
     push_grid = {k: (_phase_values(f"push.grid.{k}", v) if k == PHASE_KEY else
+                     gait_phase_values(f"push.grid.{k}", v, values) if k == GAIT_PHASE_KEY else
                      values(f"push.grid.{k}", v, *PUSH_FIELDS[k][:2], PUSH_FIELDS[k][3]))
                  for k, v in grid.items()}
-    rnd = table("push.random", push.get("random", {}), set(PUSH_FIELDS) | {PHASE_KEY, "n"})
+    rnd = table("push.random", push.get("random", {}), set(PUSH_FIELDS) | phase_keys | {"n"})
+    check_gait_phase_keys("random", rnd, walk, PHASE_KEY)
     n_random = rnd.get("n", 0)
     if (isinstance(n_random, bool) or not isinstance(n_random, int)
             or not 0 <= n_random <= 10_000_000):
         raise SpecError(f"push.random.n: expected an integer in [0, 10000000], got {n_random!r}")
     push_random = {k: uniform(f"push.random.{k}", v, *PUSH_FIELDS[k][:2], PUSH_FIELDS[k][3])
-                   for k, v in rnd.items() if k not in ("n", PHASE_KEY)}
-    if PHASE_KEY in rnd:
-        try:
-            lo, hi = uniform(f"push.random.{PHASE_KEY}", rnd[PHASE_KEY], 0.0, 1.0, PHASE_UNIT)
-        except SpecError as err:
-            raise SpecError(str(err).replace("[0.0, 1.0]", "[0, 1)")) from None
-        if lo >= 1.0:   # draws are in [lo, hi): hi = 1 is fine, lo = 1 would give phase 1
-            raise SpecError(f"push.random.{PHASE_KEY}.uniform[0]: {lo!r} is out of range [0, 1) "
-                            f"{PHASE_UNIT}")
-        push_random[PHASE_KEY] = (lo, hi)
+                   for k, v in rnd.items() if k not in ("n", PHASE_KEY, GAIT_PHASE_KEY)}
+    for key, unit in ((PHASE_KEY, PHASE_UNIT), (GAIT_PHASE_KEY, GAIT_PHASE_UNIT)):
+        if key in rnd:
+            push_random[key] = _random_phase(key, rnd[key], unit)
     # Random pushes without an onset of their own sample the whole control period.
-    phase_default = n_random > 0 and not {"onset_s", PHASE_KEY} & set(rnd)
+    phase_default = n_random > 0 and not ({"onset_s"} | phase_keys) & set(rnd)
     if phase_default:
         push_random[PHASE_KEY] = (0.0, 1.0)
     if not push_grid and n_random == 0:
@@ -340,7 +362,7 @@ def parse_spec(data: dict) -> SweepSpec:
                         "use controller.arithmetic = \"float\"")
     if arithmetic == "fixed":
         check_fixed_controller(controller, controller_grid)
-    return check_limits(SweepSpec(name=sweep.get("name", "sweep"), seed=sweep["seed"],
+    spec = check_limits(SweepSpec(name=sweep.get("name", "sweep"), seed=sweep["seed"],
                      chunk_size=chunk, duration_s=duration, control=control,
                      push_grid=push_grid, push_random=push_random, n_random=n_random,
                      controller=controller, controller_grid=controller_grid,
@@ -348,7 +370,9 @@ def parse_spec(data: dict) -> SweepSpec:
                      step_grid=step_grid,
                      step_reference=step_reference, arithmetic=arithmetic, fpga=fpga,
                      fpga_grid=fpga_grid, ensemble=ensemble, tree_passes=tree_passes,
-                     robot_file=_robot_file(data), decisions=decisions_of(sweep, chunk)))
+                     robot_file=robot_file, decisions=decisions_of(sweep, chunk), walk=walk))
+    check_walk_sweep(spec)
+    return spec
 
 
 def _robot_file(data: dict) -> str | None:
@@ -377,8 +401,10 @@ def expand(spec: SweepSpec) -> dict[str, np.ndarray]:
     defaults = {k: v[2] for k, v in PUSH_FIELDS.items()}
     # Grid pushes: Cartesian product over the given fields (others at their defaults); the phase
     # is crossed last, so the order of specs without it is unchanged. NaN: no phase given.
-    fields = list(PUSH_FIELDS) + [PHASE_KEY]
-    cols = {k: np.array([defaults[k]]) for k in PUSH_FIELDS} | {PHASE_KEY: np.array([np.nan])}
+    # A walking sweep's gait phase is crossed after them all (NaN: the onset is given).
+    fields = list(PUSH_FIELDS) + [PHASE_KEY] + ([GAIT_PHASE_KEY] if spec.walk else [])
+    cols = {k: np.array([defaults[k]]) for k in PUSH_FIELDS} | {
+        k: np.array([np.nan]) for k in fields[len(PUSH_FIELDS):]}
     grid_cols = {}
     if spec.push_grid:
         cols.update(spec.push_grid)
@@ -393,9 +419,14 @@ def expand(spec: SweepSpec) -> dict[str, np.ndarray]:
         else:
             rand_cols[k] = np.full(spec.n_random, defaults[k])
     # Drawn after the other fields: their values do not depend on whether a phase is drawn.
-    rand_cols[PHASE_KEY] = (rng.uniform(*spec.push_random[PHASE_KEY], spec.n_random)
-                            if PHASE_KEY in spec.push_random else np.full(spec.n_random, np.nan))
+    for k in fields[len(PUSH_FIELDS):]:   # the onset phase, then the gait phase
+        rand_cols[k] = (rng.uniform(*spec.push_random[k], spec.n_random)
+                        if k in spec.push_random else np.full(spec.n_random, np.nan))
     pushes = {k: np.concatenate([grid_cols.get(k, np.zeros(0)), rand_cols[k]]) for k in fields}
+    if spec.walk is not None:   # onsets by gait phase: the walk's nominal time of the phase
+        gait = np.isfinite(pushes[GAIT_PHASE_KEY])
+        pushes["onset_s"] = np.where(gait, onsets_at_phase(
+            spec.walk, np.where(gait, pushes[GAIT_PHASE_KEY], 0.0)), pushes["onset_s"])
     given = np.isfinite(pushes[PHASE_KEY])
     pushes["onset_s"] = np.where(given, onset_from_phase(pushes["onset_s"],
                                                          np.where(given, pushes[PHASE_KEY], 0.0)),
@@ -427,6 +458,6 @@ def expand(spec: SweepSpec) -> dict[str, np.ndarray]:
         out[k] = np.tile(draw, n_settings)
     if spec.ensemble is not None:   # drawn after the others: their values do not change
         out[ROBOT_ID_COLUMN] = np.tile(rng.integers(0, spec.ensemble.n, n_push), n_settings)
-    out = cross_steps(spec, out)
+    out = cross_walk(spec.walk, cross_steps(spec, out))
     out["push_id"] = np.arange(len(out["control"]))
     return out

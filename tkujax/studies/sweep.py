@@ -43,7 +43,9 @@ from tkujax.studies.mujoco_chunk import mujoco_chunk
 from tkujax.studies.progress import Progress
 from tkujax.sim.push import CONTROL_PERIOD_S
 from tkujax.studies.spec import SpecError, SweepSpec, load_spec
+from tkujax.studies.spec_limits import check_push_window
 from tkujax.studies.spec_program import with_decisions
+from tkujax.studies.spec_walk import check_walk_sweep, walk_base, walk_for_robot
 from tkujax.studies.sweep_folder import (chunk_provenance, claim_folder, describe, prepare_out,
                                          processes, run_record)
 from tkujax.studies.sweep_hash import input_digests, spec_hash
@@ -115,7 +117,7 @@ class _ChunkJob:
                                self.base, spec.duration_s, self.model_params, varied=varied,
                                steps=steps, fpga=spec.fpga if spec.arithmetic == "fixed" else None,
                                fpga_varied=tuple(sorted(spec.fpga_grid)), ensemble=spec.ensemble,
-                               schedule=self.schedule)
+                               schedule=self.schedule, walk=walk_base(spec))
             return {k: recs[k][lo:hi] for k in recs} | res
         keys = chunk_keys(spec.seed, i, self.padded)   # (early decisions: early_parts)
         res = {}
@@ -128,7 +130,8 @@ class _ChunkJob:
             batch = {k: jax.device_put(recs[k][lo:hi][rows].astype(np.float32), self.sharding)
                      for k in self.input_keys}
             fn = make_chunk_fn(varied, spec.duration_s, self.model_params, steps=steps,
-                               fixed=fixed, ensemble=spec.ensemble, tree_passes=spec.tree_passes)
+                               fixed=fixed, ensemble=spec.ensemble, tree_passes=spec.tree_passes,
+                               walk=walk_base(spec))
             part = fn(batch, jax.device_put(keys[rows], self.sharding), traced_params(self.base),
                       self.schedule)
             for k, v in part.items():
@@ -249,7 +252,12 @@ def _checked_inputs(spec: SweepSpec | str | Path, params: ControllerParams | Non
                         "controller twin: use a plain parameter file with arithmetic = 'fixed'")
     if model_params is None and spec.robot_file is not None:
         model_params = robot_setup(spec.robot_file)      # [robot] file, as the command line
+    if spec.walk is not None and schedule is not None:
+        raise SpecError("[walk]: a scheduled policy (--params with a 'schedule') does not run "
+                        "while walking; give a plain parameter file")
     if isinstance(model_params, RobotSetup):
+        spec = walk_for_robot(spec, model_params)
+        check_push_window(spec)
         check_robot_sweep(spec, model_params)
         return spec, params or model_params.params, model_params
     check_tkux_pushes(spec)
@@ -348,6 +356,7 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
     spec, params, model_params = _checked_inputs(spec, params, model_params, max_chunks,
                                                  schedule)
     spec = with_decisions(spec, decisions)
+    check_walk_sweep(spec)
     process_id, num_processes, coordinator = processes(process_id, num_processes, coordinator)
     backend = choose_backend(backend, spec)
     out = prepare_out(Path(out))

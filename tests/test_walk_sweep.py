@@ -1,0 +1,155 @@
+"""Walking sweeps: a sweep spec's [walk] table and pushes placed by gait phase
+(tkujax.studies.spec_walk; docs/walking.md).
+
+The spec against closed forms (the onset of a gait phase, the record count, the gait phase of an
+onset); refusals naming the key and its range (exit code 2 from the command line); the spec hash
+covering [walk]; a MuJoCo C walking sweep's records against the direct walk simulation
+(`tkujax.studies.walk.run_walk` with the same command and push); MJX against MuJoCo C (slow: an
+MJX compile).
+"""
+
+import numpy as np
+import pytest
+
+from tkujax.cli import main
+from tkujax.control.gait import WalkCommand
+from tkujax.control.params import ControllerParams
+from tkujax.model import ModelParams
+from tkujax.sim.push import stack_pushes
+from tkujax.studies.spec import SpecError, parse_spec
+from tkujax.studies.sweep import load, run_sweep
+from tkujax.studies.sweep_hash import spec_hash
+from tkujax.studies.walk import run_walk, walk_metrics, walker
+from tkujax.studies.walk_push import push_at_gait_phase
+
+PARAMS = ControllerParams.paper()
+
+
+def _spec(walk=None, grid=None, sweep=None, random=None):
+    push = {"grid": grid if grid is not None else {"impulse_ns": [0.4, 1.5],
+                                                     "gait_phase": [0.25]}}
+    if random is not None:
+        push["random"] = random
+    return {"sweep": {"duration_s": 2.0, "chunk_size": 8} | (sweep or {}),
+            "walk": {"speed_mps": 0.1, "push_cycle": 1} | (walk or {}), "push": push}
+
+
+def test_gait_phase_onsets_follow_the_gait_schedule():
+    """Closed form: the first left touchdown of TKU-X's walk is start 0.3 s + T (1 - gamma / 2)
+    = 0.57 s; phase p of cycle c is 0.57 + (c + p) 2 T."""
+    spec = parse_spec(_spec(walk={"recovery": ["off", "on"]},
+                            grid={"impulse_ns": [0.5], "gait_phase": [0.0, 0.25, 0.5, 0.75]}))
+    rec = spec.records()
+    assert len(rec["push_id"]) == 8          # 4 phases x recovery off, on (control: on)
+    np.testing.assert_allclose(rec["onset_s"][:4], 0.57 + (1 + np.array([0, .25, .5, .75])) * .6,
+                               atol=1e-6)
+    np.testing.assert_array_equal(rec["walk_recovery"], [0.0] * 4 + [1.0] * 4)
+    np.testing.assert_array_equal(rec["control"], True)
+    np.testing.assert_allclose(rec["walk_speed_mps"], 0.1)
+    np.testing.assert_allclose(rec["walk_step_period_s"], 0.3, rtol=1e-6)
+    np.testing.assert_array_equal(rec["gait_phase"][4:], rec["gait_phase"][:4])
+    # The same pushes placed by the library's own placement.
+    cmd = WalkCommand.for_params(PARAMS, 0.1)
+    for phase, onset in zip(rec["gait_phase"][:4], rec["onset_s"][:4]):
+        assert onset == pytest.approx(float(push_at_gait_phase(cmd, phase, 0.5, cycle=1).onset_s),
+                                      abs=1e-6)
+
+
+def test_onsets_given_in_seconds_record_their_gait_phase():
+    spec = parse_spec(_spec(grid={"impulse_ns": [0.5], "onset_s": [0.57, 0.87, 1.02]},
+                            walk={"step_period_s": 0.3}))
+    np.testing.assert_allclose(spec.records()["gait_phase"], [0.0, 0.5, 0.75], atol=1e-5)
+
+
+def test_random_gait_phases_are_drawn_in_range():
+    spec = parse_spec(_spec(grid={"impulse_ns": [0.5], "gait_phase": [0.0]},
+                            random={"n": 50, "gait_phase": {"uniform": [0.2, 0.4]}}))
+    rec = spec.records()
+    ph = rec["gait_phase"][1:]
+    assert ((ph >= 0.2) & (ph < 0.4)).all() and len(np.unique(ph)) == 50
+    np.testing.assert_allclose(rec["onset_s"][1:], np.round(0.57 + (1 + ph) * 0.6, 6), atol=2e-6)
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"walk": {"speed_mps": 1.5}}, r"walk\.speed_mps: 1\.5 is out of range \[-1\.0, 1\.0\] m/s"),
+    ({"walk": {"lateral_mps": -0.7}}, r"walk\.lateral_mps: .*\[-0\.5, 0\.5\]"),
+    ({"walk": {"step_period_s": 0.05}}, r"walk\.step_period_s: .*\[0\.1, 2\.0\] s"),
+    ({"walk": {"recovery": ["on", "maybe"]}}, r"walk\.recovery: expected"),
+    ({"walk": {"push_cycle": 101}}, r"walk\.push_cycle: expected an integer in \[0, 100\]"),
+    ({"walk": {"pace": 1}}, r"\[walk\]: unknown key\(s\) \['pace'\]"),
+    ({"grid": {"gait_phase": [1.0]}}, r"push\.grid\.gait_phase: 1\.0 is out of range \[0, 1\)"),
+    ({"grid": {"gait_phase": [0.5], "onset_s": [1.0]}}, r"gait_phase gives the onset"),
+    ({"random": {"n": 3, "gait_phase": {"uniform": [1.0, 1.0]}}},
+     r"push\.random\.gait_phase\.uniform\[0\]: 1\.0 is out of range \[0, 1\)"),
+    ({"walk": {"push_cycle": 3}}, r"push\.grid\.gait_phase \(in walk\.push_cycle = 3\).*after "
+                                  r"the horizon sweep\.duration_s = 2 s"),
+    ({"sweep": {"decisions": "early"}}, r"sweep\.decisions: a walking sweep"),
+])
+def test_refusals_name_the_key_and_the_range(change, message):
+    data = _spec(**change)
+    with pytest.raises(SpecError, match=message):
+        parse_spec(data)
+
+
+def test_gait_phase_needs_a_walk():
+    with pytest.raises(SpecError, match=r"push\.grid\.gait_phase: a gait phase needs a \[walk\]"):
+        parse_spec({"push": {"grid": {"impulse_ns": [0.5], "gait_phase": [0.5]}}})
+
+
+def test_command_line_refuses_a_bad_walk_with_exit_code_2(tmp_path, capsys):
+    spec = tmp_path / "walk.toml"
+    spec.write_text('[walk]\nspeed_mps = 2.0\n[push.grid]\nimpulse_ns = [0.5]\n')
+    assert main(["sweep", str(spec), "--out", str(tmp_path / "out")]) == 2
+    assert "walk.speed_mps: 2.0 is out of range [-1.0, 1.0] m/s" in capsys.readouterr().err
+
+
+def test_spec_hash_covers_the_walk():
+    model = ModelParams()
+    hashes = {spec_hash(parse_spec(_spec(walk=w)), PARAMS, model)
+              for w in ({}, {"speed_mps": 0.2}, {"recovery": "on"}, {"step_period_s": 0.31})}
+    standing = parse_spec({"sweep": {"duration_s": 2.0},
+                           "push": {"grid": {"impulse_ns": [0.4, 1.5], "onset_s": [1.32]}}})
+    hashes.add(spec_hash(standing, PARAMS, model))
+    assert len(hashes) == 5
+
+
+def test_mujoco_walking_sweep_matches_the_direct_walk(tmp_path):
+    """Each record of a MuJoCo C walking sweep against the same walk and push simulated
+    directly: the same fall, peak inclination, and the distance walk_metrics measures."""
+    data = _spec(walk={"recovery": ["off", "on"]},
+                 grid={"impulse_ns": [0.4, 1.5], "azimuth_deg": [0.0, 90.0],
+                       "gait_phase": [0.25]})
+    run_sweep(parse_spec(data), tmp_path / "out", backend="mujoco", quiet=True)
+    rec = load(tmp_path / "out")
+    assert len(rec["push_id"]) == 8
+    who = walker()
+    for recovery in (0.0, 1.0):
+        rows = np.flatnonzero(rec["walk_recovery"] == recovery)
+        cmd = WalkCommand.for_params(PARAMS, 0.1, recovery=recovery)
+        pushes = stack_pushes([push_at_gait_phase(cmd, 0.25, float(rec["impulse_ns"][i]),
+                                                  float(rec["azimuth_deg"][i]), cycle=1)
+                               for i in rows])
+        series, out = run_walk(who, [cmd] * len(rows), 2.0, "mujoco", pushes=pushes)
+        np.testing.assert_array_equal(rec["fell"][rows], out.fell)
+        np.testing.assert_allclose(rec["peak_incl_deg"][rows], out.peak_incl_deg, rtol=1e-5)
+        for j, i in enumerate(rows):
+            direct = walk_metrics(series, j, cmd)
+            # walk_metrics starts one sample (30 ms) later, before the first step moves the CoM.
+            assert rec["distance_m"][i] == pytest.approx(direct["distance_m"], abs=5e-3)
+    assert rec["fell"].any() and not rec["fell"].all()     # the set has both outcomes
+    assert (rec["distance_m"][~rec["fell"].astype(bool)] > 0.05).all()   # 1.7 s at 0.1 m/s
+
+
+@pytest.mark.slow
+def test_mjx_walking_sweep_matches_mujoco(tmp_path):
+    """The same walking sweep on MJX (float32) and MuJoCo C (float64): the same falls, the
+    distance walked within 1 cm."""
+    data = _spec(walk={"recovery": "on", "push_cycle": 0}, sweep={"duration_s": 1.5,
+                                                                  "chunk_size": 2})
+    out = {}
+    for backend in ("mujoco", "mjx"):
+        run_sweep(parse_spec(data), tmp_path / backend, backend=backend, quiet=True)
+        out[backend] = load(tmp_path / backend)
+    np.testing.assert_array_equal(out["mjx"]["fell"], out["mujoco"]["fell"])
+    np.testing.assert_allclose(out["mjx"]["distance_m"], out["mujoco"]["distance_m"], atol=0.01)
+    np.testing.assert_array_equal(out["mjx"]["gait_phase"], out["mujoco"]["gait_phase"])
