@@ -8,6 +8,9 @@ covering [walk]; a MuJoCo C walking sweep's records against the direct walk simu
 MJX compile).
 """
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -16,6 +19,7 @@ from tkujax.control.gait import WalkCommand
 from tkujax.control.params import ControllerParams
 from tkujax.model import ModelParams
 from tkujax.sim.push import stack_pushes
+from tkujax.studies.compare import Bands
 from tkujax.studies.spec import SpecError, parse_spec
 from tkujax.studies.sweep import load, run_sweep
 from tkujax.studies.sweep_hash import spec_hash
@@ -113,31 +117,100 @@ def test_spec_hash_covers_the_walk():
     assert len(hashes) == 5
 
 
-def test_mujoco_walking_sweep_matches_the_direct_walk(tmp_path):
+@pytest.fixture(scope="module")
+def walk_sweep(tmp_path_factory):
+    """A MuJoCo C walking sweep: 2 impulses x 2 directions x 2 gait phases x recovery off, on."""
+    data = _spec(walk={"recovery": ["off", "on"]}, sweep={"duration_s": 2.4},
+                 grid={"impulse_ns": [0.4, 1.5], "azimuth_deg": [0.0, 90.0],
+                       "gait_phase": [0.25, 0.75]})
+    out = tmp_path_factory.mktemp("walk") / "sweep"
+    run_sweep(parse_spec(data), out, backend="mujoco", quiet=True)
+    return out
+
+
+def test_mujoco_walking_sweep_matches_the_direct_walk(walk_sweep):
     """Each record of a MuJoCo C walking sweep against the same walk and push simulated
     directly: the same fall, peak inclination, and the distance walk_metrics measures."""
-    data = _spec(walk={"recovery": ["off", "on"]},
-                 grid={"impulse_ns": [0.4, 1.5], "azimuth_deg": [0.0, 90.0],
-                       "gait_phase": [0.25]})
-    run_sweep(parse_spec(data), tmp_path / "out", backend="mujoco", quiet=True)
-    rec = load(tmp_path / "out")
-    assert len(rec["push_id"]) == 8
+    rec = load(walk_sweep)
+    assert len(rec["push_id"]) == 16
     who = walker()
     for recovery in (0.0, 1.0):
         rows = np.flatnonzero(rec["walk_recovery"] == recovery)
         cmd = WalkCommand.for_params(PARAMS, 0.1, recovery=recovery)
-        pushes = stack_pushes([push_at_gait_phase(cmd, 0.25, float(rec["impulse_ns"][i]),
+        pushes = stack_pushes([push_at_gait_phase(cmd, float(rec["gait_phase"][i]),
+                                                  float(rec["impulse_ns"][i]),
                                                   float(rec["azimuth_deg"][i]), cycle=1)
                                for i in rows])
-        series, out = run_walk(who, [cmd] * len(rows), 2.0, "mujoco", pushes=pushes)
+        np.testing.assert_allclose(rec["onset_s"][rows], pushes.onset_s, atol=1e-6)
+        series, out = run_walk(who, [cmd] * len(rows), 2.4, "mujoco", pushes=pushes)
         np.testing.assert_array_equal(rec["fell"][rows], out.fell)
         np.testing.assert_allclose(rec["peak_incl_deg"][rows], out.peak_incl_deg, rtol=1e-5)
         for j, i in enumerate(rows):
             direct = walk_metrics(series, j, cmd)
             # walk_metrics starts one sample (30 ms) later, before the first step moves the CoM.
             assert rec["distance_m"][i] == pytest.approx(direct["distance_m"], abs=5e-3)
-    assert rec["fell"].any() and not rec["fell"].all()     # the set has both outcomes
-    assert (rec["distance_m"][~rec["fell"].astype(bool)] > 0.05).all()   # 1.7 s at 0.1 m/s
+    fell = rec["fell"].astype(bool)
+    assert fell.any() and not fell.all()     # the set has both outcomes
+    assert (rec["distance_m"][~fell] > 0.1).all()   # 2.1 s of walking at 0.1 m/s
+
+
+def test_map_of_a_walking_sweep_counts_every_cell(walk_sweep):
+    """tkujax map's walking cells: falls and pushes per (recovery, azimuth, impulse, gait
+    phase), against the records counted directly; the files are written."""
+    from tkujax.studies.maps import make_maps
+    from tkujax.studies.walk_maps import walk_cells
+
+    rec = load(walk_sweep)
+    cells = walk_cells(rec)
+    assert cells["settings"] == [False, True]
+    np.testing.assert_array_equal(cells["gait_phase"], [0.25, 0.75])
+    assert cells["count"].shape == (2, 2, 2, 2) and (cells["count"] == 1).all()
+    for i in range(len(rec["fell"])):
+        k = int(rec["walk_recovery"][i])
+        a = int(np.flatnonzero(cells["azimuth_deg"] == rec["azimuth_deg"][i])[0])
+        j = int(np.flatnonzero(cells["impulse_ns"] == rec["impulse_ns"][i])[0])
+        p = int(np.flatnonzero(cells["gait_phase"] == rec["gait_phase"][i])[0])
+        assert cells["falls"][k, a, j, p] == float(rec["fell"][i])
+    res = make_maps(walk_sweep)
+    assert [Path(f).name for f in res["files"]] == ["walk_polar.png", "fall_vs_gait_phase.png"]
+    doc = json.loads((walk_sweep / "maps" / "summary.json").read_text())
+    on = rec["walk_recovery"] > 0.5
+    assert doc["overall"]["recovery on"]["fall_rate"] == pytest.approx(rec["fell"][on].mean())
+    assert sum(c["falls"] for c in doc["cells"]) == int(rec["fell"].sum())
+
+
+def test_compare_recovery_on_against_off_bands_by_gait_phase(walk_sweep, tmp_path):
+    """tkujax compare DIR:recovery-off DIR:recovery-on: the verdict's fall rates are the
+    records', and the phase bands split the gait phase (0.25 in the first of 2, 0.75 in the
+    second), not the onset's phase in the control period."""
+    from tkujax.studies.compare import compare_runs, load_run
+
+    rec = load(walk_sweep)
+    on = rec["walk_recovery"] > 0.5
+    res = compare_runs([f"{walk_sweep}:recovery-off", f"{walk_sweep}:recovery-on"], tmp_path,
+                       min_pushes=1, bands=Bands(phase_bands=2, impulse_bands=2))
+    v = res["verdict"]
+    assert v["reference"]["fall_rate"] == pytest.approx(rec["fell"][~on].mean())
+    label, run = next(iter(v["runs"].items()))
+    assert run["fall_rate"] == pytest.approx(rec["fell"][on].mean())
+    harmed = [(c["sector"], c["phase"]) for c in run["harmed_cells"]]
+    rows = [r for r in res["table"]["rows"] if r["phase"] != "all"]
+    for r in rows:
+        sel = (~on & (rec["gait_phase"] >= r["phase_lo"]) & (rec["gait_phase"] < r["phase_hi"])
+               & (rec["impulse_ns"] >= r["impulse_lo"]) & (rec["impulse_ns"] <= r["impulse_hi"])
+               & (np.mod(rec["azimuth_deg"], 360) == {"behind": 0, "right": 90}[r["sector"]]))
+        ref = r["runs"][v["reference"]["label"]]
+        assert ref["n"] == int(sel.sum()) == 1 and ref["falls"] == int(rec["fell"][sel].sum())
+    worse = [r for r in res["table"]["rows"] if r["runs"][label]["diff_pp"] > 2.0]
+    assert sorted(harmed) == sorted((r["sector"], r["phase"]) for r in worse)
+    assert run["no_harm"] == (not worse)
+    assert "gait phase at onset" in Path(res["summary"]).read_text()
+    with pytest.raises(SpecError, match="recovery-on' selects a walking sweep"):
+        standing = tmp_path / "standing"
+        run_sweep(parse_spec({"sweep": {"duration_s": 0.9, "control": ["on"]},
+                              "push": {"grid": {"impulse_ns": [0.3]}}}), standing,
+                  backend="mujoco", quiet=True)
+        load_run(f"{standing}:recovery-on")
 
 
 @pytest.mark.slow
