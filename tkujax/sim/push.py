@@ -32,6 +32,8 @@ CONTROL_PERIOD_S = 0.030            # paper Sec. 4; the controller ticks at t = 
 PHYSICS_DT_S = 0.002                # the model's time step (tkujax.model: 2 ms)
 MAX_IMPULSE_NS = 200.0              # a 50 kg robot's falls need tens of N s
 MIN_HEIGHT_M, MAX_HEIGHT_M = 0.05, 2.0
+# A push sequence's per-pulse fields (shape (k,) each); its height and duration are shared.
+PULSE_FIELDS = ("impulse_ns", "azimuth_rad", "onset_s")
 
 
 @jax.tree_util.register_dataclass
@@ -90,12 +92,25 @@ def peak_on_sample_phase(duration_s: float = DEFAULT_DURATION_S,
     return float(np.mod(1.0 - (0.5 * duration_s + dt) / period, 1.0))
 
 
+def first_onset(push: Push) -> jax.Array:
+    """The onset (s) of a push, or of a sequence's first pulse (the outcomes count from it);
+    of a batch too (a sequence's onsets have one axis more than its height)."""
+    seq = jnp.ndim(push.onset_s) > jnp.ndim(push.height_m)
+    return push.onset_s[..., 0] if seq else push.onset_s
+
+
 def stack_pushes(pushes: list[Push]) -> Push:
     return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *pushes)
 
 
 def force_at(push: Push, t: jax.Array) -> jax.Array:
-    """(3,) world force (N) of the half-sine pulse at time t (s)."""
+    """(3,) world force (N) of the half-sine pulse at time t (s). A push sequence (impulse_ns,
+    azimuth_rad and onset_s of shape (k,): k pulses of the push's height and duration) sums
+    its pulses' forces."""
+    if jnp.ndim(push.impulse_ns) > jnp.ndim(push.height_m):   # a sequence (a static shape)
+        pulse = jax.vmap(lambda j, a, o: force_at(dataclasses.replace(
+            push, impulse_ns=j, azimuth_rad=a, onset_s=o), t))
+        return jnp.sum(pulse(push.impulse_ns, push.azimuth_rad, push.onset_s), 0)
     phase = (t - push.onset_s) / push.duration_s
     active = (phase >= 0.0) & (phase < 1.0)
     magnitude = push.impulse_ns * (jnp.pi / (2.0 * push.duration_s)) * jnp.sin(jnp.pi * phase)

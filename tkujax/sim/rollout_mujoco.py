@@ -77,7 +77,7 @@ from tkujax.sim.leg_chain import chain_targets_host
 from tkujax.sim import physics, recording
 from tkujax.sim.closed_loop import check_walk
 from tkujax.sim.metrics import outcomes as _outcomes
-from tkujax.sim.push import Push
+from tkujax.sim.push import PULSE_FIELDS, Push, first_onset
 from tkujax.sim.records import SERIES_FIELDS, Outcomes, Series
 from tkujax.sim.rollout_mjx import RolloutConfig
 from tkujax.sim.setup import SETTLE_S, ModelIndex, RobotSetup, model_index
@@ -171,7 +171,11 @@ def _batched_outcomes(series: Series, onset_s: jax.Array) -> Outcomes:
 
 
 def _force(pushes: dict, t: np.ndarray) -> np.ndarray:
-    """Numpy twin of push.force_at: (n, k, 3) world force at times t (n, k)."""
+    """Numpy twin of push.force_at: (n, k, 3) world force at times t (n, k). Push sequences
+    (impulse_ns, azimuth_rad, onset_s of shape (n, pulses)) sum their pulses' forces."""
+    if np.ndim(pushes["impulse_ns"]) == 2:
+        return sum(_force(dict(pushes, **{k: pushes[k][:, i] for k in PULSE_FIELDS}), t)
+                   for i in range(pushes["impulse_ns"].shape[1]))
     onset, dur = pushes["onset_s"][:, None], pushes["duration_s"][:, None]
     phase = (t - onset) / dur
     active = (phase >= 0.0) & (phase < 1.0)
@@ -454,5 +458,5 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
 
     series = _stack_ticks(rows)
     out = _batched_outcomes(jax.tree_util.tree_map(jnp.asarray, series),
-                            jnp.asarray(pushes.onset_s, jnp.float32))
+                            jnp.asarray(first_onset(pushes), jnp.float32))
     return series, jax.tree_util.tree_map(np.asarray, out)

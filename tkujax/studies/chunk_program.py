@@ -21,12 +21,13 @@ from tkujax.control.params import ControllerParams
 from tkujax.model import ModelParams
 from tkujax.sim.metrics import CAPTURE_KEYS, WALK_KEYS, capture_outcomes, walk_outcomes
 from tkujax.sim.metrics import outcomes as rollout_outcomes
-from tkujax.sim.push import Push
+from tkujax.sim.push import Push, first_onset
 from tkujax.sim.randomize import randomize_model
 from tkujax.sim.rollout_mjx import Episode, ProgramOptions, RolloutConfig, rollout
 from tkujax.sim.setup import init
 from tkujax.studies.spec import (FPGA_COLUMN, RANDOMIZE_DEFAULTS, ROBOT_ID_COLUMN,
                                  SWEEP_TREE_PASSES, EnsembleRef, SpecError, SweepSpec)
+from tkujax.studies.spec_sequence import pulse_fields
 from tkujax.studies.spec_walk import walk_commands
 
 # lax.scan unrolling of each control tick's physics substeps in the sweeps' program
@@ -142,8 +143,9 @@ def record_episode(base, rec: dict, key, base_params: ControllerParams, varied: 
     from tkujax.sim.robots import put_leaves
 
     model, index, state, robots = base
-    push = Push(rec["impulse_ns"], jnp.radians(rec["azimuth_deg"]), rec["height_m"],
-                rec["duration_s"], rec["onset_s"])
+    pulses = pulse_fields(rec, jnp)   # a [push.sequence]: (k,) fields
+    push = Push(pulses["impulse_ns"], jnp.radians(pulses["azimuth_deg"]), rec["height_m"],
+                rec["duration_s"], pulses["onset_s"])
     params = controller_params_from(base_params, {k: rec[k] for k in varied})
     m, s = model, state
     if robot_values is not None:   # this record's ensemble member
@@ -172,7 +174,7 @@ def _make_chunk_fn(varied, duration_s, model_params, with_qpos, steps, fixed, en
         m, s, episode, params, override = record_episode(base, rec, key, base_params, varied,
                                                          steps, robot_values, walk)
         series = rollout(m, s, episode, params, config, index, override, schedule)
-        out = rollout_outcomes(series, episode.push.onset_s)
+        out = rollout_outcomes(series, first_onset(episode.push))
         res = {k: out[k] for k in OUTCOME_KEYS} | ({"qpos": series.qpos} if with_qpos else {})
         if walk is not None:
             res |= walk_outcomes(series, walk.start_s)

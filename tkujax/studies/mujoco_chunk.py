@@ -13,6 +13,7 @@ from tkujax.sim.metrics import capture_outcomes, walk_outcomes
 from tkujax.sim.push import Push
 from tkujax.sim.rollout_mjx import RolloutConfig
 from tkujax.studies.chunk_program import OUTCOME_KEYS, step_override
+from tkujax.studies.spec_sequence import pulse_fields
 from tkujax.studies.spec_walk import WALK_COLUMNS, walk_commands
 from tkujax.studies.spec import FPGA_COLUMN, ROBOT_ID_COLUMN, EnsembleRef, fixed_point_config
 
@@ -58,9 +59,10 @@ def mujoco_chunk(batch: dict, seed: int, base: ControllerParams, duration_s: flo
         fixed = None if fpga is None else fixed_point_config(
             fpga | dict(zip(fpga_varied, point[len(varied):len(varied) + len(fpga_varied)])))
         robot = model_params if ensemble is None else ensemble.members[int(point[-1])]
+        pulses = pulse_fields(batch)     # a [push.sequence]: (n, k) fields
         pushes = Push(*(jnp.asarray(v[sel], jnp.float32) for v in (
-            batch["impulse_ns"], np.radians(batch["azimuth_deg"]), batch["height_m"],
-            batch["duration_s"], batch["onset_s"])))
+            pulses["impulse_ns"], np.radians(pulses["azimuth_deg"]), batch["height_m"],
+            batch["duration_s"], pulses["onset_s"])))
         overrides = step_override({k: jnp.asarray(v[sel], jnp.float32) for k, v in batch.items()}
                                   ) if steps else None
         walks = None if walk is None else walk_commands(walk, {

@@ -87,6 +87,8 @@ from tkujax.studies.spec_program import (SWEEP_TREE_PASSES, Decisions, decisions
 from tkujax.studies.spec_limits import (MAX_CHUNK_SIZE, MAX_RECORDS, MAX_SEED, PHASE_KEY,
                                         PHASE_UNIT, PUSH_FIELDS, check_limits, record_count)
 from tkujax.studies.spec_steps import STEP_FIELDS, cross_steps, parse_step
+from tkujax.studies.spec_sequence import (SequenceSpec, check_sequence, draw_sequence,
+                                          parse_sequence)
 from tkujax.studies.spec_walk import (GAIT_PHASE_KEY, GAIT_PHASE_UNIT, WalkSpec,
                                       check_gait_phase_keys, check_walk_sweep, cross_walk,
                                       gait_params_of,
@@ -204,6 +206,7 @@ class SweepSpec:
     robot_file: str | None = None   # [robot] file: a robot file (tkujax.robot), absolute
     decisions: Decisions = Decisions()   # [sweep] decisions, lanes, segment_ticks
     walk: WalkSpec | None = None   # [walk]: the robot walks (tkujax.studies.spec_walk)
+    sequence: SequenceSpec | None = None   # [push.sequence] (tkujax.studies.spec_sequence)
 
     def fixed_point_config(self, rec: dict | None = None) -> FixedPointConfig | None:
         """The FixedPointConfig of a record (its fpga_* columns over [fpga]); None for float."""
@@ -313,7 +316,8 @@ def parse_spec(data: dict) -> SweepSpec:
     chunk, duration, control = sweep["chunk_size"], sweep["duration_s"], tuple(sweep["control"])
     tree_passes = tree_passes_of(sweep)
 
-    push = table("push", data.get("push", {}), {"grid", "random"})
+    push = table("push", data.get("push", {}), {"grid", "random", "sequence"})
+    sequence = parse_sequence(push)
     phase_keys = {PHASE_KEY, GAIT_PHASE_KEY}
     grid = table("push.grid", push.get("grid", {}), set(PUSH_FIELDS) | phase_keys)
     check_gait_phase_keys("grid", grid, walk, PHASE_KEY)
@@ -338,6 +342,8 @@ def parse_spec(data: dict) -> SweepSpec:
         push_random[PHASE_KEY] = (0.0, 1.0)
     if not push_grid and n_random == 0:
         raise SpecError("[push]: give a [push.grid] or [push.random] with n > 0: nothing to run")
+    check_sequence(sequence, np.concatenate([push_grid.get("duration_s", [PUSH_FIELDS[
+        "duration_s"][2]]), push_random.get("duration_s", [PUSH_FIELDS["duration_s"][2]])]))
 
     ctrl = table("controller", data.get("controller", {}),
                   set(CONTROLLER_FIELDS) | {"grid", "arithmetic"})
@@ -370,7 +376,8 @@ def parse_spec(data: dict) -> SweepSpec:
                      step_grid=step_grid,
                      step_reference=step_reference, arithmetic=arithmetic, fpga=fpga,
                      fpga_grid=fpga_grid, ensemble=ensemble, tree_passes=tree_passes,
-                     robot_file=robot_file, decisions=decisions_of(sweep, chunk), walk=walk))
+                     robot_file=robot_file, decisions=decisions_of(sweep, chunk), walk=walk,
+                     sequence=sequence))
     check_walk_sweep(spec)
     return spec
 
@@ -458,6 +465,8 @@ def expand(spec: SweepSpec) -> dict[str, np.ndarray]:
         out[k] = np.tile(draw, n_settings)
     if spec.ensemble is not None:   # drawn after the others: their values do not change
         out[ROBOT_ID_COLUMN] = np.tile(rng.integers(0, spec.ensemble.n, n_push), n_settings)
+    # The later pulses of a [push.sequence] last: the other columns keep their values.
+    out |= draw_sequence(spec.sequence, rng, pushes, n_settings)
     out = cross_walk(spec.walk, cross_steps(spec, out))
     out["push_id"] = np.arange(len(out["control"]))
     return out

@@ -79,6 +79,10 @@ def check_push_window(spec) -> None:
                                  r.get(PHASE_KEY),
                                  r.get("duration_s", (PUSH_FIELDS["duration_s"][2],)),
                                  spec.walk, r.get(GAIT_PHASE_KEY)))
+    seq = getattr(spec, "sequence", None)
+    if seq is not None and seq.pulses > 1:     # the last pulse of a sequence
+        parts = [(end + seq.span_s, f"{via} + (push.sequence.pulses - 1) x "
+                  f"push.sequence.interval_s (at most {seq.span_s:.6g} s)") for end, via in parts]
     for end, via in parts:
         if end > spec.duration_s + HORIZON_SLACK_S:
             raise SpecError(f"{via}: a push would end at {end:.6g} s, after the horizon "

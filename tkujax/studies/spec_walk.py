@@ -173,7 +173,12 @@ def walk_commands(base: WalkCommand, rec: dict) -> WalkCommand:
 def check_walk_sweep(spec) -> None:
     """Refuse what a walking sweep cannot run: commanded steps, the fixed-point twin, early
     decisions (a walking push runs to the horizon: the standing decision rules, a settled
-    inclination, do not hold while the robot walks)."""
+    inclination, do not hold while the robot walks). The same for push sequences
+    ([push.sequence]: no commanded step, and early decisions would not wait for the last
+    pulse)."""
+    if spec.sequence is not None and (spec.step_grid or spec.decisions.early):
+        raise SpecError("[push.sequence]: a push sequence runs with the controller's own steps "
+                        "and decisions = \"full\"; leave out [step] and early decisions")
     if spec.walk is None:
         return
     if spec.step_grid:
