@@ -370,6 +370,24 @@ def _stack_ticks(rows: list[Series]) -> Series:
     return Series(**series)
 
 
+def _kick_ticks(pushes: Push, n: int, n_ticks: int, period_s: float, dt: float) -> np.ndarray:
+    """(ticks, n, 2) the velocity kicks (Push.kick_mps) at each control period's start, as
+    push.kick_velocity gives them at that time. The physics here runs a period at a time, so
+    a kick's onset must lie on the controller's tick grid (k x period_s)."""
+    onset = np.asarray(pushes.onset_s, np.float64)
+    ticks = np.round(onset / period_s)
+    if np.any(np.abs(onset - ticks * period_s) > 0.5 * dt):
+        raise ValueError(f"velocity kicks (Push.kick_mps) act at a control tick on MuJoCo C: "
+                         f"their onset_s must be multiples of {period_s} s, got {onset.ravel()}")
+    kick = np.asarray(pushes.kick_mps, np.float64)
+    az = np.asarray(pushes.azimuth_rad, np.float64)
+    out = np.zeros((max(n_ticks, int(ticks.max()) + 1), n, 2))
+    for idx in np.ndindex(onset.shape):   # (n,) or (n, pulses): each kick into its tick
+        k = int(ticks[idx])
+        out[k, idx[0]] += kick[idx] * np.array([np.cos(az[idx]), np.sin(az[idx])])
+    return out
+
+
 def _check_overrides(overrides, pushes: Push, n: int, fixed):
     """The overrides broadcast to the batch, their onset_s taken from the pushes (float32)."""
     if overrides is None:
@@ -411,6 +429,8 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
     enabled_j = jnp.broadcast_to(jnp.asarray(enabled, jnp.float32), (n,))
     p = {k: np.asarray(getattr(pushes, k), np.float64)
          for k in ("impulse_ns", "azimuth_rad", "height_m", "duration_s", "onset_s")}
+    kicks = None if pushes.kick_mps is None else _kick_ticks(
+        pushes, n, n_ticks, config.control_period_s, idx.timestep_s)
     rng = np.random.default_rng(seed)
     fixed = config.fixed
     if fixed is not None:   # options the fixed-point twin lacks: refused, not ignored
@@ -449,6 +469,9 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
         if switch > 0:
             ctrl_steps[:, :switch, idx.leg_actuators] = _mapped(idx, prev)[:, None, :]
         force = _force(p, state[:, :1] + phys.dt * np.arange(substeps)[None, :])
+        if kicks is not None:   # velocity kicks at this period's start: no force
+            state[:, setup.qvel_slice.start:setup.qvel_slice.start + 2] += kicks[len(rows)]
+            force = np.zeros_like(force)
         state, pose_state, sens_steps, warm = phys.period(
             state, pose_state, warm, ctrl_steps, switch == 0, force, p["height_m"], push_wrench)
         sensordata = sens_steps[:, -1]

@@ -144,8 +144,10 @@ def record_episode(base, rec: dict, key, base_params: ControllerParams, varied: 
 
     model, index, state, robots = base
     pulses = pulse_fields(rec, jnp)   # a [push.sequence]: (k,) fields
-    push = Push(pulses["impulse_ns"], jnp.radians(pulses["azimuth_deg"]), rec["height_m"],
-                rec["duration_s"], pulses["onset_s"])
+    kick = pulses.get("kick_mps")     # velocity kicks: no force pulse
+    push = Push(pulses["impulse_ns"] if kick is None else jnp.zeros_like(kick),
+                jnp.radians(pulses["azimuth_deg"]), rec["height_m"], rec["duration_s"],
+                pulses["onset_s"], kick)
     params = controller_params_from(base_params, {k: rec[k] for k in varied})
     m, s = model, state
     if robot_values is not None:   # this record's ensemble member
@@ -206,7 +208,7 @@ def record_inputs(spec: SweepSpec) -> dict[str, np.ndarray]:
 def fpga_groups(spec: SweepSpec, rec: dict) -> list[tuple[FixedPointConfig | None, np.ndarray]]:
     """The records' (FixedPointConfig, row indices) groups: one static config per compiled
     program. A float sweep, or one without an fpga grid, is a single group of every row."""
-    n = len(rec["impulse_ns"])
+    n = len(rec["onset_s"])
     if not spec.fpga_grid:
         return [(spec.fixed_point_config(), np.arange(n))]
     cols = [FPGA_COLUMN + k for k in spec.fpga_grid]

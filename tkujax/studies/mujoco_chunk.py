@@ -45,7 +45,7 @@ def mujoco_chunk(batch: dict, seed: int, base: ControllerParams, duration_s: flo
     walk_* columns set each robot's walk) with the WALK_KEYS outcomes; None: standing."""
     from tkujax.sim.rollout_mujoco import simulate_mujoco
 
-    n = len(batch["impulse_ns"])
+    n = len(batch["onset_s"])
     cols = list(varied) + [FPGA_COLUMN + k for k in fpga_varied]
     if ensemble is not None:
         cols.append(ROBOT_ID_COLUMN)            # last: the member of each batch
@@ -60,9 +60,12 @@ def mujoco_chunk(batch: dict, seed: int, base: ControllerParams, duration_s: flo
             fpga | dict(zip(fpga_varied, point[len(varied):len(varied) + len(fpga_varied)])))
         robot = model_params if ensemble is None else ensemble.members[int(point[-1])]
         pulses = pulse_fields(batch)     # a [push.sequence]: (n, k) fields
+        kick = pulses.get("kick_mps")    # velocity kicks: no force pulse
+        size = pulses["impulse_ns"] if kick is None else np.zeros_like(kick)
         pushes = Push(*(jnp.asarray(v[sel], jnp.float32) for v in (
-            pulses["impulse_ns"], np.radians(pulses["azimuth_deg"]), batch["height_m"],
-            batch["duration_s"], pulses["onset_s"])))
+            size, np.radians(pulses["azimuth_deg"]), batch["height_m"], batch["duration_s"],
+            pulses["onset_s"])), kick_mps=None if kick is None else jnp.asarray(
+                kick[sel], jnp.float32))
         overrides = step_override({k: jnp.asarray(v[sel], jnp.float32) for k, v in batch.items()}
                                   ) if steps else None
         walks = None if walk is None else walk_commands(walk, {

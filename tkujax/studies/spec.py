@@ -87,6 +87,7 @@ from tkujax.studies.spec_program import (SWEEP_TREE_PASSES, Decisions, decisions
 from tkujax.studies.spec_limits import (MAX_CHUNK_SIZE, MAX_RECORDS, MAX_SEED, PHASE_KEY,
                                         PHASE_UNIT, PUSH_FIELDS, check_limits, record_count)
 from tkujax.studies.spec_steps import STEP_FIELDS, cross_steps, parse_step
+from tkujax.studies.spec_kick import kick_columns, kick_push_table, on_ticks, push_kind
 from tkujax.studies.spec_sequence import (SequenceSpec, check_sequence, draw_sequence,
                                           parse_sequence)
 from tkujax.studies.spec_walk import (GAIT_PHASE_KEY, GAIT_PHASE_UNIT, WalkSpec,
@@ -207,6 +208,7 @@ class SweepSpec:
     decisions: Decisions = Decisions()   # [sweep] decisions, lanes, segment_ticks
     walk: WalkSpec | None = None   # [walk]: the robot walks (tkujax.studies.spec_walk)
     sequence: SequenceSpec | None = None   # [push.sequence] (tkujax.studies.spec_sequence)
+    push_kind: str = "impulse"   # [push] kind (tkujax.studies.spec_kick)
 
     def fixed_point_config(self, rec: dict | None = None) -> FixedPointConfig | None:
         """The FixedPointConfig of a record (its fpga_* columns over [fpga]); None for float."""
@@ -316,7 +318,9 @@ def parse_spec(data: dict) -> SweepSpec:
     chunk, duration, control = sweep["chunk_size"], sweep["duration_s"], tuple(sweep["control"])
     tree_passes = tree_passes_of(sweep)
 
-    push = table("push", data.get("push", {}), {"grid", "random", "sequence"})
+    push = table("push", data.get("push", {}), {"grid", "random", "sequence", "kind"})
+    kind = push_kind(push)
+    push = kick_push_table(push)   # a kick sweep's tables in the impulse spec's terms
     sequence = parse_sequence(push)
     phase_keys = {PHASE_KEY, GAIT_PHASE_KEY}
     grid = table("push.grid", push.get("grid", {}), set(PUSH_FIELDS) | phase_keys)
@@ -377,7 +381,7 @@ def parse_spec(data: dict) -> SweepSpec:
                      step_reference=step_reference, arithmetic=arithmetic, fpga=fpga,
                      fpga_grid=fpga_grid, ensemble=ensemble, tree_passes=tree_passes,
                      robot_file=robot_file, decisions=decisions_of(sweep, chunk), walk=walk,
-                     sequence=sequence))
+                     sequence=sequence, push_kind=kind))
     check_walk_sweep(spec)
     return spec
 
@@ -439,6 +443,11 @@ def expand(spec: SweepSpec) -> dict[str, np.ndarray]:
                                                          np.where(given, pushes[PHASE_KEY], 0.0)),
                                  pushes["onset_s"])
     pushes[PHASE_KEY] = np.where(given, pushes[PHASE_KEY], onset_phase(pushes["onset_s"]))
+    if spec.push_kind == "velocity_kick":   # kicks act on the controller's ticks
+        pushes["onset_s"] = on_ticks(pushes["onset_s"])
+        pushes[PHASE_KEY] = onset_phase(pushes["onset_s"])
+        if GAIT_PHASE_KEY in pushes:        # the gait phase of the tick (`cross_walk`)
+            pushes[GAIT_PHASE_KEY] = np.full(n_grid + spec.n_random, np.nan)
     n_push = n_grid + spec.n_random
 
     # [fpga] grid points are crossed like controller-grid points (one column fpga_<key> each).
@@ -466,7 +475,10 @@ def expand(spec: SweepSpec) -> dict[str, np.ndarray]:
     if spec.ensemble is not None:   # drawn after the others: their values do not change
         out[ROBOT_ID_COLUMN] = np.tile(rng.integers(0, spec.ensemble.n, n_push), n_settings)
     # The later pulses of a [push.sequence] last: the other columns keep their values.
-    out |= draw_sequence(spec.sequence, rng, pushes, n_settings)
+    kick = spec.push_kind == "velocity_kick"
+    out |= draw_sequence(spec.sequence, rng, pushes, n_settings, on_ticks if kick else None)
     out = cross_walk(spec.walk, cross_steps(spec, out))
+    if kick:
+        out = kick_columns(out)
     out["push_id"] = np.arange(len(out["control"]))
     return out

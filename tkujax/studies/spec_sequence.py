@@ -86,9 +86,11 @@ def pulse_columns(pulses: int) -> list[str]:
 
 
 def draw_sequence(seq: SequenceSpec | None, rng: np.random.Generator,
-                  pushes: dict[str, np.ndarray], n_settings: int) -> dict[str, np.ndarray]:
+                  pushes: dict[str, np.ndarray], n_settings: int,
+                  snap=None) -> dict[str, np.ndarray]:
     """The later pulses' columns of n pushes (their first pulses `pushes`: onset_s,
-    impulse_ns, azimuth_deg (n,)), tiled over `n_settings` blocks (see the module doc)."""
+    impulse_ns, azimuth_deg (n,)), tiled over `n_settings` blocks (see the module doc).
+    snap: a function moving each onset (velocity kicks: onto the controller's ticks)."""
     if seq is None:
         return {}
     n = len(pushes["onset_s"])
@@ -96,6 +98,8 @@ def draw_sequence(seq: SequenceSpec | None, rng: np.random.Generator,
     out = {}
     for i in range(2, seq.pulses + 1):
         onset = np.round(onset + rng.uniform(*seq.interval_s, n), 6)
+        if snap is not None:
+            onset = snap(onset)
         out[f"pulse{i}_onset_s"] = onset
         for k in ("impulse_ns", "azimuth_deg"):
             rng_k = getattr(seq, k)
@@ -106,14 +110,17 @@ def draw_sequence(seq: SequenceSpec | None, rng: np.random.Generator,
 
 def pulse_count(rec: dict) -> int:
     """Pulses of the records `rec` (1: a single push): from their columns (static)."""
-    return 1 + sum(1 for k in rec if k.startswith("pulse") and k.endswith("_impulse_ns"))
+    return 1 + sum(1 for k in rec if k.startswith("pulse") and k.endswith("_azimuth_deg"))
 
 
 def pulse_fields(rec: dict, xp=np) -> dict:
-    """{impulse_ns, azimuth_deg, onset_s}: the records' pulses stacked on a last axis (one
-    pulse: the columns themselves). `xp`: numpy or jax.numpy (inside a program)."""
+    """{impulse_ns or kick_mps (a velocity kick's records), azimuth_deg, onset_s}: the
+    records' pulses stacked on a last axis (one pulse: the columns themselves). `xp`: numpy
+    or jax.numpy (inside a program)."""
     k = pulse_count(rec)
+    size = "kick_mps" if "kick_mps" in rec else "impulse_ns"
+    fields = (size, "azimuth_deg", "onset_s")
     if k == 1:
-        return {f: rec[f] for f in ("impulse_ns", "azimuth_deg", "onset_s")}
+        return {f: rec[f] for f in fields}
     return {f: xp.stack([rec[f]] + [rec[f"pulse{i}_{f}"] for i in range(2, k + 1)], -1)
-            for f in ("impulse_ns", "azimuth_deg", "onset_s")}
+            for f in fields}
