@@ -9,15 +9,13 @@ force of a sequence is the sum of its pulses' closed-form half sines; a sweep's 
 the direct simulation of the same pulses.
 """
 
-import dataclasses
-
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from tkujax.control.params import ControllerParams
 from tkujax.sim.options import RolloutConfig
-from tkujax.sim.push import Push, first_onset, force_at, make_push
+from tkujax.sim.push import Push, first_onset, force_at, make_push, stack_pushes
 from tkujax.sim.rollout_mujoco import simulate_mujoco
 from tkujax.studies.spec import SpecError, parse_spec
 from tkujax.studies.sweep import load, run_sweep
@@ -94,11 +92,6 @@ def test_force_of_a_sequence_is_the_sum_of_its_half_sines():
     assert float(first_onset(push)) == pytest.approx(0.3)
 
 
-def _batch(pushes: list[Push]) -> Push:
-    return Push(*(jnp.stack([getattr(p, f.name) for p in pushes])
-                  for f in dataclasses.fields(Push)))
-
-
 def test_zero_pulses_add_nothing_on_mujoco():
     """[J at t1, 0 at t2] is the single push at t1, and [0 at t1, J at t2] the single push at
     t2, in every simulated series (MuJoCo C, bit for bit); a second push changes the walk of
@@ -111,8 +104,8 @@ def test_zero_pulses_add_nothing_on_mujoco():
                 jnp.array([0.3, 0.9])),
            Push(jnp.array([1.0, 1.0]), jnp.zeros(2), jnp.float32(0.36), jnp.float32(0.02),
                 jnp.array([0.3, 0.9]))]
-    s_single, _ = simulate_mujoco(_batch(single), 1.0, PARAMS, config=cfg)
-    s_seq, _ = simulate_mujoco(_batch(seq), 1.0, PARAMS, config=cfg)
+    s_single, _ = simulate_mujoco(stack_pushes(single), 1.0, PARAMS, config=cfg)
+    s_seq, _ = simulate_mujoco(stack_pushes(seq), 1.0, PARAMS, config=cfg)
     for k in ("pelvis_z", "pitch", "roll", "com", "l_ankle"):
         np.testing.assert_array_equal(np.asarray(s_seq[k])[:2], np.asarray(s_single[k]))
     assert not np.array_equal(np.asarray(s_seq["com"])[2], np.asarray(s_single["com"])[0])
@@ -131,6 +124,7 @@ def test_sweep_records_equal_the_direct_simulation(tmp_path):
                    jnp.float32(0.36), jnp.float32(0.02),
                    jnp.array([rec["onset_s"][i], rec["pulse2_onset_s"][i]], jnp.float32))
               for i in range(len(rec["push_id"]))]
-    _, out = simulate_mujoco(_batch(pushes), 1.0, PARAMS, config=RolloutConfig(duration_s=1.8))
+    _, out = simulate_mujoco(stack_pushes(pushes), 1.0, PARAMS,
+                             config=RolloutConfig(duration_s=1.8))
     np.testing.assert_array_equal(rec["fell"], out.fell)
     np.testing.assert_allclose(rec["peak_incl_deg"], out.peak_incl_deg, rtol=1e-6)

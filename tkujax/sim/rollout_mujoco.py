@@ -370,10 +370,23 @@ def _stack_ticks(rows: list[Series]) -> Series:
     return Series(**series)
 
 
-def _kick_ticks(pushes: Push, n: int, n_ticks: int, period_s: float, dt: float) -> np.ndarray:
+def _period_push(p: dict, kicks, tick: int, state: np.ndarray, qvel: slice, dt: float,
+                 substeps: int) -> np.ndarray:
+    """The push's (n, substeps, 3) force over control period `tick`; with velocity kicks
+    (`_kick_ticks`) no force, and the period's kicks added to the states' base velocity."""
+    force = _force(p, state[:, :1] + dt * np.arange(substeps)[None, :])
+    if kicks is None:
+        return force
+    state[:, qvel.start:qvel.start + 2] += kicks[tick]
+    return np.zeros_like(force)
+
+
+def _kick_ticks(pushes: Push, n: int, n_ticks: int, period_s: float, dt: float):
     """(ticks, n, 2) the velocity kicks (Push.kick_mps) at each control period's start, as
-    push.kick_velocity gives them at that time. The physics here runs a period at a time, so
-    a kick's onset must lie on the controller's tick grid (k x period_s)."""
+    push.kick_velocity gives them at that time (None: no kicks). The physics here runs a
+    period at a time, so a kick's onset must lie on the controller's tick grid (k x period_s)."""
+    if pushes.kick_mps is None:
+        return None
     onset = np.asarray(pushes.onset_s, np.float64)
     ticks = np.round(onset / period_s)
     if np.any(np.abs(onset - ticks * period_s) > 0.5 * dt):
@@ -429,8 +442,7 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
     enabled_j = jnp.broadcast_to(jnp.asarray(enabled, jnp.float32), (n,))
     p = {k: np.asarray(getattr(pushes, k), np.float64)
          for k in ("impulse_ns", "azimuth_rad", "height_m", "duration_s", "onset_s")}
-    kicks = None if pushes.kick_mps is None else _kick_ticks(
-        pushes, n, n_ticks, config.control_period_s, idx.timestep_s)
+    kicks = _kick_ticks(pushes, n, n_ticks, config.control_period_s, idx.timestep_s)
     rng = np.random.default_rng(seed)
     fixed = config.fixed
     if fixed is not None:   # options the fixed-point twin lacks: refused, not ignored
@@ -468,10 +480,7 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
         ctrl_steps = np.repeat(ctrl[:, None, :], substeps, 1)
         if switch > 0:
             ctrl_steps[:, :switch, idx.leg_actuators] = _mapped(idx, prev)[:, None, :]
-        force = _force(p, state[:, :1] + phys.dt * np.arange(substeps)[None, :])
-        if kicks is not None:   # velocity kicks at this period's start: no force
-            state[:, setup.qvel_slice.start:setup.qvel_slice.start + 2] += kicks[len(rows)]
-            force = np.zeros_like(force)
+        force = _period_push(p, kicks, len(rows), state, setup.qvel_slice, phys.dt, substeps)
         state, pose_state, sens_steps, warm = phys.period(
             state, pose_state, warm, ctrl_steps, switch == 0, force, p["height_m"], push_wrench)
         sensordata = sens_steps[:, -1]

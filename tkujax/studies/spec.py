@@ -398,6 +398,27 @@ def load_spec(path: str | Path) -> SweepSpec:
     return parse_spec(read_toml(path))
 
 
+def _onsets(spec: SweepSpec, pushes: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The pushes with their onsets: from the gait phase (a walking sweep), from the phase in
+    the control period, on the controller's ticks (velocity kicks); the phase columns of the
+    onsets given in seconds."""
+    if spec.walk is not None:   # onsets by gait phase: the walk's nominal time of the phase
+        gait = np.isfinite(pushes[GAIT_PHASE_KEY])
+        pushes["onset_s"] = np.where(gait, onsets_at_phase(
+            spec.walk, np.where(gait, pushes[GAIT_PHASE_KEY], 0.0)), pushes["onset_s"])
+    given = np.isfinite(pushes[PHASE_KEY])
+    pushes["onset_s"] = np.where(given, onset_from_phase(pushes["onset_s"],
+                                                         np.where(given, pushes[PHASE_KEY], 0.0)),
+                                 pushes["onset_s"])
+    pushes[PHASE_KEY] = np.where(given, pushes[PHASE_KEY], onset_phase(pushes["onset_s"]))
+    if spec.push_kind == "velocity_kick":   # kicks act on the controller's ticks
+        pushes["onset_s"] = on_ticks(pushes["onset_s"])
+        pushes[PHASE_KEY] = onset_phase(pushes["onset_s"])
+        if GAIT_PHASE_KEY in pushes:        # the gait phase of the tick (`cross_walk`)
+            pushes[GAIT_PHASE_KEY] = np.full(len(pushes["onset_s"]), np.nan)
+    return pushes
+
+
 def expand(spec: SweepSpec) -> dict[str, np.ndarray]:
     """One record per (push, controller-grid point, control setting), as columns.
 
@@ -433,21 +454,8 @@ def expand(spec: SweepSpec) -> dict[str, np.ndarray]:
     for k in fields[len(PUSH_FIELDS):]:   # the onset phase, then the gait phase
         rand_cols[k] = (rng.uniform(*spec.push_random[k], spec.n_random)
                         if k in spec.push_random else np.full(spec.n_random, np.nan))
-    pushes = {k: np.concatenate([grid_cols.get(k, np.zeros(0)), rand_cols[k]]) for k in fields}
-    if spec.walk is not None:   # onsets by gait phase: the walk's nominal time of the phase
-        gait = np.isfinite(pushes[GAIT_PHASE_KEY])
-        pushes["onset_s"] = np.where(gait, onsets_at_phase(
-            spec.walk, np.where(gait, pushes[GAIT_PHASE_KEY], 0.0)), pushes["onset_s"])
-    given = np.isfinite(pushes[PHASE_KEY])
-    pushes["onset_s"] = np.where(given, onset_from_phase(pushes["onset_s"],
-                                                         np.where(given, pushes[PHASE_KEY], 0.0)),
-                                 pushes["onset_s"])
-    pushes[PHASE_KEY] = np.where(given, pushes[PHASE_KEY], onset_phase(pushes["onset_s"]))
-    if spec.push_kind == "velocity_kick":   # kicks act on the controller's ticks
-        pushes["onset_s"] = on_ticks(pushes["onset_s"])
-        pushes[PHASE_KEY] = onset_phase(pushes["onset_s"])
-        if GAIT_PHASE_KEY in pushes:        # the gait phase of the tick (`cross_walk`)
-            pushes[GAIT_PHASE_KEY] = np.full(n_grid + spec.n_random, np.nan)
+    pushes = _onsets(spec, {k: np.concatenate([grid_cols.get(k, np.zeros(0)), rand_cols[k]])
+                            for k in fields})
     n_push = n_grid + spec.n_random
 
     # [fpga] grid points are crossed like controller-grid points (one column fpga_<key> each).
