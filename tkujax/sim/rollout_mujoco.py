@@ -80,6 +80,8 @@ from tkujax.sim.metrics import outcomes as _outcomes
 from tkujax.sim.push import PULSE_FIELDS, Push, first_onset
 from tkujax.sim.records import SERIES_FIELDS, Outcomes, Series
 from tkujax.sim.rollout_mjx import RolloutConfig
+from tkujax.sim.kicks_host import kick_ticks
+from tkujax.sim.slope import tilt_host_model
 from tkujax.sim.setup import SETTLE_S, ModelIndex, RobotSetup, model_index
 from tkujax.sim.tick import control_tick, control_tick_fx
 
@@ -126,6 +128,13 @@ def _setup(model_params: ModelParams | RobotSetup | None) -> _Setup:
     return _Setup(model=model, index=model_index(model_params), state0=state0,
                   warmstart0=np.array(data.qacc_warmstart), sensordata0=np.array(data.sensordata),
                   qpos_slice=slice(nt, nt + nq), qvel_slice=slice(nt + nq, nt + nq + nv))
+
+
+@functools.lru_cache(maxsize=8)
+def _slope_setup(model_params, floor_pitch_deg: float) -> _Setup:
+    """_setup's, on a floor pitched by floor_pitch_deg (tkujax.sim.slope: its gravity)."""
+    setup = _setup(model_params)
+    return dataclasses.replace(setup, model=tilt_host_model(setup.model, floor_pitch_deg))
 
 
 @functools.lru_cache(maxsize=4)
@@ -373,32 +382,13 @@ def _stack_ticks(rows: list[Series]) -> Series:
 def _period_push(p: dict, kicks, tick: int, state: np.ndarray, qvel: slice, dt: float,
                  substeps: int) -> np.ndarray:
     """The push's (n, substeps, 3) force over control period `tick`; with velocity kicks
-    (`_kick_ticks`) no force, and the period's kicks added to the states' base velocity."""
+    (`tkujax.sim.kicks_host.kick_ticks`) no force, and the period's kicks added to the
+    states' base velocity."""
     force = _force(p, state[:, :1] + dt * np.arange(substeps)[None, :])
     if kicks is None:
         return force
     state[:, qvel.start:qvel.start + 2] += kicks[tick]
     return np.zeros_like(force)
-
-
-def _kick_ticks(pushes: Push, n: int, n_ticks: int, period_s: float, dt: float):
-    """(ticks, n, 2) the velocity kicks (Push.kick_mps) at each control period's start, as
-    push.kick_velocity gives them at that time (None: no kicks). The physics here runs a
-    period at a time, so a kick's onset must lie on the controller's tick grid (k x period_s)."""
-    if pushes.kick_mps is None:
-        return None
-    onset = np.asarray(pushes.onset_s, np.float64)
-    ticks = np.round(onset / period_s)
-    if np.any(np.abs(onset - ticks * period_s) > 0.5 * dt):
-        raise ValueError(f"velocity kicks (Push.kick_mps) act at a control tick on MuJoCo C: "
-                         f"their onset_s must be multiples of {period_s} s, got {onset.ravel()}")
-    kick = np.asarray(pushes.kick_mps, np.float64)
-    az = np.asarray(pushes.azimuth_rad, np.float64)
-    out = np.zeros((max(n_ticks, int(ticks.max()) + 1), n, 2))
-    for idx in np.ndindex(onset.shape):   # (n,) or (n, pulses): each kick into its tick
-        k = int(ticks[idx])
-        out[k, idx[0]] += kick[idx] * np.array([np.cos(az[idx]), np.sin(az[idx])])
-    return out
 
 
 def _check_overrides(overrides, pushes: Push, n: int, fixed):
@@ -432,7 +422,7 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
         model_params = robot
     if push_wrench not in PUSH_WRENCH_MODES:
         raise ValueError(f"push_wrench must be one of {PUSH_WRENCH_MODES}, got {push_wrench!r}")
-    setup = _setup(model_params)
+    setup = _slope_setup(model_params, config.floor_pitch_deg)
     idx = setup.index
     n = int(np.shape(pushes.impulse_ns)[0])
     phys = _Physics(setup, n, n_threads)
@@ -442,7 +432,7 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
     enabled_j = jnp.broadcast_to(jnp.asarray(enabled, jnp.float32), (n,))
     p = {k: np.asarray(getattr(pushes, k), np.float64)
          for k in ("impulse_ns", "azimuth_rad", "height_m", "duration_s", "onset_s")}
-    kicks = _kick_ticks(pushes, n, n_ticks, config.control_period_s, idx.timestep_s)
+    kicks = kick_ticks(pushes, n, n_ticks, config.control_period_s, idx.timestep_s)
     rng = np.random.default_rng(seed)
     fixed = config.fixed
     if fixed is not None:   # options the fixed-point twin lacks: refused, not ignored

@@ -82,6 +82,7 @@ from tkujax.control.io import checked_value
 from tkujax.model.ensemble import load_ensemble
 from tkujax.model.params import ModelParams
 from tkujax.sim.push import onset_from_phase, onset_phase
+from tkujax.sim.slope import FLOOR_PITCH_RANGE_DEG
 from tkujax.studies.spec_program import (SWEEP_TREE_PASSES, Decisions, decisions_of,
                                          tree_passes_of)
 from tkujax.studies.spec_limits import (MAX_CHUNK_SIZE, MAX_RECORDS, MAX_SEED, PHASE_KEY,
@@ -138,7 +139,7 @@ ENSEMBLE_KEY = "ensemble"
 ROBOT_ID_COLUMN = "robot_id"
 SWEEP_FIELDS = {"name": str, "seed": int, "chunk_size": int, "duration_s": (int, float),
                 "control": list, "description": str, "tree_passes": str, "decisions": str,
-                "lanes": int, "segment_ticks": int}
+                "lanes": int, "segment_ticks": int, "floor_pitch_deg": (int, float)}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -209,6 +210,7 @@ class SweepSpec:
     walk: WalkSpec | None = None   # [walk]: the robot walks (tkujax.studies.spec_walk)
     sequence: SequenceSpec | None = None   # [push.sequence] (tkujax.studies.spec_sequence)
     push_kind: str = "impulse"   # [push] kind (tkujax.studies.spec_kick)
+    floor_pitch_deg: float = 0.0   # [sweep] floor_pitch_deg: a slope (tkujax.sim.slope)
 
     def fixed_point_config(self, rec: dict | None = None) -> FixedPointConfig | None:
         """The FixedPointConfig of a record (its fpga_* columns over [fpga]); None for float."""
@@ -298,6 +300,8 @@ def _parse_sweep(data: dict) -> dict:
                         "keeps 32 bits)")
     sweep["duration_s"] = number("sweep.duration_s", sweep.get("duration_s", 2.4), 0.1, 30.0,
                                  "s")
+    sweep["floor_pitch_deg"] = number("sweep.floor_pitch_deg", sweep.get("floor_pitch_deg", 0.0),
+                                      *FLOOR_PITCH_RANGE_DEG, "deg (+ = uphill toward +x)")
     control = sweep.setdefault("control", ["off", "on"])
     if (not control or any(not isinstance(c, str) or c not in ("on", "off") for c in control)
             or len(set(control)) != len(control)):
@@ -381,7 +385,8 @@ def parse_spec(data: dict) -> SweepSpec:
                      step_reference=step_reference, arithmetic=arithmetic, fpga=fpga,
                      fpga_grid=fpga_grid, ensemble=ensemble, tree_passes=tree_passes,
                      robot_file=robot_file, decisions=decisions_of(sweep, chunk), walk=walk,
-                     sequence=sequence, push_kind=kind))
+                     sequence=sequence, push_kind=kind,
+                     floor_pitch_deg=sweep["floor_pitch_deg"]))
     check_walk_sweep(spec)
     return spec
 
@@ -488,5 +493,7 @@ def expand(spec: SweepSpec) -> dict[str, np.ndarray]:
     out = cross_walk(spec.walk, cross_steps(spec, out))
     if kick:
         out = kick_columns(out)
+    if spec.floor_pitch_deg:   # a slope: stated in every record (compare checks it)
+        out["floor_pitch_deg"] = np.full(len(out["control"]), spec.floor_pitch_deg)
     out["push_id"] = np.arange(len(out["control"]))
     return out

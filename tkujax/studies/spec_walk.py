@@ -176,6 +176,8 @@ def check_walk_sweep(spec) -> None:
     inclination, do not hold while the robot walks). The same for push sequences
     ([push.sequence]: no commanded step, and early decisions would not wait for the last
     pulse)."""
+    if spec.floor_pitch_deg and spec.decisions.early:
+        raise SpecError("sweep.floor_pitch_deg: a slope runs with decisions = \"full\"")
     if spec.sequence is not None and (spec.step_grid or spec.decisions.early):
         raise SpecError("[push.sequence]: a push sequence runs with the controller's own steps "
                         "and decisions = \"full\"; leave out [step] and early decisions")

@@ -117,7 +117,8 @@ class _ChunkJob:
                                self.base, spec.duration_s, self.model_params, varied=varied,
                                steps=steps, fpga=spec.fpga if spec.arithmetic == "fixed" else None,
                                fpga_varied=tuple(sorted(spec.fpga_grid)), ensemble=spec.ensemble,
-                               schedule=self.schedule, walk=walk_base(spec))
+                               schedule=self.schedule, walk=walk_base(spec),
+                               floor_pitch_deg=spec.floor_pitch_deg)
             return {k: recs[k][lo:hi] for k in recs} | res
         keys = chunk_keys(spec.seed, i, self.padded)   # (early decisions: early_parts)
         res = {}
@@ -131,7 +132,7 @@ class _ChunkJob:
                      for k in self.input_keys}
             fn = make_chunk_fn(varied, spec.duration_s, self.model_params, steps=steps,
                                fixed=fixed, ensemble=spec.ensemble, tree_passes=spec.tree_passes,
-                               walk=walk_base(spec))
+                               walk=walk_base(spec), floor_pitch_deg=spec.floor_pitch_deg)
             part = fn(batch, jax.device_put(keys[rows], self.sharding), traced_params(self.base),
                       self.schedule)
             for k, v in part.items():
