@@ -226,3 +226,13 @@ def test_mjx_walking_sweep_matches_mujoco(tmp_path):
     np.testing.assert_array_equal(out["mjx"]["fell"], out["mujoco"]["fell"])
     np.testing.assert_allclose(out["mjx"]["distance_m"], out["mujoco"]["distance_m"], atol=0.01)
     np.testing.assert_array_equal(out["mjx"]["gait_phase"], out["mujoco"]["gait_phase"])
+
+
+def test_replay_of_a_walking_record_is_identical(walk_sweep):
+    """tkujax replay re-runs a walking record with its walk (MuJoCo C: its whole chunk)."""
+    from tkujax.studies.replay import replay
+
+    rec = load(walk_sweep)
+    i = int(np.flatnonzero(rec["fell"].astype(bool) & (rec["walk_recovery"] > 0.5))[0])
+    res = replay(walk_sweep, i)
+    assert res["identical"], res["differences"]

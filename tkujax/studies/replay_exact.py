@@ -25,6 +25,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from tkujax.studies.chunk_program import chunk_keys, make_chunk_fn, traced_params
+from tkujax.studies.spec_walk import walk_base
 from tkujax.studies.early import make_lane_fns, run_lanes
 
 
@@ -56,7 +57,8 @@ def exact_outcomes(spec, manifest: dict, inputs: dict, chunk: int, pos: int, bas
                         steps=steps)
         return {k: np.asarray(v)[0] for k, v in out.items()}
     fn = make_chunk_fn(varied, spec.duration_s, model_params, steps=steps, fixed=fixed,
-                       ensemble=spec.ensemble, tree_passes=spec.tree_passes)
+                       ensemble=spec.ensemble, tree_passes=spec.tree_passes,
+                       walk=walk_base(spec), floor_pitch_deg=spec.floor_pitch_deg)
     rows = np.zeros(padded, np.int64)
     batch = {k: jax.device_put(v[rows].astype(np.float32), sharding) for k, v in one.items()}
     out = fn(batch, jax.device_put(keys[rows], sharding), traced_params(base), schedule)
