@@ -11,6 +11,9 @@ Cells are the grid's exact values (random samples binned as the standing maps bi
                       setting and direction;
   summary.md, summary.json  the fall rates per (recovery, azimuth, impulse, gait phase) cell,
                       the overall rates and the distance walked (survivors' mean).
+
+Velocity kicks ([push] kind = "velocity_kick") are mapped along kick_mps instead of the
+impulse.
 """
 
 from __future__ import annotations
@@ -41,7 +44,7 @@ def walk_cells(rec: dict) -> dict:
     on = r["walk_recovery"] > 0.5
     settings = [s for s in (False, True) if (on == s).any()]
     azs, ia = bin_axis(np.mod(r["azimuth_deg"], 360.0), MAX_AZIMUTH_BINS, 360.0)
-    js, ij = bin_axis(r["impulse_ns"], MAX_IMPULSE_BINS)
+    js, ij = bin_axis(r[size_key(r)], MAX_IMPULSE_BINS)
     phs, ip = bin_axis(r[GAIT_PHASE_KEY], MAX_GAIT_PHASE_BINS, 1.0)
     i_s = np.searchsorted(np.array(settings, bool), on)
     shape = (len(settings), len(azs), len(js), len(phs))
@@ -50,6 +53,16 @@ def walk_cells(rec: dict) -> dict:
     np.add.at(count, (i_s, ia, ij, ip), 1.0)
     return dict(settings=settings, azimuth_deg=azs, impulse_ns=js, gait_phase=phs, falls=falls,
                 count=count)
+
+
+def size_key(rec: dict) -> str:
+    """The push's size column: kick_mps for velocity kicks (tkujax.studies.spec_kick), else
+    impulse_ns."""
+    return "kick_mps" if "kick_mps" in rec else "impulse_ns"
+
+
+def _size_label(rec: dict) -> str:
+    return "kick (m/s)" if "kick_mps" in rec else "impulse (N·s)"
 
 
 def _rate(falls, count):
@@ -73,7 +86,7 @@ def _polar_figure(cells: dict, rec: dict, path: Path, plt) -> Path:
         ax.set_title(f"fall fraction while walking, {_setting(on)}", fontsize=9)
         ax.set_rlabel_position(135)
     axes[0, -1].legend(loc="lower left", bbox_to_anchor=(0.7, -0.14), fontsize=7)
-    fig.suptitle("radius: impulse (N·s); angle: push azimuth (0° = pushed from behind, "
+    fig.suptitle(f"radius: {_size_label(rec)}; angle: push azimuth (0° = pushed from behind, "
                  "90° = from the right); gait phases pooled", fontsize=8, y=0.02)
     fig.colorbar(mesh, ax=axes[0].tolist(), shrink=0.7)
     fig.savefig(path, dpi=80)
@@ -85,6 +98,7 @@ def _boundary(rec: dict, on: bool):
     """max_recoverable_impulse over one recovery setting's records (phases pooled)."""
     sel = (rec["walk_recovery"] > 0.5) == on
     sub = {k: np.asarray(v)[sel] for k, v in rec.items()}
+    sub["impulse_ns"] = sub[size_key(sub)]    # the boundary along the push's size
     return max_recoverable_impulse(dict(sub, control=np.ones(int(sel.sum()), bool)), True)
 
 
@@ -122,7 +136,9 @@ def _summary(manifest: dict, rec: dict, cells: dict, n_diverged: int) -> tuple[s
             rec["distance_m"][ok & (on == s) & ~fell])), ROUND) if (ok & (on == s) & ~fell).any()
         else None) for s in cells["settings"]}
     phases = " | ".join(f"{p:.3g}" for p in cells["gait_phase"])
-    lines = [f"# Walking sweep `{manifest.get('name')}`: {len(fell)} pushes", "",
+    slope = manifest.get("spec", {}).get("sweep", {}).get("floor_pitch_deg", 0)
+    lines = [f"# Walking sweep `{manifest.get('name')}`: {len(fell)} pushes"
+             + (f" on a {slope:g}° floor (+ = uphill)" if slope else ""), "",
              f"Walk: {json.dumps(walk)}; devices: {', '.join(manifest.get('devices', []))}; "
              f"wall {manifest.get('wall_s')} s. " + "; ".join(
                  f"{k}: fall rate {v['fall_rate']:.3f} of {v['n']}, survivors walked "
@@ -132,7 +148,7 @@ def _summary(manifest: dict, rec: dict, cells: dict, n_diverged: int) -> tuple[s
              "onset (0 = left touchdown).", ""]
     cube = []
     for k, s in enumerate(cells["settings"]):
-        lines += [f"## {_setting(s)}", "", f"| azimuth (deg) | impulse (N·s) | {phases} |",
+        lines += [f"## {_setting(s)}", "", f"| azimuth (deg) | {_size_label(rec)} | {phases} |",
                   "|---|---|" + "---|" * len(cells["gait_phase"])]
         for a, az in enumerate(cells["azimuth_deg"]):
             for j, imp in enumerate(cells["impulse_ns"]):
@@ -141,7 +157,8 @@ def _summary(manifest: dict, rec: dict, cells: dict, n_diverged: int) -> tuple[s
                     continue
                 lines.append(f"| {az:g} | {imp:g} | " + " | ".join(
                     "-" if n == 0 else f"{x / n:.2f} ({int(n)})" for x, n in zip(f, c)) + " |")
-                cube += [dict(recovery=_setting(s), azimuth_deg=float(az), impulse_ns=float(imp),
+                cube += [dict(recovery=_setting(s), azimuth_deg=float(az),
+                              **{size_key(rec): float(imp)},
                               gait_phase=float(ph), n=int(n), falls=int(x))
                          for ph, x, n in zip(cells["gait_phase"], f, c) if n > 0]
         lines.append("")
