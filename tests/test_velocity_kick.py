@@ -63,6 +63,17 @@ def test_spec_kicks_land_on_ticks_with_kick_columns():
     assert 0.0 <= rec["pulse2_kick_mps"][0] <= 1.0
 
 
+def test_walking_kicks_keep_their_gait_phase():
+    """A kick placed by gait phase lands on the phase's tick (TKU-X's gait times are ticks:
+    0.57 s + k 0.3 s) and records that phase, 0 and not 0.99999 (float32 periods)."""
+    rec = parse_spec({"sweep": {"duration_s": 7.0}, "walk": {"speed_mps": 0.1},
+                      "push": {"kind": "velocity_kick", "grid": {
+                          "kick_mps": [0.3], "gait_phase": [0.0, 0.25, 0.5, 0.75]}}}).records()
+    np.testing.assert_allclose(rec["onset_s"], 0.57 + (9 + np.array([0, .25, .5, .75])) * 0.6,
+                               atol=1e-6)
+    np.testing.assert_allclose(rec["gait_phase"], [0.0, 0.25, 0.5, 0.75], atol=1e-5)
+
+
 @pytest.mark.parametrize("push, message", [
     ({"kind": "shove"}, r"push\.kind: expected one of \['impulse', 'velocity_kick'\]"),
     ({"grid": {"kick_mps": [5.5]}}, r"push\.grid\.kick_mps\[0\]: 5\.5 is out of range "

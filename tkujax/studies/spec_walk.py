@@ -112,10 +112,10 @@ def onsets_at_phase(walk: WalkSpec, phase) -> np.ndarray:
 
 
 def phases_at_onset(walk: WalkSpec, onset_s) -> np.ndarray:
-    """The nominal gait phase in [0, 1) of each onset (s), to 1e-6 (the robot's parameters are
-    float32: 0.57 s would otherwise be phase 0.9999999 of TKU-X's walk, not 0)."""
+    """The nominal gait phase in [0, 1) of each onset (s), to 1e-5 (the robot's parameters are
+    float32: 5.97 s would otherwise be phase 0.9999996 of TKU-X's walk, not 0)."""
     phase = gait_phase(np.asarray(onset_s, np.float64), _floats(walk.command()))
-    return np.mod(np.round(np.asarray(phase, np.float64), 6), 1.0)
+    return np.mod(np.round(np.asarray(phase, np.float64), 5), 1.0)
 
 
 def _floats(command: WalkCommand) -> WalkCommand:
