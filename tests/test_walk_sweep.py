@@ -236,3 +236,21 @@ def test_replay_of_a_walking_record_is_identical(walk_sweep):
     i = int(np.flatnonzero(rec["fell"].astype(bool) & (rec["walk_recovery"] > 0.5))[0])
     res = replay(walk_sweep, i)
     assert res["identical"], res["differences"]
+
+
+OP3_FILE = Path(__file__).resolve().parent.parent / "specs" / "robots" / "op3.toml"
+OP3_MODEL = Path(__file__).resolve().parent.parent.parent / "shared" / "models" / "robotis_op3"
+
+
+@pytest.mark.skipif(not OP3_MODEL.is_dir(), reason="OP3's Menagerie model is not here")
+def test_a_robot_files_walk_takes_its_step_period():
+    """[robot] file = OP3: the walk's default step period is the robot's gait's (0.313 s), and
+    the gait-phase onsets follow it."""
+    spec = parse_spec(_spec(walk={"recovery": "on"}) | {"robot": {"file": str(OP3_FILE)}})
+    period = float(walker(str(OP3_FILE)).gait_params.step_period)
+    assert period == pytest.approx(0.313, abs=5e-4)
+    rec = spec.records()
+    np.testing.assert_allclose(rec["walk_step_period_s"], period, rtol=1e-6)
+    cmd = WalkCommand.for_params(walker(str(OP3_FILE)).gait_params, 0.1)
+    onset = float(push_at_gait_phase(cmd, 0.25, 0.5, cycle=1).onset_s)
+    np.testing.assert_allclose(rec["onset_s"], onset, atol=1e-6)
