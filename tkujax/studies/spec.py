@@ -64,6 +64,9 @@ FPGA fixed-point controller (`tkujax.control.fixed`):
     x_m = {start = -0.1, stop = 0.2, num = 21}
     y_m = [0.0]
     start_delay_s = [0.03]     # after the push onset (from_detection = 0) or the detection (1)
+
+[walk] and gait_phase: studies.spec_walk; [push.sequence]: spec_sequence; [push] kind (velocity
+kicks): spec_kick; [sweep] floor_pitch_deg (-15 to 15 deg): sim.slope. See docs/walking.md.
 """
 
 from __future__ import annotations
@@ -93,9 +96,8 @@ from tkujax.studies.spec_sequence import (SequenceSpec, check_sequence, draw_seq
                                           parse_sequence)
 from tkujax.studies.spec_walk import (GAIT_PHASE_KEY, GAIT_PHASE_UNIT, WalkSpec,
                                       check_gait_phase_keys, check_walk_sweep, cross_walk,
-                                      gait_params_of,
-                                      gait_phase_values, onsets_at_phase, parse_walk,
-                                      resolve_walk)
+                                      gait_params_of, gait_phase_values, onsets_at_phase,
+                                      parse_walk, resolve_walk)
 from tkujax.studies.spec_fpga import (ARITHMETIC, FPGA_COLUMN, FPGA_FIELDS, check_fixed_controller,
                                       fixed_point_config, parse_fpga)
 from tkujax.studies.validation import SpecError, number, read_toml, table, uniform, values
@@ -103,10 +105,9 @@ from tkujax.studies.validation import SpecError, number, read_toml, table, unifo
 # Re-exported: the names other modules import from here.
 __all__ = ["ARITHMETIC", "SWEEP_TREE_PASSES", "Decisions", "FPGA_COLUMN", "FPGA_FIELDS",
            "STEP_FIELDS", "PUSH_FIELDS", "PHASE_KEY", "MAX_RECORDS", "MAX_CHUNK_SIZE", "MAX_SEED",
-           "record_count",
-           "SpecError", "read_toml",
-           "fixed_point_config", "parse_spec", "load_spec", "expand", "parse_randomize",
-           "parse_ensemble", "controller_value", "controller_values", "EnsembleRef", "SweepSpec"]
+           "record_count", "SpecError", "read_toml", "fixed_point_config", "parse_spec",
+           "load_spec", "expand", "parse_randomize", "parse_ensemble", "controller_value",
+           "controller_values", "EnsembleRef", "SweepSpec"]
 
 
 # ControllerParams fields a spec may set; *_deg fields are given in degrees. Their ranges are
