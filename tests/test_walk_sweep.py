@@ -254,3 +254,17 @@ def test_a_robot_files_walk_takes_its_step_period():
     cmd = WalkCommand.for_params(walker(str(OP3_FILE)).gait_params, 0.1)
     onset = float(push_at_gait_phase(cmd, 0.25, 0.5, cycle=1).onset_s)
     np.testing.assert_allclose(rec["onset_s"], onset, atol=1e-6)
+
+
+@pytest.mark.skipif(not OP3_MODEL.is_dir(), reason="OP3's Menagerie model is not here")
+def test_a_robot_given_on_the_command_line_resolves_the_walk_again():
+    """`tkujax sweep --robot op3.toml` of a spec without [robot]: the walk is resolved for OP3
+    (walk_for_robot), as if the spec named it."""
+    from tkujax.robot.closed_loop import robot_setup
+    from tkujax.studies.spec_walk import walk_for_robot
+
+    named = parse_spec(_spec() | {"robot": {"file": str(OP3_FILE)}}).records()
+    given = walk_for_robot(parse_spec(_spec()), robot_setup(str(OP3_FILE))).records()
+    for k in ("onset_s", "walk_step_period_s", "gait_phase"):
+        np.testing.assert_array_equal(given[k], named[k])
+    assert given["onset_s"][0] != parse_spec(_spec()).records()["onset_s"][0]
