@@ -4,8 +4,8 @@
 The spec against closed forms (the onset of a gait phase, the record count, the gait phase of an
 onset); refusals naming the key and its range (exit code 2 from the command line); the spec hash
 covering [walk]; a MuJoCo C walking sweep's records against the direct walk simulation
-(`tkujax.studies.walk.run_walk` with the same command and push); MJX against MuJoCo C (slow: an
-MJX compile).
+(`tkujax.studies.walk.run_walk` with the same command and push); MJX against MuJoCo C and early
+decisions against the full horizon (slow: MJX compiles).
 """
 
 import json
@@ -87,12 +87,16 @@ def test_random_gait_phases_are_drawn_in_range():
      r"push\.random\.gait_phase\.uniform\[0\]: 1\.0 is out of range \[0, 1\)"),
     ({"walk": {"push_cycle": 3}}, r"push\.grid\.gait_phase \(in walk\.push_cycle = 3\).*after "
                                   r"the horizon sweep\.duration_s = 2 s"),
-    ({"sweep": {"decisions": "early"}}, r"sweep\.decisions: a walking sweep"),
 ])
 def test_refusals_name_the_key_and_the_range(change, message):
     data = _spec(**change)
     with pytest.raises(SpecError, match=message):
         parse_spec(data)
+
+
+def test_walking_refuses_commanded_steps():
+    with pytest.raises(SpecError, match=r"\[step\]: commanded steps do not run while walking"):
+        parse_spec(_spec() | {"step": {"grid": {"x_m": [0.05]}}})
 
 
 def test_gait_phase_needs_a_walk():
@@ -211,6 +215,27 @@ def test_compare_recovery_on_against_off_bands_by_gait_phase(walk_sweep, tmp_pat
                               "push": {"grid": {"impulse_ns": [0.3]}}}), standing,
                   backend="mujoco", quiet=True)
         load_run(f"{standing}:recovery-on")
+
+
+@pytest.mark.slow
+def test_early_walking_decisions_stop_only_at_falls(tmp_path):
+    """decisions = "early" on a walking sweep (MJX lanes): a walking lane is decided by a fall
+    only. The falls are the full horizon's; a fallen push is decided before the horizon, every
+    other one runs to it, and the distance of those that stood is the full run's (1 mm)."""
+    data = _spec(walk={"recovery": "on", "push_cycle": 0},
+                 sweep={"duration_s": 1.5, "chunk_size": 4, "lanes": 2},
+                 grid={"impulse_ns": [0.4, 1.5], "gait_phase": [0.25, 0.75]})
+    out = {}
+    for mode in ("full", "early"):
+        run_sweep(parse_spec(data), tmp_path / mode, backend="mjx", quiet=True, decisions=mode)
+        out[mode] = load(tmp_path / mode)
+    fell = out["full"]["fell"].astype(bool)
+    assert fell.any() and not fell.all()
+    np.testing.assert_array_equal(out["early"]["fell"].astype(bool), fell)
+    decided = out["early"]["decided_s"]
+    assert (decided[fell] < 1.5 - 0.03).all() and np.allclose(decided[~fell], 1.5, atol=1e-4)
+    np.testing.assert_allclose(out["early"]["distance_m"][~fell], out["full"]["distance_m"][~fell],
+                               atol=1e-3)
 
 
 @pytest.mark.slow

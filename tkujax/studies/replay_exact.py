@@ -50,7 +50,7 @@ def exact_outcomes(spec, manifest: dict, inputs: dict, chunk: int, pos: int, bas
     keys = np.asarray(chunk_keys(spec.seed, chunk, padded))[pos:pos + 1]
     if spec.decisions.early:
         fns = make_lane_fns(varied, spec.duration_s, model_params, steps, fixed, spec.ensemble,
-                            spec.tree_passes, spec.decisions.segment_ticks)
+                            spec.tree_passes, spec.decisions.segment_ticks, walk_base(spec))
         n_lanes = math.ceil(spec.decisions.lanes / n_devices) * n_devices
         out = run_lanes(fns, {k: v.astype(np.float32) for k, v in one.items()}, keys,
                         traced_params(base), schedule, n_lanes, sharding, snapshot=False,

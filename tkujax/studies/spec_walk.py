@@ -171,11 +171,11 @@ def walk_commands(base: WalkCommand, rec: dict) -> WalkCommand:
 
 
 def check_walk_sweep(spec) -> None:
-    """Refuse what a walking sweep cannot run: commanded steps, the fixed-point twin, early
-    decisions (a walking push runs to the horizon: the standing decision rules, a settled
-    inclination, do not hold while the robot walks). The same for push sequences
-    ([push.sequence]: no commanded step, and early decisions would not wait for the last
-    pulse)."""
+    """Refuse what a walking sweep cannot run: commanded steps and the fixed-point twin. (Early
+    decisions run: a walking lane is decided by a fall only, `tkujax.sim.lanes`.) For push
+    sequences ([push.sequence]): no commanded step, and no early decisions (the settled rule
+    would not wait for the last pulse); for slopes no early decisions (the lanes' program is
+    the level floor's)."""
     if spec.floor_pitch_deg and spec.decisions.early:
         raise SpecError("sweep.floor_pitch_deg: a slope runs with decisions = \"full\"")
     if spec.sequence is not None and (spec.step_grid or spec.decisions.early):
@@ -189,9 +189,6 @@ def check_walk_sweep(spec) -> None:
     if spec.arithmetic == "fixed":
         raise SpecError("[walk]: the fixed-point controller has no gait; use "
                         "controller.arithmetic = \"float\"")
-    if spec.decisions.early:
-        raise SpecError("sweep.decisions: a walking sweep ([walk]) runs every push to the "
-                        "horizon; use decisions = \"full\"")
 
 
 def walk_base(spec):

@@ -156,7 +156,8 @@ class _ChunkJob:
         for fixed, sel in fpga_groups(spec, {k: self.recs[k][lo:hi] for k in self.recs}):
             fns = make_lane_fns(tuple(sorted(spec.controller_grid)), spec.duration_s,
                                 self.model_params, bool(spec.step_grid), fixed, spec.ensemble,
-                                spec.tree_passes, spec.decisions.segment_ticks)
+                                spec.tree_passes, spec.decisions.segment_ticks,
+                                walk_base(spec))
             parts.append(stream.part((i, sel), fns, {k: self.recs[k][lo:hi][sel]
                                                      for k in self.input_keys}, keys[sel]))
         return parts
