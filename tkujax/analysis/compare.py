@@ -16,6 +16,12 @@ Conventions (tkujax.sim.push): azimuth 0 deg = pushed from behind (the force poi
 45 deg: behind-right is centred on 45 deg). The phase is the push onset's phase in the 30 ms
 control period (`onset_phase`, 0 = on a controller tick).
 
+Walking sweeps ([walk], a walk_recovery column) pick the walking recovery setting too:
+`DIR:recovery-off` or `DIR:recovery-on` (after the control setting if both: `DIR:on:recovery-on`;
+default: recovery on when the folder has it), so one sweep with `recovery = ["off", "on"]`
+gives the reference and the run of the no-harm verdict. Their phase bands are of the gait
+phase at onset (`gait_phase`, 0 = left touchdown) instead of the control period's.
+
 Diverged records (numerical blow-up) are neither fell nor survived: each run's rates leave
 its own diverged records out; paired differences use the records that diverged in neither.
 
@@ -52,13 +58,15 @@ from tkujax.analysis.compare_report import (plot_by_sector, plot_difference_maps
 from tkujax.analysis.map_cells import MAX_AZIMUTH_BINS, bin_axis
 from tkujax.dialects.sweep_spec import PHASE_KEY, RANDOMIZE_FIELDS, SpecError
 from tkujax.sweeps.sweep import load, outcome_keys
+from tkujax.dialects.walk_table import GAIT_PHASE_KEY
 
 SECTOR_NAMES = {4: ("behind", "right", "front", "left"),
                 8: ("behind", "behind-right", "right", "front-right", "front", "front-left",
                     "left", "behind-left")}
 # Columns that are not inputs of a push: outcomes, the control setting (selected on), the
 # record number (differs between the control blocks of one spec), a replay's state.
-NOT_INPUTS = set(outcome_keys(True)) | {"control", "push_id", "qpos"}
+NOT_INPUTS = set(outcome_keys(True, True)) | {"control", "push_id", "qpos", "walk_recovery"}
+RECOVERY_SUFFIXES = (":recovery-on", ":recovery-off")
 SUBSETS = ("all", "grid", "random")
 MATCH_ATOL = 1e-9
 
@@ -74,6 +82,13 @@ class Run:
     fell: np.ndarray                   # (n,) bool
     diverged: np.ndarray               # (n,) bool
     complete: bool                     # the folder's manifest says the sweep is complete
+    recovery: str | None = None        # a walking sweep's recovery setting ("on" | "off")
+
+    @property
+    def phase_key(self) -> str:
+        """The phase column the bands split: the gait phase of a walking run, else the
+        onset's phase in the control period."""
+        return PHASE_KEY if self.recovery is None else GAIT_PHASE_KEY
 
 
 @dataclasses.dataclass(frozen=True)
@@ -101,18 +116,28 @@ class Bands:
 
 
 def parse_run(arg: str) -> tuple[str, str | None]:
-    """'DIR', 'DIR:on' or 'DIR:off' -> (DIR, control or None)."""
+    """'DIR', 'DIR:on' or 'DIR:off' (each optionally followed by ':recovery-on' or
+    ':recovery-off') -> (DIR, control or None)."""
+    return parse_selection(arg)[:2]
+
+
+def parse_selection(arg: str) -> tuple[str, str | None, str | None]:
+    """A run argument -> (DIR, control or None, walking recovery or None)."""
+    recovery = None
+    for suffix in RECOVERY_SUFFIXES:
+        if arg.endswith(suffix):
+            arg, recovery = arg[:-len(suffix)], suffix.rsplit("-", 1)[1]
     for suffix in (":on", ":off"):
         if arg.endswith(suffix):
-            return arg[:-len(suffix)], suffix[1:]
-    return arg, None
+            return arg[:-len(suffix)], suffix[1:], recovery
+    return arg, None, recovery
 
 
 def load_run(arg: str, label: str | None = None, subset: str = "all") -> Run:
     """The records of one run argument ('DIR[:on|:off]'), see the module doc."""
     if subset not in SUBSETS:
         raise SpecError(f"subset must be one of {SUBSETS}, got {subset!r}")
-    path, control = parse_run(arg)
+    path, control, recovery = parse_selection(arg)
     if not Path(path).is_dir():
         raise FileNotFoundError(f"run {arg!r}: {path} is not a folder (a tkujax sweep --out)")
     rec = load(path)
@@ -129,6 +154,7 @@ def load_run(arg: str, label: str | None = None, subset: str = "all") -> Run:
                             "this sweep predates; use subset 'all'")
         grid = rec["from_grid"].astype(bool)
         sel &= grid if subset == "grid" else ~grid
+    sel, recovery = _walk_selection(arg, rec, sel, recovery)
     if not sel.any():
         have = sorted({"on" if c else "off" for c in on})
         raise SpecError(f"run {arg!r}: no records with control {control}"
@@ -140,9 +166,25 @@ def load_run(arg: str, label: str | None = None, subset: str = "all") -> Run:
     n = int(sel.sum())
     diverged = (rec["diverged"][sel].astype(bool) if "diverged" in rec else np.zeros(n, bool))
     complete = bool(read_manifest(Path(path)).get("complete", True))
-    return Run(label=label or f"{Path(path).name} ({control})", path=str(path), control=control,
+    setting = control if recovery is None else f"{control}, recovery {recovery}"
+    return Run(label=label or f"{Path(path).name} ({setting})", path=str(path), control=control,
                inputs=inputs, fell=rec["fell"][sel].astype(bool), diverged=diverged,
-               complete=complete)
+               complete=complete, recovery=recovery)
+
+
+def _walk_selection(arg: str, rec: dict, sel: np.ndarray, recovery: str | None):
+    """(the selection narrowed to one walking recovery setting, the setting) of a walking
+    sweep's records (default: recovery on when selected records have it); a standing sweep's
+    unchanged (asking for a recovery setting of one is refused)."""
+    if "walk_recovery" not in rec:
+        if recovery is not None:
+            raise SpecError(f"run {arg!r}: ':recovery-{recovery}' selects a walking sweep's "
+                            "recovery setting, and this folder's records stand (no [walk])")
+        return sel, None
+    walk_on = rec["walk_recovery"] > 0.5
+    if recovery is None:
+        recovery = "on" if (sel & walk_on).any() else "off"
+    return sel & (walk_on if recovery == "on" else ~walk_on), recovery
 
 
 def check_same_pushes(ref: Run, run: Run, ignore: frozenset = frozenset()) -> None:
@@ -250,7 +292,7 @@ def cell_table(runs: list[Run], bands: Bands, unpaired: bool = False) -> dict:
     n_j, n_p, n_s = len(edges) - 1, bands.phase_bands, bands.sectors
     s = sector_index(ref.inputs["azimuth_deg"], n_s)
     j = band_index(ref.inputs["impulse_ns"], edges)
-    p = phase_index(ref.inputs[PHASE_KEY], n_p)
+    p = phase_index(ref.inputs[ref.phase_key], n_p)
     phase_edges = np.linspace(0.0, 1.0, n_p + 1)
     levels = [("phase", (s * n_j + j) * n_p + p, n_s * n_j * n_p),
               ("pooled", s * n_j + j, n_s * n_j)]
@@ -345,7 +387,7 @@ def difference_cells(runs: list[Run], azimuth_bins: int = 24, impulse_bins: int 
     ref = runs[0]
     azs, ia = map_axis(np.mod(ref.inputs["azimuth_deg"], 360.0), azimuth_bins, 360.0)
     js, ij = map_axis(ref.inputs["impulse_ns"], impulse_bins)
-    p = phase_index(ref.inputs[PHASE_KEY], phase_bands)
+    p = phase_index(ref.inputs[ref.phase_key], phase_bands)
     n_cells = len(azs) * len(js)
     cell = ia * len(js) + ij
     edges = np.linspace(0, 1, phase_bands + 1)
@@ -389,6 +431,9 @@ def compare_runs(run_args: list[str], out: str | Path, labels: list[str] | None 
     runs = [load_run(a, None if labels is None else labels[i], subset)
             for i, a in enumerate(run_args)]
     same_robot([(a, read_manifest(Path(parse_run(a)[0]))) for a in run_args], robot)
+    if len({r.phase_key for r in runs}) > 1:
+        raise SpecError("compare: a walking sweep's runs compare only with walking runs (their "
+                        "phase is the gait's)")
     seen = set()
     for i, r in enumerate(runs):                  # unique labels: they key every table
         if r.label in seen:
@@ -414,6 +459,10 @@ def compare_runs(run_args: list[str], out: str | Path, labels: list[str] | None 
         sectors=table["sector_names"], impulse_edges_ns=table["impulse_edges"],
         phase_edges=table["phase_edges"])), indent=1))
     text = summary_markdown(runs, table, v, [str(f) for f in files])
+    if runs[0].recovery is not None:
+        text = text.replace("phase = the onset's phase in the 30 ms control period",
+                            "phase = the gait phase at onset (0 = left touchdown, 0.5 = right "
+                            "touchdown); the robots walk")
     if unpaired_robots:
         text = text.replace("\n", "\n\n**Unpaired robots:** the runs' model randomisation draws "
                             "differ, so every standard error here is that of two independent "

@@ -8,6 +8,9 @@ the 30 ms control period instead, per control setting and controller-grid point.
 Diverged records (numerical blow-up, `tkujax.sim.metrics`) are neither fell nor survived: they
 are left out of every cell and fraction, and counted on their own in the summary.
 
+A walking sweep ([walk]) gets the walking maps instead (`tkujax.analysis.walk_maps`: the fall
+rate by impulse x direction x gait phase, per walking recovery setting).
+
 Sweeps over an ensemble of robots ([randomize] ensemble: a robot_id column) also get each
 boundary per member (`member_boundaries`: the same definition on the member's own records, at
 an azimuth only where the member has at least MIN_MEMBER_PUSHES records there), drawn as the
@@ -36,6 +39,7 @@ from tkujax.analysis.map_cells import (BAND_QUANTILES, MIN_BAND_MEMBERS, MIN_MEM
 from tkujax.sweeps.sweep_robot import check_robot
 from tkujax.dialects.sweep_spec import parse_spec
 from tkujax.sweeps.sweep import load
+from tkujax.analysis.walk_maps import make_walk_maps
 
 
 def _phase_outputs(rec: dict, variant_keys, maps: Path, plt) -> tuple[Path, str]:
@@ -376,6 +380,9 @@ def make_maps(out_dir: str | Path, params: ControllerParams | None = None, robot
         base=ControllerParams())
     maps = out_dir / "maps"
     maps.mkdir(exist_ok=True)
+    if "walk_recovery" in rec:   # a walking sweep: by gait phase, per recovery setting
+        check_robot(manifest, robot, str(out_dir))
+        return make_walk_maps(manifest, rec, maps, plt, n_diverged, mark)
     controls = [c for c in (False, True) if (rec["control"].astype(bool) == c).any()]
     if check_robot(manifest, robot, str(out_dir)) is None:
         lip = capturability.lip_model()

@@ -12,6 +12,7 @@ import numpy as np
 from tkujax.sim.push import CONTROL_PERIOD_S, onset_from_phase
 from tkujax.dialects.step_table import step_count
 from tkujax.dialects.validation import SpecError
+from tkujax.dialects.walk_table import GAIT_PHASE_KEY, onsets_at_phase
 
 # name: (lo, hi, default, unit). Push fields in user units.
 PUSH_FIELDS = {
@@ -47,14 +48,21 @@ def record_count(spec) -> int:
     n_grid = math.prod(len(v) for v in spec.push_grid.values()) if spec.push_grid else 0
     settings = len(spec.control) * math.prod(
         len(v) for v in (spec.controller_grid | spec.fpga_grid).values())
-    return (n_grid + spec.n_random) * settings * step_count(spec.step_grid, spec.step_reference)
+    walks = len(spec.walk.recovery) if getattr(spec, "walk", None) is not None else 1
+    return ((n_grid + spec.n_random) * settings * walks
+            * step_count(spec.step_grid, spec.step_reference))
 
 
-def _latest_end(part: str, onset, phase, duration) -> tuple[float, str]:
-    """(the latest end of a push of [push.PART], which of its keys set it)."""
+def _latest_end(part: str, onset, phase, duration, walk=None,
+                gait_phase=None) -> tuple[float, str]:
+    """(the latest end of a push of [push.PART], which of its keys set it); with a gait phase
+    (and the WalkSpec `walk`), the onset is its time in the walk."""
     onset, duration = float(np.max(onset)), float(np.max(duration))
     start = onset if phase is None else float(onset_from_phase(onset, float(np.max(phase))))
     via = f"push.{part}.onset_s" + ("" if phase is None else f" + push.{part}.{PHASE_KEY}")
+    if gait_phase is not None:
+        start = float(np.max(onsets_at_phase(walk, np.max(gait_phase))))
+        via = f"push.{part}.{GAIT_PHASE_KEY} (in walk.push_cycle = {walk.push_cycle})"
     return start + duration, f"{via} + push.{part}.duration_s (latest onset {start:.6g} s, " \
         f"longest pulse {duration:.6g} s)"
 
@@ -67,12 +75,18 @@ def check_push_window(spec) -> None:
         g = spec.push_grid
         default = {k: [v[2]] for k, v in PUSH_FIELDS.items()}
         parts.append(_latest_end("grid", g.get("onset_s", default["onset_s"]), g.get(PHASE_KEY),
-                                 g.get("duration_s", default["duration_s"])))
+                                 g.get("duration_s", default["duration_s"]), spec.walk,
+                                 g.get(GAIT_PHASE_KEY)))
     if spec.n_random:
         r = spec.push_random
         parts.append(_latest_end("random", r.get("onset_s", (PUSH_FIELDS["onset_s"][2],)),
                                  r.get(PHASE_KEY),
-                                 r.get("duration_s", (PUSH_FIELDS["duration_s"][2],))))
+                                 r.get("duration_s", (PUSH_FIELDS["duration_s"][2],)),
+                                 spec.walk, r.get(GAIT_PHASE_KEY)))
+    seq = getattr(spec, "sequence", None)
+    if seq is not None and seq.pulses > 1:     # the last pulse of a sequence
+        parts = [(end + seq.span_s, f"{via} + (push.sequence.pulses - 1) x "
+                  f"push.sequence.interval_s (at most {seq.span_s:.6g} s)") for end, via in parts]
     for end, via in parts:
         if end > spec.duration_s + HORIZON_SLACK_S:
             raise SpecError(f"{via}: a push would end at {end:.6g} s, after the horizon "

@@ -64,6 +64,9 @@ FPGA fixed-point controller (`tkujax.control.fixed`):
     x_m = {start = -0.1, stop = 0.2, num = 21}
     y_m = [0.0]
     start_delay_s = [0.03]     # after the push onset (from_detection = 0) or the detection (1)
+
+[walk] and gait_phase: studies.spec_walk; [push.sequence]: spec_sequence; [push] kind (velocity
+kicks): spec_kick; [sweep] floor_pitch_deg (-15 to 15 deg): sim.slope. See docs/walking.md.
 """
 
 from __future__ import annotations
@@ -82,23 +85,28 @@ from tkujax.control.params_files import checked_value
 from tkujax.model.ensemble import load_ensemble
 from tkujax.model.model_params import ModelParams
 from tkujax.sim.push import onset_from_phase, onset_phase
-from tkujax.dialects.program_keys import (SWEEP_TREE_PASSES, Decisions, decisions_of,
-                                          tree_passes_of)
+from tkujax.sim.slope import FLOOR_PITCH_RANGE_DEG
+from tkujax.dialects.program_keys import SWEEP_TREE_PASSES, Decisions, decisions_of, tree_passes_of
 from tkujax.dialects.push_limits import (MAX_CHUNK_SIZE, MAX_RECORDS, MAX_SEED, PHASE_KEY,
                                          PHASE_UNIT, PUSH_FIELDS, check_limits, record_count)
 from tkujax.dialects.step_table import STEP_FIELDS, cross_steps, parse_step
+from tkujax.dialects.kick_table import kick_columns, kick_push_table, on_ticks, push_kind
+from tkujax.dialects.sequence_table import (SequenceSpec, check_sequence, draw_sequence,
+                                            parse_sequence)
+from tkujax.dialects.walk_table import (GAIT_PHASE_KEY, GAIT_PHASE_UNIT, WalkSpec,
+                                        check_gait_phase_keys, check_walk_sweep, cross_walk,
+                                        gait_params_of, gait_phase_values, onsets_at_phase,
+                                        parse_walk, resolve_walk)
 from tkujax.dialects.fpga_table import (ARITHMETIC, FPGA_COLUMN, FPGA_FIELDS,
-                                        check_fixed_controller,
-                                        fixed_point_config, parse_fpga)
+                                        check_fixed_controller, fixed_point_config, parse_fpga)
 from tkujax.dialects.validation import SpecError, number, read_toml, table, uniform, values
 
 # Re-exported: the names other modules import from here.
 __all__ = ["ARITHMETIC", "SWEEP_TREE_PASSES", "Decisions", "FPGA_COLUMN", "FPGA_FIELDS",
            "STEP_FIELDS", "PUSH_FIELDS", "PHASE_KEY", "MAX_RECORDS", "MAX_CHUNK_SIZE", "MAX_SEED",
-           "record_count",
-           "SpecError", "read_toml",
-           "fixed_point_config", "parse_spec", "load_spec", "expand", "parse_randomize",
-           "parse_ensemble", "controller_value", "controller_values", "EnsembleRef", "SweepSpec"]
+           "record_count", "SpecError", "read_toml", "fixed_point_config", "parse_spec",
+           "load_spec", "expand", "parse_randomize", "parse_ensemble", "controller_value",
+           "controller_values", "EnsembleRef", "SweepSpec"]
 
 
 # ControllerParams fields a spec may set; *_deg fields are given in degrees. Their ranges are
@@ -132,7 +140,7 @@ ENSEMBLE_KEY = "ensemble"
 ROBOT_ID_COLUMN = "robot_id"
 SWEEP_FIELDS = {"name": str, "seed": int, "chunk_size": int, "duration_s": (int, float),
                 "control": list, "description": str, "tree_passes": str, "decisions": str,
-                "lanes": int, "segment_ticks": int}
+                "lanes": int, "segment_ticks": int, "floor_pitch_deg": (int, float)}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -200,6 +208,10 @@ class SweepSpec:
     tree_passes: str = SWEEP_TREE_PASSES[0]   # [sweep] tree_passes (SWEEP_TREE_PASSES)
     robot_file: str | None = None   # [robot] file: a robot file (tkujax.robot), absolute
     decisions: Decisions = Decisions()   # [sweep] decisions, lanes, segment_ticks
+    walk: WalkSpec | None = None   # [walk]: the robot walks (tkujax.dialects.walk_table)
+    sequence: SequenceSpec | None = None   # [push.sequence] (tkujax.dialects.sequence_table)
+    push_kind: str = "impulse"   # [push] kind (tkujax.dialects.kick_table)
+    floor_pitch_deg: float = 0.0   # [sweep] floor_pitch_deg: a slope (tkujax.sim.slope)
 
     def fixed_point_config(self, rec: dict | None = None) -> FixedPointConfig | None:
         """The FixedPointConfig of a record (its fpga_* columns over [fpga]); None for float."""
@@ -248,6 +260,17 @@ def _phase_values(key: str, value) -> np.ndarray:
     return vals
 
 
+def _random_phase(key: str, value, unit: str) -> tuple[float, float]:
+    """push.random.KEY = {uniform = [lo, hi]} of a phase: draws in [lo, hi), lo < 1."""
+    try:
+        lo, hi = uniform(f"push.random.{key}", value, 0.0, 1.0, unit)
+    except SpecError as err:
+        raise SpecError(str(err).replace("[0.0, 1.0]", "[0, 1)")) from None
+    if lo >= 1.0:   # draws are in [lo, hi): hi = 1 is fine, lo = 1 would give phase 1
+        raise SpecError(f"push.random.{key}.uniform[0]: {lo!r} is out of range [0, 1) {unit}")
+    return lo, hi
+
+
 def parse_randomize(data: dict) -> dict[str, Any]:
     """The validated [randomize] table: {key: (lo, hi) for uniform draws, or a fixed value}."""
     rand = table("randomize", data.get("randomize", {}), RANDOMIZE_FIELDS)
@@ -260,8 +283,11 @@ def parse_randomize(data: dict) -> dict[str, Any]:
 
 
 def _parse_sweep(data: dict) -> dict:
-    """The checked [sweep] table (with chunk_size, duration_s, control and seed filled in)."""
+    """The checked [sweep] table (with chunk_size, duration_s, control and seed filled in;
+    a walking sweep's control defaults to ["on"]: the walking recovery needs the controller)."""
     sweep = dict(table("sweep", data.get("sweep", {}), SWEEP_FIELDS))
+    if "walk" in data:
+        sweep.setdefault("control", ["on"])
     for k, types in SWEEP_FIELDS.items():
         if k in sweep and (isinstance(sweep[k], bool) or not isinstance(sweep[k], types)):
             raise SpecError(f"sweep.{k}: expected {getattr(types, '__name__', 'a number')}, "
@@ -275,6 +301,8 @@ def _parse_sweep(data: dict) -> dict:
                         "keeps 32 bits)")
     sweep["duration_s"] = number("sweep.duration_s", sweep.get("duration_s", 2.4), 0.1, 30.0,
                                  "s")
+    sweep["floor_pitch_deg"] = number("sweep.floor_pitch_deg", sweep.get("floor_pitch_deg", 0.0),
+                                      *FLOOR_PITCH_RANGE_DEG, "deg (+ = uphill toward +x)")
     control = sweep.setdefault("control", ["off", "on"])
     if (not control or any(not isinstance(c, str) or c not in ("on", "off") for c in control)
             or len(set(control)) != len(control)):
@@ -286,38 +314,45 @@ def _parse_sweep(data: dict) -> dict:
 def parse_spec(data: dict) -> SweepSpec:
     """Validate a parsed TOML document."""
     table("top level", data, {"sweep", "push", "controller", "randomize", "step", "fpga",
-                              "robot"})
+                              "robot", "walk"})
     sweep = _parse_sweep(data)
+    robot_file = _robot_file(data)
+    walk = parse_walk(data)
+    if walk is not None:
+        walk = resolve_walk(walk, gait_params_of(robot_file))
     chunk, duration, control = sweep["chunk_size"], sweep["duration_s"], tuple(sweep["control"])
     tree_passes = tree_passes_of(sweep)
 
-    push = table("push", data.get("push", {}), {"grid", "random"})
-    grid = table("push.grid", push.get("grid", {}), set(PUSH_FIELDS) | {PHASE_KEY})
+    push = table("push", data.get("push", {}), {"grid", "random", "sequence", "kind"})
+    kind = push_kind(push)
+    push = kick_push_table(push)   # a kick sweep's tables in the impulse spec's terms
+    sequence = parse_sequence(push)
+    phase_keys = {PHASE_KEY, GAIT_PHASE_KEY}
+    grid = table("push.grid", push.get("grid", {}), set(PUSH_FIELDS) | phase_keys)
+    check_gait_phase_keys("grid", grid, walk, PHASE_KEY)
     push_grid = {k: (_phase_values(f"push.grid.{k}", v) if k == PHASE_KEY else
+                     gait_phase_values(f"push.grid.{k}", v, values) if k == GAIT_PHASE_KEY else
                      values(f"push.grid.{k}", v, *PUSH_FIELDS[k][:2], PUSH_FIELDS[k][3]))
                  for k, v in grid.items()}
-    rnd = table("push.random", push.get("random", {}), set(PUSH_FIELDS) | {PHASE_KEY, "n"})
+    rnd = table("push.random", push.get("random", {}), set(PUSH_FIELDS) | phase_keys | {"n"})
+    check_gait_phase_keys("random", rnd, walk, PHASE_KEY)
     n_random = rnd.get("n", 0)
     if (isinstance(n_random, bool) or not isinstance(n_random, int)
             or not 0 <= n_random <= 10_000_000):
         raise SpecError(f"push.random.n: expected an integer in [0, 10000000], got {n_random!r}")
     push_random = {k: uniform(f"push.random.{k}", v, *PUSH_FIELDS[k][:2], PUSH_FIELDS[k][3])
-                   for k, v in rnd.items() if k not in ("n", PHASE_KEY)}
-    if PHASE_KEY in rnd:
-        try:
-            lo, hi = uniform(f"push.random.{PHASE_KEY}", rnd[PHASE_KEY], 0.0, 1.0, PHASE_UNIT)
-        except SpecError as err:
-            raise SpecError(str(err).replace("[0.0, 1.0]", "[0, 1)")) from None
-        if lo >= 1.0:   # draws are in [lo, hi): hi = 1 is fine, lo = 1 would give phase 1
-            raise SpecError(f"push.random.{PHASE_KEY}.uniform[0]: {lo!r} is out of range [0, 1) "
-                            f"{PHASE_UNIT}")
-        push_random[PHASE_KEY] = (lo, hi)
+                   for k, v in rnd.items() if k not in ("n", PHASE_KEY, GAIT_PHASE_KEY)}
+    for key, unit in ((PHASE_KEY, PHASE_UNIT), (GAIT_PHASE_KEY, GAIT_PHASE_UNIT)):
+        if key in rnd:
+            push_random[key] = _random_phase(key, rnd[key], unit)
     # Random pushes without an onset of their own sample the whole control period.
-    phase_default = n_random > 0 and not {"onset_s", PHASE_KEY} & set(rnd)
+    phase_default = n_random > 0 and not ({"onset_s"} | phase_keys) & set(rnd)
     if phase_default:
         push_random[PHASE_KEY] = (0.0, 1.0)
     if not push_grid and n_random == 0:
         raise SpecError("[push]: give a [push.grid] or [push.random] with n > 0: nothing to run")
+    check_sequence(sequence, np.concatenate([push_grid.get("duration_s", [PUSH_FIELDS[
+        "duration_s"][2]]), push_random.get("duration_s", [PUSH_FIELDS["duration_s"][2]])]))
 
     ctrl = table("controller", data.get("controller", {}),
                   set(CONTROLLER_FIELDS) | {"grid", "arithmetic"})
@@ -342,7 +377,7 @@ def parse_spec(data: dict) -> SweepSpec:
                         "use controller.arithmetic = \"float\"")
     if arithmetic == "fixed":
         check_fixed_controller(controller, controller_grid)
-    return check_limits(SweepSpec(name=sweep.get("name", "sweep"), seed=sweep["seed"],
+    spec = check_limits(SweepSpec(name=sweep.get("name", "sweep"), seed=sweep["seed"],
                      chunk_size=chunk, duration_s=duration, control=control,
                      push_grid=push_grid, push_random=push_random, n_random=n_random,
                      controller=controller, controller_grid=controller_grid,
@@ -350,7 +385,11 @@ def parse_spec(data: dict) -> SweepSpec:
                      step_grid=step_grid,
                      step_reference=step_reference, arithmetic=arithmetic, fpga=fpga,
                      fpga_grid=fpga_grid, ensemble=ensemble, tree_passes=tree_passes,
-                     robot_file=_robot_file(data), decisions=decisions_of(sweep, chunk)))
+                     robot_file=robot_file, decisions=decisions_of(sweep, chunk), walk=walk,
+                     sequence=sequence, push_kind=kind,
+                     floor_pitch_deg=sweep["floor_pitch_deg"]))
+    check_walk_sweep(spec)
+    return spec
 
 
 def _robot_file(data: dict) -> str | None:
@@ -363,6 +402,27 @@ def _robot_file(data: dict) -> str | None:
 
 def load_spec(path: str | Path) -> SweepSpec:
     return parse_spec(read_toml(path))
+
+
+def _onsets(spec: SweepSpec, pushes: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The pushes with their onsets: from the gait phase (a walking sweep), from the phase in
+    the control period, on the controller's ticks (velocity kicks); the phase columns of the
+    onsets given in seconds."""
+    if spec.walk is not None:   # onsets by gait phase: the walk's nominal time of the phase
+        gait = np.isfinite(pushes[GAIT_PHASE_KEY])
+        pushes["onset_s"] = np.where(gait, onsets_at_phase(
+            spec.walk, np.where(gait, pushes[GAIT_PHASE_KEY], 0.0)), pushes["onset_s"])
+    given = np.isfinite(pushes[PHASE_KEY])
+    pushes["onset_s"] = np.where(given, onset_from_phase(pushes["onset_s"],
+                                                         np.where(given, pushes[PHASE_KEY], 0.0)),
+                                 pushes["onset_s"])
+    pushes[PHASE_KEY] = np.where(given, pushes[PHASE_KEY], onset_phase(pushes["onset_s"]))
+    if spec.push_kind == "velocity_kick":   # kicks act on the controller's ticks
+        pushes["onset_s"] = on_ticks(pushes["onset_s"])
+        pushes[PHASE_KEY] = onset_phase(pushes["onset_s"])
+        if GAIT_PHASE_KEY in pushes:        # the gait phase of the tick (`cross_walk`)
+            pushes[GAIT_PHASE_KEY] = np.full(len(pushes["onset_s"]), np.nan)
+    return pushes
 
 
 def expand(spec: SweepSpec) -> dict[str, np.ndarray]:
@@ -379,8 +439,10 @@ def expand(spec: SweepSpec) -> dict[str, np.ndarray]:
     defaults = {k: v[2] for k, v in PUSH_FIELDS.items()}
     # Grid pushes: Cartesian product over the given fields (others at their defaults); the phase
     # is crossed last, so the order of specs without it is unchanged. NaN: no phase given.
-    fields = list(PUSH_FIELDS) + [PHASE_KEY]
-    cols = {k: np.array([defaults[k]]) for k in PUSH_FIELDS} | {PHASE_KEY: np.array([np.nan])}
+    # A walking sweep's gait phase is crossed after them all (NaN: the onset is given).
+    fields = list(PUSH_FIELDS) + [PHASE_KEY] + ([GAIT_PHASE_KEY] if spec.walk else [])
+    cols = {k: np.array([defaults[k]]) for k in PUSH_FIELDS} | {
+        k: np.array([np.nan]) for k in fields[len(PUSH_FIELDS):]}
     grid_cols = {}
     if spec.push_grid:
         cols.update(spec.push_grid)
@@ -395,14 +457,11 @@ def expand(spec: SweepSpec) -> dict[str, np.ndarray]:
         else:
             rand_cols[k] = np.full(spec.n_random, defaults[k])
     # Drawn after the other fields: their values do not depend on whether a phase is drawn.
-    rand_cols[PHASE_KEY] = (rng.uniform(*spec.push_random[PHASE_KEY], spec.n_random)
-                            if PHASE_KEY in spec.push_random else np.full(spec.n_random, np.nan))
-    pushes = {k: np.concatenate([grid_cols.get(k, np.zeros(0)), rand_cols[k]]) for k in fields}
-    given = np.isfinite(pushes[PHASE_KEY])
-    pushes["onset_s"] = np.where(given, onset_from_phase(pushes["onset_s"],
-                                                         np.where(given, pushes[PHASE_KEY], 0.0)),
-                                 pushes["onset_s"])
-    pushes[PHASE_KEY] = np.where(given, pushes[PHASE_KEY], onset_phase(pushes["onset_s"]))
+    for k in fields[len(PUSH_FIELDS):]:   # the onset phase, then the gait phase
+        rand_cols[k] = (rng.uniform(*spec.push_random[k], spec.n_random)
+                        if k in spec.push_random else np.full(spec.n_random, np.nan))
+    pushes = _onsets(spec, {k: np.concatenate([grid_cols.get(k, np.zeros(0)), rand_cols[k]])
+                            for k in fields})
     n_push = n_grid + spec.n_random
 
     # [fpga] grid points are crossed like controller-grid points (one column fpga_<key> each).
@@ -429,6 +488,13 @@ def expand(spec: SweepSpec) -> dict[str, np.ndarray]:
         out[k] = np.tile(draw, n_settings)
     if spec.ensemble is not None:   # drawn after the others: their values do not change
         out[ROBOT_ID_COLUMN] = np.tile(rng.integers(0, spec.ensemble.n, n_push), n_settings)
-    out = cross_steps(spec, out)
+    # The later pulses of a [push.sequence] last: the other columns keep their values.
+    kick = spec.push_kind == "velocity_kick"
+    out |= draw_sequence(spec.sequence, rng, pushes, n_settings, on_ticks if kick else None)
+    out = cross_walk(spec.walk, cross_steps(spec, out))
+    if kick:
+        out = kick_columns(out)
+    if spec.floor_pitch_deg:   # a slope: stated in every record (compare checks it)
+        out["floor_pitch_deg"] = np.full(len(out["control"]), spec.floor_pitch_deg)
     out["push_id"] = np.arange(len(out["control"]))
     return out

@@ -30,7 +30,7 @@ from tkujax.sim.leg_chain import chain_targets
 from tkujax.sim import physics, recording, tree_passes
 from tkujax.sim.mjx_import import mjx
 from tkujax.sim.options import Episode, RolloutConfig, checkpoints
-from tkujax.sim.push import Push, force_at
+from tkujax.sim.push import Push, force_at, kick_velocity
 from tkujax.sim.setup import ModelIndex
 from tkujax.sim.tick import control_tick, control_tick_fx
 
@@ -84,7 +84,11 @@ def physics_substep(lean_model: mjx.Model, idx: ModelIndex, forward: Callable,
     its state rides in the carry. Off (idx.imu_filtered false), the carry holds the last step's
     instantaneous reading. push None: no wrench (xfrc_applied as it is)."""
     d, imu = carry
-    if push is not None:
+    if push is not None and push.kick_mps is not None:   # a velocity kick (Push.kick_mps)
+        with jax.named_scope("push_kick"):
+            dv = kick_velocity(push, d.time, idx.timestep_s).astype(d.qvel.dtype)
+            d = d.replace(qvel=d.qvel.at[:2].add(dv))
+    elif push is not None:
         with jax.named_scope("push_wrench"):
             d = d.replace(xfrc_applied=push_wrench(idx, d, push))
     with jax.named_scope("mjx_step"):     # mjx.step, less the sensors the loop reads apart

@@ -18,6 +18,9 @@ Decided (`decision_of`):
            SETTLE_COM_SPEED_M_S. A robot that still leans (out of the recovery band) but has
            come to rest is settled too: it reads "not recovered" (NaN) as it would at the
            horizon, where it would still lean.
+           A walking robot (Episode.walk) is never settled: it is meant to keep moving, and
+           coming to rest says nothing about whether it will fall later. Its lane is decided
+           by a fall, or runs to the horizon.
 
 `truncated` gives a lane's rows up to the decision with the last recorded row repeated to the
 horizon, so that `tkujax.sim.metrics.outcomes` reads the series as if the robot stayed where
@@ -32,6 +35,7 @@ import jax.numpy as jnp
 from tkujax.control.controller import controller_init
 from tkujax.control.fixed import controller_init_fx
 from tkujax.control.controller_params import ControllerParams
+from tkujax.control.walking import walking_init
 from tkujax.sim.closed_loop import TickPieces, imu_read
 from tkujax.sim.metrics import fall_indicator
 from tkujax.sim.mjx_import import mjx
@@ -60,6 +64,8 @@ def lane_start(pieces: TickPieces, state: mjx.Data, index, episode: Episode,
     dtype = state.qpos.dtype
     ctrl = (controller_init(params, dtype) if config.fixed is None else
             controller_init_fx(params, config.fixed, dtype))
+    if episode.walk is not None:     # a walking lane (a Python branch on None)
+        ctrl = walking_init(params, episode.walk, dtype)
     imu = imu_read(index, state)
     keys = jax.random.split(episode.key, n_ticks)
     shapes = jax.eval_shape(pieces.control, imu, ctrl, keys[0])
@@ -89,7 +95,8 @@ def decision_of(lane: dict, row: Series, d: mjx.Data, episode: Episode,
     quiet = jnp.where(quiet_now, lane["quiet"] + 1, 0)
     hold_ticks = int(round(SETTLE_HOLD_S / control_period_s))
     fallen = fall_indicator(row)
-    decision = jnp.where(fallen, FALLEN, jnp.where(quiet >= hold_ticks, SETTLED, UNDECIDED))
+    settled = (quiet >= hold_ticks) if episode.walk is None else False   # walking: falls only
+    decision = jnp.where(fallen, FALLEN, jnp.where(settled, SETTLED, UNDECIDED))
     return quiet.astype(jnp.int32), decision.astype(jnp.int32)
 
 

@@ -163,3 +163,24 @@ def capture_outcomes(series: Series, onset_s, gravity: float = 9.81) -> dict:
         r_ankle_td_x_m=r_td[0], r_ankle_td_y_m=r_td[1],
         final_speed_m_s=jnp.linalg.norm(com[-1, :2] - com[-2, :2]) / dt,
         margin_deg=-jnp.sqrt(msq + 1e-12))
+
+
+WALK_KEYS = ("distance_m", "footstep_moved")
+
+
+def walk_outcomes(series: Series, start_s) -> dict:
+    """What a walking sweep records of one rollout (pure JAX, vmap-able): distance_m, the
+    CoM's horizontal displacement from the walk's first step (start_s, the last sample at or
+    before it) to the last sample before the fall (or the end); footstep_moved, whether the
+    walking recovery had moved a footstep at the end (the step weight the controller reports,
+    as `tkujax.walking.walk_push` counts them)."""
+    t = series["t"]
+    n = t.shape[0]
+    idx = jnp.arange(n)
+    i0 = jnp.clip(jnp.sum(t <= start_s) - 1, 0, n - 1)
+    fallen = fall_indicator(series)
+    i_end = jnp.where(jnp.any(fallen), jnp.maximum(jnp.argmax(fallen) - 1, i0), n - 1)
+    com = series["com"][:, :2]
+    disp = jnp.sum(jnp.where((idx == i_end)[:, None], com, 0.0), 0) - com[i0]
+    return dict(distance_m=jnp.sqrt(jnp.sum(disp ** 2) + 1e-12),
+                footstep_moved=series["step_weight"][-1] > 0.5)

@@ -24,6 +24,7 @@ import jax
 from tkujax.control.fixed import FixedPointConfig
 from tkujax.control.gait import WalkCommand
 from tkujax.sim.push import CONTROL_PERIOD_S, Push
+from tkujax.sim.slope import check_floor_pitch
 
 # jax.checkpoint (less memory under grad): False / "none": off; True / "tick": each control
 # tick; "tick_nocse": the same with prevent_cse=False (JAX's advice inside scan); "tick_dots":
@@ -100,11 +101,15 @@ class RolloutConfig:
     fixed: FixedPointConfig | None = None
     # How the program is laid out (the same simulated result; see ProgramOptions).
     program: ProgramOptions = ProgramOptions()
+    # The floor's pitch, deg (+ = uphill toward +x; tkujax.sim.slope): a tilted gravity. 0:
+    # the level floor, and the program unchanged (a Python branch on the value).
+    floor_pitch_deg: float = 0.0
 
     def __post_init__(self):
         if not isinstance(self.program, ProgramOptions):
             raise ValueError(f"RolloutConfig.program must be a ProgramOptions, got "
                              f"{self.program!r}")
+        check_floor_pitch(self.floor_pitch_deg)
 
 
 @jax.tree_util.register_dataclass

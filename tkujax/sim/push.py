@@ -33,18 +33,26 @@ DEFAULT_DURATION_S = 0.020          # ball-on-robot contact time [est]
 PHYSICS_DT_S = 0.002                # the model's time step (tkujax.model: 2 ms)
 MAX_IMPULSE_NS = 200.0              # a 50 kg robot's falls need tens of N s
 MIN_HEIGHT_M, MAX_HEIGHT_M = 0.05, 2.0
+# A push sequence's per-pulse fields (shape (k,) each); its height and duration are shared.
+PULSE_FIELDS = ("impulse_ns", "azimuth_rad", "onset_s")
 
 
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class Push:
-    """One push (every field a scalar; batch by stacking). SI units, radians."""
+    """One push (every field a scalar; batch by stacking). SI units, radians.
+
+    kick_mps: a velocity kick instead of a force pulse (None: the half-sine pulse): at onset_s
+    the floating base's horizontal velocity (its free joint's qvel[0:2], world frame) jumps by
+    kick_mps toward azimuth_rad, as MuJoCo Playground's locomotion tasks push their robots;
+    impulse_ns, height_m and duration_s are then unused (`kick_velocity`)."""
 
     impulse_ns: jax.Array
     azimuth_rad: jax.Array
     height_m: jax.Array
     duration_s: jax.Array
     onset_s: jax.Array
+    kick_mps: jax.Array | None = None
 
 
 def make_push(impulse_ns: float, azimuth_deg: float = 0.0, height_m: float = DEFAULT_HEIGHT_M,
@@ -91,12 +99,37 @@ def peak_on_sample_phase(duration_s: float = DEFAULT_DURATION_S,
     return float(np.mod(1.0 - (0.5 * duration_s + dt) / period, 1.0))
 
 
+def kick_velocity(push: Push, t, dt: float) -> jax.Array:
+    """(2,) the base's horizontal velocity change (m/s) of a velocity kick in the physics step
+    that starts at time t (s) and lasts dt: kick_mps toward azimuth_rad when |t - onset_s| <
+    dt / 2, else 0 (each pulse of a sequence on its own)."""
+    hit = jnp.abs(t - push.onset_s) < 0.5 * dt
+    dv = jnp.where(hit, push.kick_mps, 0.0)
+    vec = jnp.stack([dv * jnp.cos(push.azimuth_rad), dv * jnp.sin(push.azimuth_rad)], -1)
+    return vec if vec.ndim == 1 else jnp.sum(vec, 0)
+
+
+def first_onset(push: Push) -> jax.Array:
+    """The onset (s) of a push, or of a sequence's first pulse (the outcomes count from it);
+    of a batch too (a sequence's onsets have one axis more than its height)."""
+    seq = jnp.ndim(push.onset_s) > jnp.ndim(push.height_m)
+    return push.onset_s[..., 0] if seq else push.onset_s
+
+
 def stack_pushes(pushes: list[Push]) -> Push:
     return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *pushes)
 
 
 def force_at(push: Push, t: jax.Array) -> jax.Array:
-    """(3,) world force (N) of the half-sine pulse at time t (s)."""
+    """(3,) world force (N) of the half-sine pulse at time t (s). A push sequence (impulse_ns,
+    azimuth_rad and onset_s of shape (k,): k pulses of the push's height and duration) sums
+    its pulses' forces."""
+    if push.kick_mps is not None:         # a velocity kick: no force (a Python branch on None)
+        return jnp.zeros((3,), jnp.result_type(push.azimuth_rad))
+    if jnp.ndim(push.impulse_ns) > jnp.ndim(push.height_m):   # a sequence (a static shape)
+        pulse = jax.vmap(lambda j, a, o: force_at(dataclasses.replace(
+            push, impulse_ns=j, azimuth_rad=a, onset_s=o), t))
+        return jnp.sum(pulse(push.impulse_ns, push.azimuth_rad, push.onset_s), 0)
     phase = (t - push.onset_s) / push.duration_s
     active = (phase >= 0.0) & (phase < 1.0)
     magnitude = push.impulse_ns * (jnp.pi / (2.0 * push.duration_s)) * jnp.sin(jnp.pi * phase)

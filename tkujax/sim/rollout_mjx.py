@@ -43,6 +43,7 @@ from tkujax.sim.push import Push
 from tkujax.sim.records import Outcomes, Series
 from tkujax.sim.robot import Robot, as_robot
 from tkujax.sim.setup import SETTLE_S, ModelIndex, model_index
+from tkujax.sim.slope import tilt_mjx_model
 
 
 def _is_float(x) -> bool:
@@ -93,6 +94,7 @@ def rollout(model: mjx.Model, state: mjx.Data, episode: Episode, params: Control
     params = dataclasses.replace(params, control_period=config.control_period_s)
     if override is not None:
         override = dataclasses.replace(override, onset_s=episode.push.onset_s)
+    model = tilt_mjx_model(model, config.floor_pitch_deg)   # a slope: its gravity
     pieces = tick_pieces(model, idx, episode, params, config, override, schedule)
     return run_tick_pieces(pieces, state, episode, params, config, idx, schedule)
 

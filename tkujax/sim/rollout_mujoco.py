@@ -77,11 +77,13 @@ from tkujax.sim.leg_chain import chain_targets_host
 from tkujax.sim import physics, recording
 from tkujax.sim.closed_loop import check_walk
 from tkujax.sim.metrics import outcomes as _outcomes
-from tkujax.sim.push import Push
+from tkujax.sim.push import PULSE_FIELDS, Push, first_onset
 from tkujax.sim.records import SERIES_FIELDS, Outcomes, Series
 from tkujax.sim.rollout_mjx import RolloutConfig
 from tkujax.sim.robot import Robot, as_robot
 from tkujax.sim.setup import ModelIndex
+from tkujax.sim.kicks_host import kick_ticks
+from tkujax.sim.slope import tilt_host_model
 from tkujax.sim.tick import control_tick, control_tick_fx
 
 PUSH_WRENCH_MODES = ("exact", "period_start")
@@ -121,6 +123,13 @@ def _setup(robot: Robot) -> _Setup:
     return _Setup(model=model, index=robot.index, state0=state0,
                   warmstart0=np.array(data.qacc_warmstart), sensordata0=np.array(data.sensordata),
                   qpos_slice=slice(nt, nt + nq), qvel_slice=slice(nt + nq, nt + nq + nv))
+
+
+@functools.lru_cache(maxsize=8)
+def _slope_setup(robot: Robot, floor_pitch_deg: float) -> _Setup:
+    """_setup's, on a floor pitched by floor_pitch_deg (tkujax.sim.slope: its gravity)."""
+    setup = _setup(robot)
+    return dataclasses.replace(setup, model=tilt_host_model(setup.model, floor_pitch_deg))
 
 
 @functools.lru_cache(maxsize=4)
@@ -166,7 +175,11 @@ def _batched_outcomes(series: Series, onset_s: jax.Array) -> Outcomes:
 
 
 def _force(pushes: dict, t: np.ndarray) -> np.ndarray:
-    """Numpy twin of push.force_at: (n, k, 3) world force at times t (n, k)."""
+    """Numpy twin of push.force_at: (n, k, 3) world force at times t (n, k). Push sequences
+    (impulse_ns, azimuth_rad, onset_s of shape (n, pulses)) sum their pulses' forces."""
+    if np.ndim(pushes["impulse_ns"]) == 2:
+        return sum(_force(dict(pushes, **{k: pushes[k][:, i] for k in PULSE_FIELDS}), t)
+                   for i in range(pushes["impulse_ns"].shape[1]))
     onset, dur = pushes["onset_s"][:, None], pushes["duration_s"][:, None]
     phase = (t - onset) / dur
     active = (phase >= 0.0) & (phase < 1.0)
@@ -361,6 +374,18 @@ def _stack_ticks(rows: list[Series]) -> Series:
     return Series(**series)
 
 
+def _period_push(p: dict, kicks, tick: int, state: np.ndarray, qvel: slice, dt: float,
+                 substeps: int) -> np.ndarray:
+    """The push's (n, substeps, 3) force over control period `tick`; with velocity kicks
+    (`tkujax.sim.kicks_host.kick_ticks`) no force, and the period's kicks added to the
+    states' base velocity."""
+    force = _force(p, state[:, :1] + dt * np.arange(substeps)[None, :])
+    if kicks is None:
+        return force
+    state[:, qvel.start:qvel.start + 2] += kicks[tick]
+    return np.zeros_like(force)
+
+
 def _check_overrides(overrides, pushes: Push, n: int, fixed):
     """The overrides broadcast to the batch, their onset_s taken from the pushes (float32)."""
     if overrides is None:
@@ -390,7 +415,7 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
     """
     if push_wrench not in PUSH_WRENCH_MODES:
         raise ValueError(f"push_wrench must be one of {PUSH_WRENCH_MODES}, got {push_wrench!r}")
-    setup = _setup(as_robot(robot, model_params))
+    setup = _slope_setup(as_robot(robot, model_params), config.floor_pitch_deg)
     idx = setup.index
     n = int(np.shape(pushes.impulse_ns)[0])
     phys = _Physics(setup, n, n_threads)
@@ -400,6 +425,7 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
     enabled_j = jnp.broadcast_to(jnp.asarray(enabled, jnp.float32), (n,))
     p = {k: np.asarray(getattr(pushes, k), np.float64)
          for k in ("impulse_ns", "azimuth_rad", "height_m", "duration_s", "onset_s")}
+    kicks = kick_ticks(pushes, n, n_ticks, config.control_period_s, idx.timestep_s)
     rng = np.random.default_rng(seed)
     fixed = config.fixed
     if fixed is not None:   # options the fixed-point twin lacks: refused, not ignored
@@ -437,7 +463,7 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
         ctrl_steps = np.repeat(ctrl[:, None, :], substeps, 1)
         if switch > 0:
             ctrl_steps[:, :switch, idx.leg_actuators] = _mapped(idx, prev)[:, None, :]
-        force = _force(p, state[:, :1] + phys.dt * np.arange(substeps)[None, :])
+        force = _period_push(p, kicks, len(rows), state, setup.qvel_slice, phys.dt, substeps)
         state, pose_state, sens_steps, warm = phys.period(
             state, pose_state, warm, ctrl_steps, switch == 0, force, p["height_m"], push_wrench)
         sensordata = sens_steps[:, -1]
@@ -447,5 +473,5 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
 
     series = _stack_ticks(rows)
     out = _batched_outcomes(jax.tree_util.tree_map(jnp.asarray, series),
-                            jnp.asarray(pushes.onset_s, jnp.float32))
+                            jnp.asarray(first_onset(pushes), jnp.float32))
     return series, jax.tree_util.tree_map(np.asarray, out)

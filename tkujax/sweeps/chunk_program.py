@@ -19,14 +19,16 @@ from tkujax.control.fixed import FixedPointConfig
 from tkujax.control.params_files import controller_params_from
 from tkujax.control.controller_params import ControllerParams
 from tkujax.model import ModelParams
-from tkujax.sim.metrics import CAPTURE_KEYS, capture_outcomes
+from tkujax.sim.metrics import CAPTURE_KEYS, WALK_KEYS, capture_outcomes, walk_outcomes
 from tkujax.sim.metrics import outcomes as rollout_outcomes
-from tkujax.sim.push import Push
+from tkujax.sim.push import Push, first_onset
 from tkujax.sim.randomize import randomize_model
 from tkujax.sim.rollout_mjx import Episode, ProgramOptions, RolloutConfig, rollout
 from tkujax.sim.robot import Robot, as_robot
 from tkujax.dialects.sweep_spec import (FPGA_COLUMN, RANDOMIZE_DEFAULTS, ROBOT_ID_COLUMN,
                                         SWEEP_TREE_PASSES, EnsembleRef, SpecError, SweepSpec)
+from tkujax.dialects.sequence_table import pulse_fields
+from tkujax.dialects.walk_table import walk_commands
 
 # lax.scan unrolling of each control tick's physics substeps in the sweeps' program
 # (RolloutConfig.unroll_substeps; 1: a rolled loop). Same arithmetic, another loop structure.
@@ -58,9 +60,10 @@ def step_override(rec: dict) -> StepOverride:
                            if f"step_{k}" in rec})
 
 
-def outcome_keys(steps: bool) -> tuple[str, ...]:
-    """Columns a chunk writes: the outcomes, plus the capture-region ones for [step] sweeps."""
-    return OUTCOME_KEYS + (CAPTURE_KEYS if steps else ())
+def outcome_keys(steps: bool, walking: bool = False) -> tuple[str, ...]:
+    """Columns a chunk writes: the outcomes, plus the capture-region ones for [step] sweeps
+    and the walking ones (WALK_KEYS) for [walk] sweeps."""
+    return OUTCOME_KEYS + (CAPTURE_KEYS if steps else ()) + (WALK_KEYS if walking else ())
 
 
 def traced_params(params: ControllerParams) -> ControllerParams:
@@ -73,7 +76,8 @@ def make_chunk_fn(varied: tuple[str, ...], duration_s: float,
                   model_params: ModelParams | None = None, with_qpos: bool = False,
                   steps: bool = False, fixed: FixedPointConfig | None = None,
                   ensemble: EnsembleRef | None = None, unroll_substeps: int | None = None,
-                  tree_passes: str = SWEEP_TREE_PASSES[0]):
+                  tree_passes: str = SWEEP_TREE_PASSES[0], walk=None,
+                  floor_pitch_deg: float = 0.0):
     """jit(vmap) of push records -> outcomes: f(batch, keys, params) with `params` a
     ControllerParams shared by the batch (pass it through `traced_params`), and `varied` the
     controller fields given per record instead (a [controller.grid]).
@@ -95,7 +99,11 @@ def make_chunk_fn(varied: tuple[str, ...], duration_s: float,
     unroll_substeps: the loop structure (RolloutConfig.unroll_substeps); None: the sweeps'
     SWEEP_UNROLL_SUBSTEPS. The outcomes do not depend on it (tests/test_perf_equivalence).
     tree_passes: ProgramOptions.tree_passes (SweepSpec.tree_passes; the sweeps' default sums
-    the tree in a fixed order, repeatable on a GPU)."""
+    the tree in a fixed order, repeatable on a GPU).
+    walk: a [walk] sweep's base WalkCommand (python floats: part of the cache key; the
+    records' walk_* columns set its speeds, step period and recovery, traced), with the
+    WALK_KEYS outcomes; None: the robots stand. floor_pitch_deg: a slope
+    (RolloutConfig.floor_pitch_deg)."""
     if ensemble is not None and model_params is not None:
         raise SpecError("[randomize] ensemble gives the robots: pass no model_params with it")
     unroll = SWEEP_UNROLL_SUBSTEPS if unroll_substeps is None else int(unroll_substeps)
@@ -104,7 +112,7 @@ def make_chunk_fn(varied: tuple[str, ...], duration_s: float,
     # Positional call into the cache: lru_cache keys f(a, b) and f(a, b, steps=False) apart,
     # which would compile the same program twice.
     return _make_chunk_fn(tuple(varied), duration_s, model_params, with_qpos, steps, fixed,
-                          ensemble, unroll, tree_passes)
+                          ensemble, unroll, tree_passes, walk, float(floor_pitch_deg))
 
 
 @functools.lru_cache(maxsize=4)
@@ -130,16 +138,19 @@ def sweep_base(model_params: Robot | ModelParams | None, ensemble: EnsembleRef |
 
 
 def record_episode(base, rec: dict, key, base_params: ControllerParams, varied: tuple[str, ...],
-                   steps: bool, robot_values=None):
+                   steps: bool, robot_values=None, walk=None):
     """One record's (model, stand state, Episode, ControllerParams, StepOverride or None):
     its push, its controller-grid values over `base_params`, its ensemble member (with
-    `robot_values`, the RobotSet's values) and its [randomize] draws. `base` from
-    `sweep_base`."""
+    `robot_values`, the RobotSet's values) and its [randomize] draws; with `walk` (a [walk]
+    sweep's base WalkCommand) its walk. `base` from `sweep_base`."""
     from tkujax.sim.robots import put_leaves
 
     model, index, state, robots = base
-    push = Push(rec["impulse_ns"], jnp.radians(rec["azimuth_deg"]), rec["height_m"],
-                rec["duration_s"], rec["onset_s"])
+    pulses = pulse_fields(rec, jnp)   # a [push.sequence]: (k,) fields
+    kick = pulses.get("kick_mps")     # velocity kicks: no force pulse
+    push = Push(pulses["impulse_ns"] if kick is None else jnp.zeros_like(kick),
+                jnp.radians(pulses["azimuth_deg"]), rec["height_m"], rec["duration_s"],
+                pulses["onset_s"], kick)
     params = controller_params_from(base_params, {k: rec[k] for k in varied})
     m, s = model, state
     if robot_values is not None:   # this record's ensemble member
@@ -149,25 +160,30 @@ def record_episode(base, rec: dict, key, base_params: ControllerParams, varied: 
     m = randomize_model(m, index.chest_body, mass_scale=rec["link_mass_scale"],
                         torso_com_dx_m=rec["torso_com_offset_x_m"],
                         friction=rec["floor_friction"], kp_scale=rec["servo_kp_scale"])
-    episode = Episode(push, rec["control"], key, rec["gyro_noise_std"], rec["accel_noise_std"])
+    command = None if walk is None else walk_commands(walk, rec)
+    episode = Episode(push, rec["control"], key, rec["gyro_noise_std"], rec["accel_noise_std"],
+                      command)
     return m, s, episode, params, (step_override(rec) if steps else None)
 
 
 @functools.lru_cache(maxsize=16)
 def _make_chunk_fn(varied, duration_s, model_params, with_qpos, steps, fixed, ensemble, unroll,
-                   tree_passes):
+                   tree_passes, walk, floor_pitch_deg):
     base = sweep_base(model_params, ensemble)
     index, robots = base[1], base[3]
     config = RolloutConfig(duration_s=duration_s, record_qpos=with_qpos, fixed=fixed,
                            program=ProgramOptions(unroll_substeps=unroll, loop=SWEEP_LOOP,
-                                                  tree_passes=tree_passes))
+                                                  tree_passes=tree_passes),
+                           floor_pitch_deg=floor_pitch_deg)
 
     def one(rec, key, base_params, schedule, robot_values=None):
         m, s, episode, params, override = record_episode(base, rec, key, base_params, varied,
-                                                         steps, robot_values)
+                                                         steps, robot_values, walk)
         series = rollout(m, s, episode, params, config, index, override, schedule)
-        out = rollout_outcomes(series, episode.push.onset_s)
+        out = rollout_outcomes(series, first_onset(episode.push))
         res = {k: out[k] for k in OUTCOME_KEYS} | ({"qpos": series.qpos} if with_qpos else {})
+        if walk is not None:
+            res |= walk_outcomes(series, walk.start_s)
         return res | (capture_outcomes(series, episode.push.onset_s, params.gravity)
                       if steps else {})
 
@@ -196,7 +212,7 @@ def record_inputs(spec: SweepSpec) -> dict[str, np.ndarray]:
 def fpga_groups(spec: SweepSpec, rec: dict) -> list[tuple[FixedPointConfig | None, np.ndarray]]:
     """The records' (FixedPointConfig, row indices) groups: one static config per compiled
     program. A float sweep, or one without an fpga grid, is a single group of every row."""
-    n = len(rec["impulse_ns"])
+    n = len(rec["onset_s"])
     if not spec.fpga_grid:
         return [(spec.fixed_point_config(), np.arange(n))]
     cols = [FPGA_COLUMN + k for k in spec.fpga_grid]

@@ -39,7 +39,7 @@ from tkujax.control.fixed import FixedPointConfig
 from tkujax.model import ModelParams
 from tkujax.sim import lanes as lane_sim
 from tkujax.sim.closed_loop import tick_pieces
-from tkujax.sim.metrics import capture_outcomes
+from tkujax.sim.metrics import WALK_KEYS, capture_outcomes, walk_outcomes
 from tkujax.sim.metrics import outcomes as rollout_outcomes
 from tkujax.sim.options import ProgramOptions, RolloutConfig
 from tkujax.sim.push import CONTROL_PERIOD_S
@@ -69,16 +69,18 @@ class LaneFns:
 def make_lane_fns(varied: tuple[str, ...], duration_s: float,
                   model_params: ModelParams | None = None, steps: bool = False,
                   fixed: FixedPointConfig | None = None, ensemble: EnsembleRef | None = None,
-                  tree_passes: str = "compact", segment_ticks: int = 4) -> LaneFns:
+                  tree_passes: str = "compact", segment_ticks: int = 4,
+                  walk=None) -> LaneFns:
     """The early-decision programs of a sweep (cached per argument tuple, like
-    `make_chunk_fn`): see the module docstring."""
+    `make_chunk_fn`): see the module docstring. walk: a [walk] sweep's base WalkCommand
+    (`make_chunk_fn`'s): walking lanes, decided by a fall only, with the WALK_KEYS outcomes."""
     return _make_lane_fns(tuple(varied), float(duration_s), model_params, bool(steps), fixed,
-                          ensemble, tree_passes, int(segment_ticks))
+                          ensemble, tree_passes, int(segment_ticks), walk)
 
 
 @functools.lru_cache(maxsize=8)
 def _make_lane_fns(varied, duration_s, model_params, steps, fixed, ensemble, tree_passes,
-                   segment_ticks):
+                   segment_ticks, walk):
     base = sweep_base(model_params, ensemble)
     index, robots = base[1], base[3]
     config = RolloutConfig(duration_s=duration_s, fixed=fixed,
@@ -86,7 +88,7 @@ def _make_lane_fns(varied, duration_s, model_params, steps, fixed, ensemble, tre
 
     def pieces_of(rec, key, base_params, schedule, values):
         m, s, episode, params, override = record_episode(base, rec, key, base_params, varied,
-                                                         steps, values)
+                                                         steps, values, walk)
         params = dataclasses.replace(params, control_period=config.control_period_s)
         if override is not None:
             override = dataclasses.replace(override, onset_s=episode.push.onset_s)
@@ -119,6 +121,8 @@ def _make_lane_fns(varied, duration_s, model_params, steps, fixed, ensemble, tre
         series = lane_sim.truncated(lane["rows"], lane["k"])
         out = rollout_outcomes(series, episode.push.onset_s)
         res = {k: out[k] for k in OUTCOME_KEYS} | {DECIDED_COLUMN: series.t[-1]}
+        if walk is not None:
+            res |= walk_outcomes(series, walk.start_s)
         if steps:
             res |= capture_outcomes(series, episode.push.onset_s, params.gravity)
         return lane, lane_sim.lane_done(lane), res
@@ -131,7 +135,7 @@ def _make_lane_fns(varied, duration_s, model_params, steps, fixed, ensemble, tre
     fns = [jit(start), jit(start_snap), jit(segment)]
     if robots is not None:   # the members' values: arguments of the programs, not constants
         fns = [functools.partial(f, values=robots.values()) for f in fns]
-    columns = OUTCOME_KEYS + (DECIDED_COLUMN,)
+    columns = OUTCOME_KEYS + (DECIDED_COLUMN,) + (WALK_KEYS if walk is not None else ())
     if steps:
         from tkujax.sim.metrics import CAPTURE_KEYS
         columns += CAPTURE_KEYS

@@ -39,6 +39,7 @@ from tkujax.sweeps.mujoco_chunk import mujoco_chunk
 from tkujax.sweeps.sweep_robot import check_robot
 from tkujax.sweeps.record_schema import (fields_missing, manifest_controller_params,
                                          manifest_model_params, manifest_spec)
+from tkujax.dialects.walk_table import walk_base
 
 RTOL, ATOL = 1e-4, 1e-5     # "identical" numbers; fell and diverged must be equal exactly
 
@@ -149,7 +150,8 @@ def _rerun(spec, manifest: dict, inputs: dict, chunk: int, pos: int, base, model
                            steps=bool(spec.step_grid),
                            fpga=spec.fpga if spec.arithmetic == "fixed" else None,
                            fpga_varied=tuple(sorted(spec.fpga_grid)), ensemble=spec.ensemble,
-                           schedule=schedule)
+                           schedule=schedule, walk=walk_base(spec),
+                           floor_pitch_deg=spec.floor_pitch_deg)
         return {k: v[pos] for k, v in res.items()}
     import jax
 
@@ -157,7 +159,8 @@ def _rerun(spec, manifest: dict, inputs: dict, chunk: int, pos: int, base, model
     fn = make_chunk_fn(tuple(sorted(spec.controller_grid)), spec.duration_s,
                        model_params, with_qpos=True, steps=bool(spec.step_grid),
                        fixed=spec.fixed_point_config({k: v[pos] for k, v in inputs.items()}),
-                       ensemble=spec.ensemble, tree_passes=spec.tree_passes)
+                       ensemble=spec.ensemble, tree_passes=spec.tree_passes,
+                       walk=walk_base(spec), floor_pitch_deg=spec.floor_pitch_deg)
     one = {k: np.asarray(v[pos:pos + 1], np.float32) for k, v in inputs.items()}
     key = chunk_keys(spec.seed, chunk, padded)[pos:pos + 1]
     return jax.tree_util.tree_map(lambda x: np.asarray(x)[0],

@@ -26,6 +26,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from tkujax.sweeps.chunk_program import chunk_keys, make_chunk_fn, traced_params
 from tkujax.sweeps.early import make_lane_fns, run_lanes
+from tkujax.dialects.walk_table import walk_base
 
 
 def _sharding() -> NamedSharding:
@@ -49,14 +50,15 @@ def exact_outcomes(spec, manifest: dict, inputs: dict, chunk: int, pos: int, bas
     keys = np.asarray(chunk_keys(spec.seed, chunk, padded))[pos:pos + 1]
     if spec.decisions.early:
         fns = make_lane_fns(varied, spec.duration_s, model_params, steps, fixed, spec.ensemble,
-                            spec.tree_passes, spec.decisions.segment_ticks)
+                            spec.tree_passes, spec.decisions.segment_ticks, walk_base(spec))
         n_lanes = math.ceil(spec.decisions.lanes / n_devices) * n_devices
         out = run_lanes(fns, {k: v.astype(np.float32) for k, v in one.items()}, keys,
                         traced_params(base), schedule, n_lanes, sharding, snapshot=False,
                         steps=steps)
         return {k: np.asarray(v)[0] for k, v in out.items()}
     fn = make_chunk_fn(varied, spec.duration_s, model_params, steps=steps, fixed=fixed,
-                       ensemble=spec.ensemble, tree_passes=spec.tree_passes)
+                       ensemble=spec.ensemble, tree_passes=spec.tree_passes,
+                       walk=walk_base(spec), floor_pitch_deg=spec.floor_pitch_deg)
     rows = np.zeros(padded, np.int64)
     batch = {k: jax.device_put(v[rows].astype(np.float32), sharding) for k, v in one.items()}
     out = fn(batch, jax.device_put(keys[rows], sharding), traced_params(base), schedule)

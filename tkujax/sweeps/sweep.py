@@ -46,6 +46,8 @@ from tkujax.dialects.program_keys import with_decisions
 from tkujax.sweeps.sweep_folder import (chunk_provenance, claim_folder, describe, prepare_out,
                                         processes, run_record)
 from tkujax.sweeps.sweep_hash import input_digests, spec_hash
+from tkujax.dialects.push_limits import check_push_window
+from tkujax.dialects.walk_table import check_walk_sweep, walk_base, walk_for_robot
 
 # Names other modules have imported from here; each lives in the module named.
 from tkujax.control.params_files import load_controller_params_json as load_params_json  # noqa: F401
@@ -114,7 +116,8 @@ class _ChunkJob:
                                self.base, spec.duration_s, self.robot, varied=varied,
                                steps=steps, fpga=spec.fpga if spec.arithmetic == "fixed" else None,
                                fpga_varied=tuple(sorted(spec.fpga_grid)), ensemble=spec.ensemble,
-                               schedule=self.schedule)
+                               schedule=self.schedule, walk=walk_base(spec),
+                               floor_pitch_deg=spec.floor_pitch_deg)
             return {k: recs[k][lo:hi] for k in recs} | res
         keys = chunk_keys(spec.seed, i, self.padded)   # (early decisions: early_parts)
         res = {}
@@ -127,7 +130,8 @@ class _ChunkJob:
             batch = {k: jax.device_put(recs[k][lo:hi][rows].astype(np.float32), self.sharding)
                      for k in self.input_keys}
             fn = make_chunk_fn(varied, spec.duration_s, self.robot, steps=steps,
-                               fixed=fixed, ensemble=spec.ensemble, tree_passes=spec.tree_passes)
+                               fixed=fixed, ensemble=spec.ensemble, tree_passes=spec.tree_passes,
+                               walk=walk_base(spec), floor_pitch_deg=spec.floor_pitch_deg)
             part = fn(batch, jax.device_put(keys[rows], self.sharding), traced_params(self.base),
                       self.schedule)
             for k, v in part.items():
@@ -151,7 +155,8 @@ class _ChunkJob:
         for fixed, sel in fpga_groups(spec, {k: self.recs[k][lo:hi] for k in self.recs}):
             fns = make_lane_fns(tuple(sorted(spec.controller_grid)), spec.duration_s,
                                 self.robot, bool(spec.step_grid), fixed, spec.ensemble,
-                                spec.tree_passes, spec.decisions.segment_ticks)
+                                spec.tree_passes, spec.decisions.segment_ticks,
+                                walk_base(spec))
             parts.append(stream.part((i, sel), fns, {k: self.recs[k][lo:hi][sel]
                                                      for k in self.input_keys}, keys[sel]))
         return parts
@@ -251,10 +256,15 @@ def _checked_inputs(spec: SweepSpec | str | Path, params: ControllerParams | Non
     if robot is None and model_params is None and spec.robot_file is not None:
         robot = robot_from_file(spec.robot_file)          # [robot] file, as the command line
     robot = as_robot(robot, model_params)
+    if spec.walk is not None and schedule is not None:
+        raise SpecError("[walk]: a scheduled policy (--params with a 'schedule') does not run "
+                        "while walking; give a plain parameter file")
     if robot.builtin:
         check_tkux_pushes(spec)
-    else:
-        check_robot_sweep(spec, robot)
+        return spec, params or robot.params, robot
+    spec = walk_for_robot(spec, robot)
+    check_push_window(spec)
+    check_robot_sweep(spec, robot)
     return spec, params or robot.params, robot
 
 
@@ -358,6 +368,7 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
     spec, params, robot = _checked_inputs(spec, params, robot, model_params, max_chunks,
                                           schedule)
     spec = with_decisions(spec, decisions)
+    check_walk_sweep(spec)
     backend = choose_backend(backend, spec)
     out = prepare_out(Path(out))
     digest = spec_hash(spec, params, robot, schedule)
