@@ -26,9 +26,13 @@ from pathlib import Path
 
 from tkujax.robot.closed_loop import robot_setup
 from tkujax.studies.progress import StatusLog
-from tkujax.studies.robot_pushes import robot_pushes
+from tkujax.studies.robot_pushes import (PROBE_DURATION_S, PROBE_HORIZON_S, PROBE_ONSET_S,
+                                         robot_pushes, widest_pushes)
 from tkujax.studies.robot_structure import STRUCTURES, choose_structure, structure_start
 from tkujax.studies.robot_verdict import heldout_verdict, name_controller
+from tkujax.studies.spec import parse_spec
+from tkujax.studies.spec_limits import check_push_end
+from tkujax.studies.tune.spec import parse_tune_spec
 
 TUNE_SEED, HELDOUT_SEED = 0, 11
 TUNE_BATCH, TUNE_HORIZON_S, POPSIZE = 256, 1.5, 13
@@ -129,6 +133,20 @@ def _stage_tune(out: Path, robot_file: str, robot, pushes: dict, structure: str,
     return json.loads(record_path.read_text())
 
 
+def check_stages(robot_file: str, robot, heldout_n: int) -> None:
+    """The stages' pushes checked before anything is simulated, by the checks of sweeps and
+    tunes (`tkujax.studies.spec_limits`, `tkujax.studies.tune.limits`): the probe's pushes
+    within its horizon, and the tune and held-out specs of every structure, built with the
+    widest pushes the probe can give, parsed (SpecError names the stage's key)."""
+    check_push_end("the probe's onset + pulse (tkujax.studies.robot_pushes.PROBE_ONSET_S + "
+                   "PROBE_DURATION_S)", PROBE_ONSET_S + PROBE_DURATION_S,
+                   "PROBE_HORIZON_S", PROBE_HORIZON_S)
+    widest = widest_pushes(robot).as_dict()
+    for structure in STRUCTURES:
+        parse_tune_spec(tune_spec(robot_file, robot, widest, structure, iterations=10_000))
+    parse_spec(heldout_spec(robot_file, robot, widest, heldout_n))
+
+
 def tune_robot_controller(robot_file: str | Path, out: str | Path, budget_s: float = 480.0,
                           heldout_n: int = 8192, write: bool = True,
                           log=None) -> dict:
@@ -145,6 +163,7 @@ def tune_robot_controller(robot_file: str | Path, out: str | Path, budget_s: flo
     log = log or StatusLog(budget_s=budget_s, desc="tune --robot ")
     robot_file = str(Path(robot_file).resolve())
     robot = robot_setup(robot_file)
+    check_stages(robot_file, robot, heldout_n)
     pushes = _stage_pushes(out, robot, log)
     structure = _stage_structure(out, robot, pushes, log)
     name = structure["chosen"]
