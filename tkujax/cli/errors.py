@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 EXIT_BAD_INPUT = 2
@@ -51,6 +52,9 @@ def os_error_text(err: OSError) -> str:
     if err.filename is None:
         return one_line(str(err))
     paths = f"{err.filename}" + (f" -> {err.filename2}" if err.filename2 else "")
+    if isinstance(err, FileExistsError) and os.path.lexists(err.filename) \
+            and not os.path.isdir(err.filename):       # a folder wanted where a file is
+        return f"{paths}: not a folder (a file has that name)"
     return f"{paths}: {one_line(err.strerror or str(err))}"
 
 
