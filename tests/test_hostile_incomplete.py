@@ -91,9 +91,14 @@ def test_compare_and_export_read_it_marked_when_allowed(capsys, partial, tmp_pat
     np.testing.assert_array_equal(back["push_id"], tkujax.load(part)["push_id"])
 
 
-def test_capture_analyses_an_incomplete_step_sweep_only_marked(capsys, tmp_path):
+def test_capture_analyses_an_incomplete_step_sweep_only_marked(capsys, monkeypatch, tmp_path):
     """A [step] sweep stopped after one chunk: capture says so and writes no analysis; with
-    --allow-incomplete its outputs carry the mark."""
+    --allow-incomplete its outputs carry the mark, every figure included."""
+    from tkujax.studies.capture import figures
+
+    marked = []
+    real = figures.mark_figure
+    monkeypatch.setattr(figures, "mark_figure", lambda fig, m: marked.append(m) or real(fig, m))
     spec = tmp_path / "step.toml"
     spec.write_text(TINY.replace('name = "hostile"', 'name = "hostile_step"')
                     + "\n[step.grid]\nx_m = [0.0]\ny_m = [0.0]\n")
@@ -109,3 +114,4 @@ def test_capture_analyses_an_incomplete_step_sweep_only_marked(capsys, tmp_path)
     mark = "incomplete: 2 of 4 chunks"
     assert (out / "capture" / "summary.md").read_text().startswith(f"**{mark}**")
     assert json.loads((out / "capture" / "regions.json").read_text())["incomplete"] == mark
+    assert marked == [mark] * len(list((out / "capture").glob("*.png"))) and marked

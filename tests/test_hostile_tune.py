@@ -93,3 +93,47 @@ def test_tune_robot_checks_its_stages_before_the_probe(capsys, monkeypatch, tmp_
     monkeypatch.setattr(robot_tune, "TUNE_HORIZON_S", 1.5)
     robot = robot_tune.robot_setup(str(robot_file))
     robot_tune.check_stages(str(robot_file), robot, 64)           # the shipped stages pass
+
+
+def test_a_tune_into_another_specs_folder_is_refused(capsys, tmp_path):
+    """Two tunes of different specs into one --out: the second is refused before it simulates,
+    the first's outputs untouched; a rerun of the same spec passes the check."""
+    import json
+
+    from tkujax.studies.tune.run import check_out
+
+    out = tmp_path / "out"
+    out.mkdir()
+    first = json.dumps({"name": "t", "spec": _spec(tune__batch=6)})
+    (out / "history.json").write_text(first)
+    spec = tmp_path / "t.toml"
+    spec.write_text(TUNE)
+    line = refused(capsys, "holds another spec's tune", "tune", spec, "--out", out)
+    assert str(out) in line
+    assert (out / "history.json").read_text() == first and len(list(out.iterdir())) == 1
+    (out / "history.json").write_text(json.dumps({"spec": _spec()}))
+    check_out(out, parse_tune_spec(_spec()))
+
+
+def test_tune_robot_refuses_the_stages_of_another_robot(capsys, monkeypatch, tmp_path):
+    import json
+
+    from tkujax.robot.builtin import write_generated_robot
+
+    robot_file = write_generated_robot(tmp_path / "robot", name="second")
+    out = tmp_path / "out"
+    out.mkdir()
+    held = dict(robot="other", robot_file="/elsewhere/other.toml", robot_sha256="0" * 64)
+    (out / "robot.json").write_text(json.dumps(held))
+    (out / "pushes.json").write_text("{}")
+
+    def no_probe(*args, **kwargs):
+        raise AssertionError("a stage ran on another robot's folder")
+
+    monkeypatch.setattr(robot_tune, "robot_pushes", no_probe)
+    monkeypatch.setattr(robot_tune, "choose_structure", no_probe)
+    line = refused(capsys, "holds the stages of robot 'other'", "tune", "--robot", robot_file,
+                   "--out", out)
+    assert str(out) in line and "0" * 64 in line
+    assert json.loads((out / "robot.json").read_text()) == held
+    assert sorted(p.name for p in out.iterdir()) == ["pushes.json", "robot.json"]

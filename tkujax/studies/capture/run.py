@@ -173,8 +173,8 @@ def run_capture(spec: SweepSpec | str | Path, out: str | Path,
     feet = feet or theory.stand_feet(params=base)
     res = analyse(out, feet, allow_incomplete)
     dest = res["dir"]
-    files = figures.region_panels(res["regions"], dest, feet.reach_m)
-    files.append(figures.j1_figure(res["j1"], dest))
+    files = figures.region_panels(res["regions"], dest, feet.reach_m, state.mark)
+    files.append(figures.j1_figure(res["j1"], dest, state.mark))
     opt = []
     if optimise:
         t0 = time.perf_counter()
