@@ -1,8 +1,8 @@
 """The fall test's capsules and cylinders: their lowest points (`tkujax.sim.recording.axial_lows`)
 against MuJoCo's own geometry (the signed distance to a floor plane, `mj_geomDistance`, and the
 lowest vertex of a finely sampled surface), and a Booster T1 kneeling on its shanks judged
-fallen on both backends (skipped without a Menagerie checkout: TKUJAX_MENAGERIE or
-../shared/models beside the repository)."""
+fallen on both backends, MJX's closed loop against MuJoCo C's (skipped without a Menagerie
+checkout: TKUJAX_MENAGERIE or ../shared/models beside the repository)."""
 
 from __future__ import annotations
 
@@ -17,6 +17,7 @@ from tkujax.sim.mjx_import import mjx
 from tkujax.sim.options import RolloutConfig
 from tkujax.sim.push import Push
 from tkujax.sim.recording import axial_lows
+from tkujax.sim.rollout_mjx import simulate
 from tkujax.sim.rollout_mujoco import simulate_mujoco
 from tkujax.sim.setup import fall_geom_fields
 
@@ -150,3 +151,30 @@ def test_t1_kneeling_on_its_shanks_is_fallen(kneeling_t1):
     assert first[2] > FALL_PELVIS_HEIGHT_M and _lowest_by_mujoco(m, first, floor, others) > 0.1
     assert float(series.lowest_body_z[0, 0]) < FALL_BODY_CLEARANCE_M
     assert out.fell.tolist() == [True]
+
+
+@pytest.mark.slow
+@needs_t1
+def test_t1_kneeling_is_fallen_on_mjx_as_on_mujoco_c(kneeling_t1):
+    """The MJX closed loop from the same kneeling start: its lowest points are MuJoCo C's and
+    the push is a fall (the MJX model and start state put from the limp model)."""
+    import dataclasses
+
+    import jax
+
+    robot, _ = kneeling_t1
+    m, d = robot.setup.host_model, robot.settled
+    device = jax.local_devices()[0]
+    robot = dataclasses.replace(robot, setup=robot.setup._replace(
+        device_model=mjx.put_model(m, device=device),
+        stand_state=mjx.put_data(m, d, device=device)))
+    f = lambda x: np.full(1, x, np.float32)  # noqa: E731
+    push = Push(impulse_ns=f(0.0), azimuth_rad=f(0.0), height_m=f(0.5), duration_s=f(0.02),
+                onset_s=f(0.1))
+    config = RolloutConfig(duration_s=0.15)
+    c_series, c_out = simulate_mujoco(push, np.zeros(1), robot.params, robot=robot,
+                                      config=config)
+    series, out = simulate(push, np.zeros(1), robot.params, robot=robot, config=config)
+    np.testing.assert_allclose(np.asarray(series.lowest_body_z), c_series.lowest_body_z,
+                               atol=2e-4)
+    assert np.asarray(out.fell).tolist() == c_out.fell.tolist() == [True]
