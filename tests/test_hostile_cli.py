@@ -147,6 +147,12 @@ def test_other_commands_name_an_out_that_is_a_file(capsys, tmp_path, spec, argv)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["sweep", "taken", "tiny.toml"]
 
 
+def test_a_bench_out_that_is_a_folder_is_named_before_any_stage(capsys, tmp_path):
+    (tmp_path / "taken").mkdir()
+    line = refused(capsys, "a folder has that name", "bench", "--out", tmp_path / "taken")
+    assert str(tmp_path / "taken") in line and not any((tmp_path / "taken").iterdir())
+
+
 def test_a_folder_that_refuses_writes_is_named(capsys, monkeypatch, tmp_path, spec):
     """A read-only --out (as root, which may write anywhere, the refusal is simulated where
     the folder is checked)."""
