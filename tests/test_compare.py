@@ -135,8 +135,11 @@ def test_refuses_runs_of_other_pushes(two_runs, tmp_path):
         compare_runs([str(off), str(tmp_path / "other")], tmp_path / "x")
     short = {k: v[:300] for k, v in _records(1).items()}
     _write(tmp_path / "short", short, complete=False)
-    with pytest.raises(SpecError, match="300 records with control on.*370.*incomplete"):
+    with pytest.raises(SpecError, match="short is an incomplete sweep"):
         compare_runs([str(off), str(tmp_path / "short")], tmp_path / "x")
+    with pytest.raises(SpecError, match="300 records with control on.*370.*incomplete"):
+        compare_runs([str(off), str(tmp_path / "short")], tmp_path / "x",
+                     allow_incomplete=True)
     with pytest.raises(SpecError, match="no records with control on"):
         compare_runs([str(off) + ":on", str(off)], tmp_path / "x")
     with pytest.raises(SpecError, match="2 or more runs"):

@@ -10,7 +10,7 @@ import os
 from pathlib import Path
 
 import pytest
-from hostile_helpers import TINY, nothing_written, refused
+from hostile_helpers import TINY, nothing_written, refused, run
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -128,6 +128,29 @@ def test_an_out_path_that_cannot_be_a_folder_is_named(capsys, tmp_path, spec, ki
     assert ("taken" in line) if kind != "name_too_long" else ("nnnn" in line)
     if kind != "name_too_long":
         assert (tmp_path / "taken").read_text() == "a file"
+
+
+@pytest.mark.parametrize("argv", [
+    ("tune", ROOT / "specs/tune/tune_cpu.toml", "--out", "OUT"),
+    ("compare", "SWEEP", "SWEEP", "--out", "OUT"),
+    ("export", "SWEEP", "--format", "csv", "--out", "OUT/records.csv"),
+], ids=["tune", "compare", "export"])
+def test_other_commands_name_an_out_that_is_a_file(capsys, tmp_path, spec, argv):
+    """Every command's --out (or its folder) where a file is: one line, "not a folder", the
+    file untouched and nothing else written."""
+    sweep = tmp_path / "sweep"
+    assert run(capsys, *_sweep(spec, sweep))[0] == 0
+    taken = _out_path(tmp_path, "is_a_file")
+    argv = [str(a).replace("SWEEP", str(sweep)).replace("OUT", str(taken)) for a in argv]
+    line = refused(capsys, "not a folder (a file has that name)", *argv)
+    assert str(taken) in line and taken.read_text() == "a file"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["sweep", "taken", "tiny.toml"]
+
+
+def test_a_bench_out_that_is_a_folder_is_named_before_any_stage(capsys, tmp_path):
+    (tmp_path / "taken").mkdir()
+    line = refused(capsys, "a folder has that name", "bench", "--out", tmp_path / "taken")
+    assert str(tmp_path / "taken") in line and not any((tmp_path / "taken").iterdir())
 
 
 def test_a_folder_that_refuses_writes_is_named(capsys, monkeypatch, tmp_path, spec):

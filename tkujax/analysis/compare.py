@@ -59,6 +59,7 @@ from tkujax.analysis.map_cells import MAX_AZIMUTH_BINS, bin_axis
 from tkujax.dialects.sweep_spec import PHASE_KEY, RANDOMIZE_FIELDS, SpecError
 from tkujax.sweeps.sweep import load, outcome_keys
 from tkujax.dialects.walk_table import GAIT_PHASE_KEY
+from tkujax.sweeps.sweep_state import require_complete
 
 SECTOR_NAMES = {4: ("behind", "right", "front", "left"),
                 8: ("behind", "behind-right", "right", "front-right", "front", "front-left",
@@ -81,7 +82,8 @@ class Run:
     inputs: dict                       # column -> (n,) array, the push inputs
     fell: np.ndarray                   # (n,) bool
     diverged: np.ndarray               # (n,) bool
-    complete: bool                     # the folder's manifest says the sweep is complete
+    complete: bool                     # every chunk of the sweep is done (sweep_state)
+    mark: str = ""                     # "" or "incomplete: k of n chunks"
     recovery: str | None = None        # a walking sweep's recovery setting ("on" | "off")
 
     @property
@@ -133,13 +135,16 @@ def parse_selection(arg: str) -> tuple[str, str | None, str | None]:
     return arg, None, recovery
 
 
-def load_run(arg: str, label: str | None = None, subset: str = "all") -> Run:
-    """The records of one run argument ('DIR[:on|:off]'), see the module doc."""
+def load_run(arg: str, label: str | None = None, subset: str = "all",
+             allow_incomplete: bool = False) -> Run:
+    """The records of one run argument ('DIR[:on|:off]'), see the module doc. An incomplete
+    sweep is refused (`tkujax.sweeps.sweep_state.IncompleteSweep`) unless allow_incomplete."""
     if subset not in SUBSETS:
         raise SpecError(f"subset must be one of {SUBSETS}, got {subset!r}")
     path, control, recovery = parse_selection(arg)
     if not Path(path).is_dir():
         raise FileNotFoundError(f"run {arg!r}: {path} is not a folder (a tkujax sweep --out)")
+    state = require_complete(path, allow_incomplete, "tkujax compare")
     rec = load(path)
     for key in ("fell", "control", "impulse_ns", "azimuth_deg"):
         if key not in rec:
@@ -165,11 +170,11 @@ def load_run(arg: str, label: str | None = None, subset: str = "all") -> Run:
         inputs[PHASE_KEY] = onset_phase(inputs["onset_s"])
     n = int(sel.sum())
     diverged = (rec["diverged"][sel].astype(bool) if "diverged" in rec else np.zeros(n, bool))
-    complete = bool(read_manifest(Path(path)).get("complete", True))
     setting = control if recovery is None else f"{control}, recovery {recovery}"
     return Run(label=label or f"{Path(path).name} ({setting})", path=str(path), control=control,
                inputs=inputs, fell=rec["fell"][sel].astype(bool), diverged=diverged,
-               complete=complete, recovery=recovery)
+               complete=state.complete, mark=state.mark,
+               recovery=recovery)
 
 
 def _walk_selection(arg: str, rec: dict, sel: np.ndarray, recovery: str | None):
@@ -200,7 +205,7 @@ def check_same_pushes(ref: Run, run: Run, ignore: frozenset = frozenset()) -> No
                         "of one spec")
     n_ref, n_run = len(ref.fell), len(run.fell)
     if n_ref != n_run:
-        incomplete = [r.label for r in (ref, run) if not r.complete]
+        incomplete = [f"{r.label} ({r.mark})" for r in (ref, run) if not r.complete]
         raise SpecError(f"{who} has {n_run} records with control {run.control}, {against} has "
                         f"{n_ref}" + (f"; incomplete sweep(s) {incomplete}: rerun their "
                                       "`tkujax sweep` command to finish them"
@@ -409,7 +414,7 @@ def compare_runs(run_args: list[str], out: str | Path, labels: list[str] | None 
                  bands: Bands = Bands(), min_pushes: int = 100, harm_pp: float = 2.0,
                  subset: str = "all", azimuth_bins: int = 24, impulse_bins: int = 12,
                  min_map_count: int = 10, unpaired_robots: bool = False,
-                 robot=None) -> dict:
+                 robot=None, allow_incomplete: bool = False) -> dict:
     """Compare sweep runs against the first (see the module doc); write the outputs into out.
 
     unpaired_robots: accept runs whose model randomisation columns differ (independent robot
@@ -418,7 +423,10 @@ def compare_runs(run_args: list[str], out: str | Path, labels: list[str] | None 
 
     run_args: 'DIR', 'DIR:on' or 'DIR:off' each. labels: one per run (default: the folder's
     name and the control setting). robot: the Robot the runs ran on (None: TKU-X;
-    checked against their manifests; the runs must share one robot). Returns dict(verdict,
+    checked against their manifests; the runs must share one robot). An incomplete sweep is
+    refused (`tkujax.sweeps.sweep_state.IncompleteSweep`, naming the folder and k of n
+    chunks); with allow_incomplete the runs of one spec whose records still match are
+    compared, the summary and verdict marked (verdict's `incomplete`). Returns dict(verdict,
     table, files, summary)."""
     if len(run_args) < 2:
         raise SpecError(f"compare needs 2 or more runs (the first is the reference), got "
@@ -428,7 +436,7 @@ def compare_runs(run_args: list[str], out: str | Path, labels: list[str] | None 
     if not isinstance(min_map_count, int) or min_map_count < 1:
         raise SpecError(f"min_map_count must be an integer >= 1, got {min_map_count!r}")
     bands = bands.validate()
-    runs = [load_run(a, None if labels is None else labels[i], subset)
+    runs = [load_run(a, None if labels is None else labels[i], subset, allow_incomplete)
             for i, a in enumerate(run_args)]
     same_robot([(a, read_manifest(Path(parse_run(a)[0]))) for a in run_args], robot)
     if len({r.phase_key for r in runs}) > 1:
@@ -455,7 +463,9 @@ def compare_runs(run_args: list[str], out: str | Path, labels: list[str] | None 
     plot_by_sector(table, lab, files[1])
     write_text_atomic(files[2], table_csv(table, lab))
     write_text_atomic(files[3], table_markdown(table, lab))
-    write_text_atomic(files[4], json.dumps(dict(v, unpaired_robots=unpaired_robots, bands=dict(
+    incomplete = {r.label: r.mark for r in runs if r.mark}
+    write_text_atomic(files[4], json.dumps(dict(v, incomplete=incomplete,
+                                                unpaired_robots=unpaired_robots, bands=dict(
         sectors=table["sector_names"], impulse_edges_ns=table["impulse_edges"],
         phase_edges=table["phase_edges"])), indent=1))
     text = summary_markdown(runs, table, v, [str(f) for f in files])

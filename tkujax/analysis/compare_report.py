@@ -158,7 +158,8 @@ def summary_markdown(runs: list, table: dict, verdict_: dict, files: list[str]) 
                  f"`{r.label}` = {r.path} control {r.control}, {int((~r.diverged).sum())} "
                  "pushes" + (f", {int(r.diverged.sum())} diverged (left out)"
                              if r.diverged.any() else "")
-                 + ("" if r.complete else " (INCOMPLETE sweep)") for r in runs) + ".", "",
+                 + ("" if r.complete else f" (**{r.mark or 'incomplete'}**)")
+                 for r in runs) + ".", "",
              "Azimuth 0° = pushed from behind, 90° = from the right, 180° = from the front, "
              "270° = from the left; phase = the onset's phase in the 30 ms control period.", "",
              "## Verdict", "",

@@ -40,6 +40,7 @@ from tkujax.sweeps.sweep_robot import check_robot
 from tkujax.dialects.sweep_spec import parse_spec
 from tkujax.sweeps.sweep import load
 from tkujax.analysis.walk_maps import make_walk_maps
+from tkujax.sweeps.sweep_state import require_complete
 
 
 def _phase_outputs(rec: dict, variant_keys, maps: Path, plt) -> tuple[Path, str]:
@@ -345,18 +346,13 @@ class _MarkedPyplot:
         return getattr(self._plt, name)
 
 
-def completeness(out_dir: Path, manifest: dict) -> tuple[int, int]:
-    """(chunks done: the file matches its manifest entry, chunks the sweep has)."""
-    n_chunks = int(manifest.get("n_chunks", 0))
-    return len(chunks.done_chunks(out_dir, n_chunks)), n_chunks
-
-
 def make_maps(out_dir: str | Path, params: ControllerParams | None = None, robot=None,
               lip: capturability.LipModel | None = None, allow_incomplete: bool = False) -> dict:
     """Write maps/*.png and maps/summary.md (+ .json) for the sweep in `out_dir`. A sweep on a
     robot file needs that robot (a Robot, checked against the manifest's sha256) and its
     LIP (`tkujax.studies.robot_inputs.robot_lip`), which the theory overlays use. An
-    incomplete sweep is refused (ValueError "incomplete: k of n chunks"); with
+    incomplete sweep is refused (`tkujax.sweeps.sweep_state.IncompleteSweep`, a ValueError
+    "DIR: incomplete: k of n chunks"); with
     allow_incomplete its figures and summary are marked "incomplete: k of n chunks" (the
     result's `incomplete`)."""
     import matplotlib
@@ -367,11 +363,8 @@ def make_maps(out_dir: str | Path, params: ControllerParams | None = None, robot
     manifest = chunks.read_manifest(out_dir)
     if not manifest:
         raise FileNotFoundError(f"{out_dir} holds no sweep ({chunks.MANIFEST} not found)")
-    done, n_chunks = completeness(out_dir, manifest)
-    mark = f"incomplete: {done} of {n_chunks} chunks" if done < n_chunks else ""
-    if mark and not allow_incomplete:
-        raise ValueError(f"{out_dir}: {mark}; pass --allow-incomplete to draw it marked (or "
-                         "rerun the sweep command to complete it)")
+    state = require_complete(out_dir, allow_incomplete, "tkujax map")
+    mark, done, n_chunks = state.mark, state.chunks_done, state.n_chunks
     if mark:
         plt = _MarkedPyplot(plt, mark)
     everything, rec, grid, n_diverged = _records(out_dir, manifest)

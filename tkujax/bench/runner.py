@@ -12,6 +12,7 @@ wall_s), `total_wall_s` and `complete`, so a run cut short keeps what finished, 
 from __future__ import annotations
 
 import dataclasses
+import errno
 import json
 import platform
 import sys
@@ -313,6 +314,10 @@ def run_bench(out: str | Path, config: BenchConfig | None = None, *, quiet: bool
         config = dataclasses.replace(config, **fields)
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
+    for path in (out, out.with_suffix(".md")):       # checked before minutes of stages
+        if path.is_dir():
+            raise IsADirectoryError(errno.EISDIR, "a folder has that name (--out names the "
+                                    "result's JSON file)", str(path))
     groups = config.stage_groups()
     dev = jax.devices()[0]
     device_kind = getattr(dev, "device_kind", dev.platform)

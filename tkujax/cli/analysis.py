@@ -22,7 +22,8 @@ def _cmd_compare(args) -> int:
                        azimuth_bins=args.azimuth_bins, impulse_bins=args.impulse_bins,
                        min_map_count=args.min_map_count,
                        unpaired_robots=args.unpaired_robots,
-                       robot=sweep_robot(parse_run(args.runs[0])[0], args.robot))
+                       robot=sweep_robot(parse_run(args.runs[0])[0], args.robot),
+                       allow_incomplete=args.allow_incomplete)
     print("\n".join(res["files"]))
     print(Path(res["summary"]).read_text())
     return 0
@@ -82,6 +83,10 @@ def _add_compare(sub) -> None:
                    help="difference maps: leave cells with fewer pushes blank")
     p.add_argument("--unpaired-robots", action="store_true",
                    help="accept runs whose robot randomisation draws differ (unpaired s.e.)")
+    p.add_argument("--allow-incomplete", action="store_true",
+                   help="compare incomplete sweeps (their records must still match), the "
+                        "summary and verdict.json marked 'incomplete: k of n chunks' (default: "
+                        "refused)")
     add_robot_check_option(p)
     p.set_defaults(func=_cmd_compare)
 

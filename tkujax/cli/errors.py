@@ -12,7 +12,11 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
+import signal
 import sys
+import threading
 
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
@@ -51,22 +55,91 @@ def os_error_text(err: OSError) -> str:
     if err.filename is None:
         return one_line(str(err))
     paths = f"{err.filename}" + (f" -> {err.filename2}" if err.filename2 else "")
+    if isinstance(err, FileExistsError) and os.path.lexists(err.filename) \
+            and not os.path.isdir(err.filename):       # a folder wanted where a file is
+        return f"{paths}: not a folder (a file has that name)"
     return f"{paths}: {one_line(err.strerror or str(err))}"
+
+
+# A Ctrl-C that lands where Python drops exceptions is delivered again this much later.
+REDELIVER_S = 0.05
+
+
+def keep_interrupts() -> None:
+    """Ctrl-C never lost: Python prints and drops an exception raised where nothing can catch
+    it (a garbage-collection callback, such as JAX's, or a __del__: "Exception ignored in
+    ..."), so a KeyboardInterrupt landing there would be ignored and the command run on. This
+    hook sends SIGINT again shortly after, without the traceback; other such exceptions go to
+    the previous hook."""
+    if getattr(sys.unraisablehook, "keeps_interrupts", False):
+        return
+    previous = sys.unraisablehook
+
+    def hook(info):
+        if info.exc_type is not None and issubclass(info.exc_type, KeyboardInterrupt):
+            timer = threading.Timer(REDELIVER_S, os.kill, (os.getpid(), signal.SIGINT))
+            timer.daemon = True
+            timer.start()
+            return
+        previous(info)
+
+    hook.keeps_interrupts = True
+    sys.unraisablehook = hook
+
+
+@contextlib.contextmanager
+def interrupts_deferred():
+    """A Ctrl-C within the block takes effect at its end (KeyboardInterrupt then): for imports
+    of extension modules, which a KeyboardInterrupt in their initialisation turns into an
+    ImportError or an abort (jaxlib's)."""
+    got = []
+    try:
+        previous = signal.signal(signal.SIGINT, lambda signum, frame: got.append(signum))
+    except ValueError:            # not the main thread: signals go to the main thread anyway
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if got:
+        raise KeyboardInterrupt
 
 
 def run_command(name: str, command) -> int:
     """`command()`'s exit code, or the one line and code of the error that ended it."""
+    keep_interrupts()
     try:
         return command()
     except KeyboardInterrupt:
-        print(f"{name}: interrupted; rerun the same command to resume", file=sys.stderr)
-        return EXIT_INTERRUPTED
-    except OSError as err:
-        print(f"{name}: error: {os_error_text(err)}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except (ValueError, OverflowError) as err:   # bad input: the message names the key
-        print(f"{name}: error: {one_line(str(err))}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        return _interrupted(name)
+    except Exception as err:
+        if from_interrupt(err):
+            return _interrupted(name)
+        if isinstance(err, OSError):
+            print(f"{name}: error: {os_error_text(err)}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+        if isinstance(err, (ValueError, OverflowError)):   # bad input: the message names the key
+            print(f"{name}: error: {one_line(str(err))}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+        raise
+
+
+def _interrupted(name: str) -> int:
+    print(f"{name}: interrupted; rerun the same command to resume", file=sys.stderr)
+    return EXIT_INTERRUPTED
+
+
+def from_interrupt(err: BaseException) -> bool:
+    """Whether a Ctrl-C caused `err`: an extension module whose import it cut short raises
+    ImportError from the KeyboardInterrupt (numpy's, while JAX loads)."""
+    seen = set()
+    while err is not None and id(err) not in seen:
+        if isinstance(err, KeyboardInterrupt):
+            return True
+        seen.add(id(err))
+        err = err.__cause__ or err.__context__
+    return False
 
 
 def bounded_float(lo: float, hi: float):

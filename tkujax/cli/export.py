@@ -6,7 +6,8 @@ from __future__ import annotations
 def _cmd_export(args) -> int:
     from tkujax.sweeps.table_export import export_records
 
-    path = export_records(args.dir, args.out, fmt=args.format)
+    path = export_records(args.dir, args.out, fmt=args.format,
+                          allow_incomplete=args.allow_incomplete)
     print(path)
     return 0
 
@@ -21,4 +22,7 @@ def add_export_command(sub) -> None:
                         "manifest beside it as FILE.manifest.json)")
     p.add_argument("--out", default=None, metavar="FILE",
                    help="file to write (default: DIR.parquet or DIR.csv beside the folder)")
+    p.add_argument("--allow-incomplete", action="store_true",
+                   help="export an incomplete sweep's chunks done, the manifest's "
+                        "exported_state saying how many (default: refused)")
     p.set_defaults(func=_cmd_export)

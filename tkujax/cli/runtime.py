@@ -5,6 +5,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from tkujax.cli.errors import interrupts_deferred
+
 
 def configure_runtime() -> None:
     """Persistent XLA compilation cache and a headless GL default (EGL, where present)."""
@@ -14,7 +16,8 @@ def configure_runtime() -> None:
 
     if "MUJOCO_GL" not in os.environ and ctypes.util.find_library("EGL"):
         os.environ["MUJOCO_GL"] = "egl"
-    import jax
+    with interrupts_deferred():     # a Ctrl-C while JAX's extensions load: after they have
+        import jax
 
     cache = os.environ.get("TKUJAX_CACHE_DIR", str(Path.home() / ".cache" / "tkujax" / "jax"))
     jax.config.update("jax_compilation_cache_dir", cache)

@@ -111,11 +111,13 @@ def _cmd_capture(args) -> int:
     robot, feet = capture_robot(args.spec, args.robot)
     res = run_capture(args.spec, args.out, params=controller_params_from_option(args.params),
                       optimise=args.optimise, iterations=args.iterations, robot=robot, feet=feet,
-                      max_chunks=args.max_chunks, **parallel_kwargs(args))
+                      max_chunks=args.max_chunks, allow_incomplete=args.allow_incomplete,
+                      **parallel_kwargs(args))
     m = res["manifest"]
     if not res["complete"]:
-        print(f"{m['n_pushes']} rollouts in {args.out}: incomplete (rerun the same command to "
-              f"resume); wall {m['wall_s']} s")
+        print(f"{m['n_pushes']} rollouts in {args.out}: {res['incomplete']} (rerun the same "
+              f"command to resume, or pass --allow-incomplete to analyse it marked); wall "
+              f"{m['wall_s']} s")
         return 0
     print("\n".join(res["files"]))
     print(Path(res["summary"]).read_text())
@@ -202,5 +204,8 @@ def _add_capture(sub) -> None:
                         "measured geometry gives the theory and the reach (no --optimise)")
     p.add_argument("--max-chunks", type=bounded_int(1, MAX_CHUNKS), default=None,
                    help="stop after this many new chunks")
+    p.add_argument("--allow-incomplete", action="store_true",
+                   help="analyse the sweep's chunks done when it is left incomplete, every "
+                        "output marked 'incomplete: k of n chunks' (default: not analysed)")
     add_parallel_options(p)
     p.set_defaults(func=_cmd_capture)

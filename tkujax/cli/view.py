@@ -39,10 +39,15 @@ def geom_groups(text: str) -> tuple[int, ...]:
 def _cmd_view(args) -> int:
     from tkujax.studies.robot_inputs import sweep_robot
     from tkujax.sweeps.sweep import load
+    from tkujax.sweeps.sweep_state import require_complete
     from tkujax.viewer.playback import replay_scenes, select_records
 
     selection = selection_from_args(args)
     groups = geom_groups(args.geom_groups)
+    state = require_complete(args.dir, args.allow_incomplete, "tkujax view")
+    if state.mark:
+        print(f"{args.dir}: {state.mark}: showing the records of the chunks done",
+              file=sys.stderr)
     if importlib.util.find_spec("viser") is None:
         print("tkujax view: error: the viewer needs viser: pip install 'tkujax[view]'",
               file=sys.stderr)
@@ -104,5 +109,8 @@ def add_view_command(sub) -> None:
     p.add_argument("--geom-groups", default="0,1,2", metavar="G,G",
                    help="geom groups to draw (default 0,1,2, as MuJoCo's viewer; a robot with "
                         "heavy visual meshes draws lighter with its collision group, often 3)")
+    p.add_argument("--allow-incomplete", action="store_true",
+                   help="replay records of an incomplete sweep (the chunks done; default: "
+                        "refused)")
     add_robot_check_option(p)
     p.set_defaults(func=_cmd_view)

@@ -88,12 +88,27 @@ def check_push_window(spec) -> None:
         parts = [(end + seq.span_s, f"{via} + (push.sequence.pulses - 1) x "
                   f"push.sequence.interval_s (at most {seq.span_s:.6g} s)") for end, via in parts]
     for end, via in parts:
-        if end > spec.duration_s + HORIZON_SLACK_S:
-            raise SpecError(f"{via}: a push would end at {end:.6g} s, after the horizon "
-                            f"sweep.duration_s = {spec.duration_s:g} s (the pulse would be cut "
-                            f"short or never start); allowed: onset + push duration <= "
-                            f"{spec.duration_s:g} s (onsets on the {CONTROL_PERIOD_S * 1e3:g} ms "
-                            "grid)")
+        check_push_end(via, end, "sweep.duration_s", spec.duration_s)
+
+
+def check_push_end(via: str, end_s: float, horizon_key: str, horizon_s: float) -> None:
+    """SpecError when a push ending at `end_s` (`via`: the keys that set it) ends after the
+    horizon `horizon_key` = `horizon_s`: the outcome would be no push's. Sweeps, tunes and the
+    robot tune's stages share it."""
+    if end_s > horizon_s + HORIZON_SLACK_S:
+        raise SpecError(f"{via}: a push would end at {end_s:.6g} s, after the horizon "
+                        f"{horizon_key} = {horizon_s:g} s (the pulse would be cut short or "
+                        f"never start); allowed: onset + push duration <= {horizon_s:g} s "
+                        f"(onsets on the {CONTROL_PERIOD_S * 1e3:g} ms grid)")
+
+
+def check_record_cap(key: str, n: int, what: str) -> None:
+    """SpecError when `n` records (`what`, set by `key`) exceed MAX_RECORDS, counted before
+    any is made."""
+    if n > MAX_RECORDS:
+        raise SpecError(f"{key}: {what} would be {n:,} records, above the limit of "
+                        f"{MAX_RECORDS:,} (tkujax.dialects.push_limits.MAX_RECORDS); make it "
+                        "smaller")
 
 
 def check_limits(spec):

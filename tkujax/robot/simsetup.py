@@ -4,8 +4,9 @@
 It lives here, not in tkujax/sim/, because robot files are a layer above the simulator.
 The index is the robot's: its leg actuators (right then left, in role order), its floating
 base as the pushed body, tkujax's IMU and touch sensors, the ankle sites, the stand's targets,
-and as the fall test's bodies the non-foot collision spheres and boxes that can touch the floor
-(mesh geoms are not in it). The IMU has no low-pass (TKU-X's is a model of TKU-X's sensor).
+and as the fall test's bodies the non-foot collision spheres, boxes, capsules and cylinders
+that can touch the floor (mesh geoms are not in it). The IMU has no low-pass (TKU-X's is a
+model of TKU-X's sensor).
 
 For the closed loop use `tkujax.robot.robot_setup.robot_from_file`: it adds the leg map (the
 controller's joint conventions to the robot's), the mesh fall test and the controller's
@@ -24,7 +25,7 @@ from tkujax.robot.description import RobotDescription
 from tkujax.robot.loader import ACCEL, GYRO, RobotModel, load_robot
 from tkujax.robot.stand import StandPose, stand_pose
 from tkujax.sim.mjx_import import mjx
-from tkujax.sim.setup import ModelIndex, SimSetup, imu_indices
+from tkujax.sim.setup import ModelIndex, SimSetup, fall_geom_fields, imu_indices
 
 
 def floor_geoms(robot: RobotModel) -> list[int]:
@@ -51,8 +52,6 @@ def robot_index(robot: RobotModel, pose: StandPose) -> ModelIndex:
     data.qpos[:] = pose.qpos
     mujoco.mj_forward(model, data)
     geoms = floor_geoms(robot)
-    spheres = [g for g in geoms if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_SPHERE]
-    boxes = [g for g in geoms if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_BOX]
     adr = lambda n: int(model.sensor_adr[model.sensor(n).id])  # noqa: E731
     base = robot.root_body
     return ModelIndex(
@@ -60,8 +59,7 @@ def robot_index(robot: RobotModel, pose: StandPose) -> ModelIndex:
         chest_stand_z=float(data.xpos[base][2]), chest_stand_cos=float(data.xmat[base][8]),
         gyro_adr=adr(GYRO), accel_adr=adr(ACCEL),
         fsr_adr=np.array([adr(n) for n in robot.fsr_sensors]), fsr_sites=robot.fsr_sites,
-        sphere_geoms=np.array(spheres, dtype=int), sphere_radii=model.geom_size[spheres, 0],
-        box_geoms=np.array(boxes, dtype=int), box_half_sizes=model.geom_size[boxes],
+        **fall_geom_fields(model, geoms),
         ankle_sites=tuple(int(s) for s in robot.ankle_sites), stand_ctrl=pose.ctrl.copy(),
         timestep_s=float(model.opt.timestep), **imu_indices(model, GYRO, ACCEL))
 

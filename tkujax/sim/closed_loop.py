@@ -198,9 +198,9 @@ def _rows(x: jax.Array, ids) -> jax.Array:
     return parts[0] if len(parts) == 1 else jnp.concatenate(parts)
 
 
-def _lowest_body_point(idx: ModelIndex, d: mjx.Data) -> jax.Array:
-    """Height of the lowest point of any non-foot collision geom, m (spheres, boxes and, for a
-    robot file's model, meshes: their lowest vertex)."""
+def lowest_body_point(idx: ModelIndex, d: mjx.Data) -> jax.Array:
+    """Height of the lowest point of any non-foot collision geom, m (spheres, boxes, capsules,
+    cylinders and, for a robot file's model, meshes: their lowest vertex)."""
     # Model constants cast to the state's dtype explicitly (never left to the x64 mode).
     dtype = d.geom_xpos.dtype
     boxes = {}
@@ -210,13 +210,17 @@ def _lowest_body_point(idx: ModelIndex, d: mjx.Data) -> jax.Array:
                      box_half_sizes=jnp.asarray(idx.box_half_sizes, dtype))
     sphere_z = (_rows(d.geom_xpos, idx.sphere_geoms)[:, 2] if idx.sphere_geoms.size
                 else jnp.zeros((0,), dtype))
-    if not idx.mesh_geoms:
-        return recording.lowest_point(jnp, sphere_z, jnp.asarray(idx.sphere_radii, dtype),
-                                      **boxes)
-    mesh_z = jnp.stack([jnp.min(d.geom_xpos[g, 2] + jnp.asarray(pts, dtype) @ d.geom_xmat[g, 2])
-                        for g, pts in zip(idx.mesh_geoms, idx.mesh_points)])
+    points = [jnp.stack([jnp.min(d.geom_xpos[g, 2] + jnp.asarray(pts, dtype) @ d.geom_xmat[g, 2])
+                         for g, pts in zip(idx.mesh_geoms, idx.mesh_points)])
+              ] if idx.mesh_geoms else []
+    for geoms, sizes, capsule in ((idx.capsule_geoms, idx.capsule_sizes, True),
+                                  (idx.cylinder_geoms, idx.cylinder_sizes, False)):
+        if geoms.size:      # the axis's world z: the geom frame's z column's z, xmat[2, 2]
+            points.append(recording.axial_lows(jnp, _rows(d.geom_xpos, geoms)[:, 2],
+                                               _rows(d.geom_xmat, geoms)[:, 2, 2],
+                                               jnp.asarray(sizes, dtype), capsule))
     return recording.lowest_point(jnp, sphere_z, jnp.asarray(idx.sphere_radii, dtype),
-                                  point_z=mesh_z, **boxes)
+                                  point_z=jnp.concatenate(points) if points else None, **boxes)
 
 
 def _zmp(idx: ModelIndex, d: mjx.Data) -> tuple[jax.Array, jax.Array]:
@@ -237,7 +241,7 @@ def record_row(model: mjx.Model, idx: ModelIndex, record_qpos: bool, d: mjx.Data
         return recording.tick_series(
             t=d.time, pitch=pitch, roll=roll, zmp_xy=zmp, fsr_total=fsr_total,
             com=d.subtree_com[1], r_ankle=d.site_xpos[r_ankle], l_ankle=d.site_xpos[l_ankle],
-            pelvis_z=d.qpos[2], lowest_body_z=_lowest_body_point(idx, d), out=out,
+            pelvis_z=d.qpos[2], lowest_body_z=lowest_body_point(idx, d), out=out,
             ctrl_state=ctrl_state, qpos=d.qpos if record_qpos else None)
 
 

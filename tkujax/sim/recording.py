@@ -41,6 +41,25 @@ def lowest_point(xp, sphere_z, sphere_radii, box_z=None, box_zrow=None, box_half
     return xp.min(xp.concatenate(lows, -1), -1)
 
 
+# sin^2 of a cylinder's tilt is floored here: its square root stays differentiable when the
+# axis is vertical (the lowest point then moves by at most radius x 1e-6).
+MIN_SIN2 = 1e-12
+
+
+def axial_lows(xp, centre_z, axis_z, sizes, capsule: bool):
+    """Heights of the lowest points of capsules (capsule=True) or cylinders (m).
+
+    centre_z (..., C) the centre heights; axis_z (..., C) the world z component of each geom's
+    axis (its frame's z); sizes (C, 2) (radius, half length). A capsule's lowest point is
+    z - |a_z| h - r (the end sphere's bottom); a cylinder's is z - |a_z| h - r sqrt(1 - a_z^2)
+    (the lower rim's lowest point; its flat face when the axis is vertical)."""
+    radius, half = sizes[:, 0], sizes[:, 1]
+    ends = centre_z - xp.abs(axis_z) * half
+    if capsule:
+        return ends - radius
+    return ends - radius * xp.sqrt(xp.maximum(1.0 - axis_z * axis_z, MIN_SIN2))
+
+
 def tick_series(*, t, pitch, roll, zmp_xy, fsr_total, com, r_ankle, l_ankle, pelvis_z,
                 lowest_body_z, out, ctrl_state, qpos=None) -> Series:
     """The Series row of one control tick: the physics quantities given, the controller's from

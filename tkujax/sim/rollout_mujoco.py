@@ -217,7 +217,9 @@ class _Kinematics:
                    sphere_z=np.empty((n, len(idx.sphere_geoms))),
                    box_z=np.empty((n, len(idx.box_geoms))),
                    box_zrow=np.empty((n, len(idx.box_geoms), 3)),
-                   mesh_z=np.empty((n, len(idx.mesh_geoms))))
+                   mesh_z=np.empty((n, len(idx.mesh_geoms))),
+                   capsule_zz=np.empty((n, 2, len(idx.capsule_geoms))),
+                   cylinder_zz=np.empty((n, 2, len(idx.cylinder_geoms))))
         for i in range(n):
             mujoco.mj_setState(m, d, states[i], _FULL)
             mujoco.mj_kinematics(m, d)
@@ -229,6 +231,11 @@ class _Kinematics:
             if idx.mesh_geoms:
                 out["mesh_z"][i] = [np.min(d.geom_xpos[g, 2] + pts @ d.geom_xmat[g][6:9])
                                     for g, pts in zip(idx.mesh_geoms, idx.mesh_points)]
+            # Capsules' and cylinders' centre heights and axes' world z (xmat[2, 2]).
+            out["capsule_zz"][i] = d.geom_xpos[idx.capsule_geoms, 2], \
+                d.geom_xmat[idx.capsule_geoms, 8]
+            out["cylinder_zz"][i] = d.geom_xpos[idx.cylinder_geoms, 2], \
+                d.geom_xmat[idx.cylinder_geoms, 8]
             if idx.box_geoms.size:
                 out["box_z"][i] = d.geom_xpos[idx.box_geoms, 2]
                 out["box_zrow"][i] = d.geom_xmat[idx.box_geoms].reshape(-1, 3, 3)[:, 2, :]
@@ -338,9 +345,12 @@ class _Physics:
         zmp_xy, total = recording.zmp(np, sensordata[:, idx.fsr_adr], k["fsr_xy"])
         boxes = (dict(box_z=k["box_z"], box_zrow=k["box_zrow"],
                       box_half_sizes=idx.box_half_sizes) if idx.box_geoms.size else {})
-        if idx.mesh_geoms:
-            boxes["point_z"] = k["mesh_z"]
-        lowest = recording.lowest_point(np, k["sphere_z"], idx.sphere_radii, **boxes)
+        point_z = np.concatenate([k["mesh_z"], recording.axial_lows(
+            np, *k["capsule_zz"].transpose(1, 0, 2), idx.capsule_sizes, True),
+            recording.axial_lows(np, *k["cylinder_zz"].transpose(1, 0, 2), idx.cylinder_sizes,
+                                 False)], -1)
+        lowest = recording.lowest_point(np, k["sphere_z"], idx.sphere_radii, **boxes,
+                                        point_z=point_z if point_z.shape[-1] else None)
         return recording.tick_series(
             t=state[:, 0], pitch=pitch, roll=roll, zmp_xy=zmp_xy, fsr_total=total, com=k["com"],
             r_ankle=k["r_ankle"], l_ankle=k["l_ankle"], pelvis_z=qpos[:, 2],

@@ -71,6 +71,12 @@ class ModelIndex:
     # geom frame (the lowest vertex is the geom's lowest point).
     mesh_geoms: tuple[int, ...] = ()
     mesh_points: tuple[np.ndarray, ...] = ()
+    # Non-foot collision capsules and cylinders for the fall test: geom ids and each one's
+    # (radius, half length), its axis the geom frame's z (`tkujax.sim.recording.axial_lows`).
+    capsule_geoms: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, int))
+    capsule_sizes: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 2)))
+    cylinder_geoms: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, int))
+    cylinder_sizes: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 2)))
 
     @property
     def imu_filtered(self) -> bool:
@@ -89,8 +95,6 @@ class ModelIndex:
         chest = model.body("chest").id
         foot_names = set(FSR_SENSORS)
         pair_geoms = [int(g) for g in model.pair_geom2 if model.geom(int(g)).name not in foot_names]
-        spheres = [g for g in pair_geoms if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_SPHERE]
-        boxes = [g for g in pair_geoms if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_BOX]
         sensor_adr = lambda n: int(model.sensor_adr[model.sensor(n).id])  # noqa: E731
         return ModelIndex(
             leg_actuators=np.array([model.actuator(n).id for n in LEG_ACTUATORS]),
@@ -99,11 +103,27 @@ class ModelIndex:
             gyro_adr=sensor_adr("gyro"), accel_adr=sensor_adr("accel"),
             fsr_adr=np.array([sensor_adr(n) for n in FSR_SENSORS]),
             fsr_sites=np.array([model.site(n).id for n in FSR_SENSORS]),
-            sphere_geoms=np.array(spheres, dtype=int), sphere_radii=model.geom_size[spheres, 0],
-            box_geoms=np.array(boxes, dtype=int), box_half_sizes=model.geom_size[boxes],
+            **fall_geom_fields(model, pair_geoms),
             ankle_sites=(model.site("r_ankle").id, model.site("l_ankle").id),
             stand_ctrl=np.array(model.key("stand").ctrl), timestep_s=float(model.opt.timestep),
             **imu_indices(model))
+
+
+def fall_geom_fields(model: mujoco.MjModel, geoms) -> dict:
+    """ModelIndex's fall-test fields (sphere_geoms ... cylinder_sizes) of the collision geoms
+    `geoms`, by their type: spheres, boxes, capsules and cylinders (meshes and other types are
+    not among them: a robot file's meshes are `mesh_geoms`)."""
+    def of(kind) -> list[int]:
+        return [int(g) for g in geoms if model.geom_type[g] == kind]
+
+    spheres, boxes = of(mujoco.mjtGeom.mjGEOM_SPHERE), of(mujoco.mjtGeom.mjGEOM_BOX)
+    capsules, cylinders = of(mujoco.mjtGeom.mjGEOM_CAPSULE), of(mujoco.mjtGeom.mjGEOM_CYLINDER)
+    return dict(sphere_geoms=np.array(spheres, dtype=int), sphere_radii=model.geom_size[spheres, 0],
+                box_geoms=np.array(boxes, dtype=int), box_half_sizes=model.geom_size[boxes],
+                capsule_geoms=np.array(capsules, dtype=int),
+                capsule_sizes=model.geom_size[capsules, :2].reshape(-1, 2),
+                cylinder_geoms=np.array(cylinders, dtype=int),
+                cylinder_sizes=model.geom_size[cylinders, :2].reshape(-1, 2))
 
 
 def imu_indices(model: mujoco.MjModel, gyro: str = "gyro", accel: str = "accel") -> dict:

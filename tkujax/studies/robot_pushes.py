@@ -67,12 +67,33 @@ def _probe(robot, impulses: np.ndarray) -> np.ndarray:
     return np.asarray(out.fell, float).reshape(len(impulses), -1).mean(axis=1)
 
 
+def _ladder(robot) -> np.ndarray:
+    """The probe's impulses (N s): PROBE_STEPS x the robot's momentum scale."""
+    mass_kg = float(robot.setup.host_model.body_subtreemass[1])   # body 1: the floating base
+    return PROBE_STEPS * momentum_scale(mass_kg, float(robot.defaults.com_height))
+
+
+def _distributions(robot, top: float, ladder, fell) -> RobotPushes:
+    h = float(robot.defaults.com_height)
+    return RobotPushes(
+        impulse_ns=(round(IMPULSE_LO_FRAC * top, 4), round(top, 4)),
+        height_m=(round(HEIGHT_BAND[0] * h, 4), round(HEIGHT_BAND[1] * h, 4)),
+        duration_s=PULSE_S, fall80_ns=round(top, 4),
+        ladder_ns=tuple(round(float(x), 4) for x in ladder),
+        ladder_fell=tuple(round(float(x), 4) for x in fell))
+
+
+def widest_pushes(robot) -> RobotPushes:
+    """The widest distributions `robot_pushes` can give `robot` (the ladder's top impulse),
+    without simulating: what the tune's checks read before the probe runs."""
+    ladder = _ladder(robot)
+    return _distributions(robot, float(ladder[-1]), ladder, np.zeros(len(ladder)))
+
+
 def robot_pushes(robot) -> RobotPushes:
     """The push distributions of `robot` (a Robot; see the module doc): the probe runs in
     rungs of eight impulses, stopping at the first rung that reaches FALL_TARGET."""
-    h = float(robot.defaults.com_height)
-    mass_kg = float(robot.setup.host_model.body_subtreemass[1])   # body 1: the floating base
-    ladder = PROBE_STEPS * momentum_scale(mass_kg, h)
+    ladder = _ladder(robot)
     fell: list[float] = []
     for start in range(0, len(ladder), 8):
         fell.extend(_probe(robot, ladder[start:start + 8]).tolist())
@@ -81,9 +102,4 @@ def robot_pushes(robot) -> RobotPushes:
     fell_a = np.array(fell)
     reached = np.nonzero(fell_a >= FALL_TARGET)[0]
     top = float(ladder[reached[0]] if reached.size else ladder[len(fell) - 1])
-    return RobotPushes(
-        impulse_ns=(round(IMPULSE_LO_FRAC * top, 4), round(top, 4)),
-        height_m=(round(HEIGHT_BAND[0] * h, 4), round(HEIGHT_BAND[1] * h, 4)),
-        duration_s=PULSE_S, fall80_ns=round(top, 4),
-        ladder_ns=tuple(round(float(x), 4) for x in ladder[:len(fell)]),
-        ladder_fell=tuple(round(float(x), 4) for x in fell))
+    return _distributions(robot, top, ladder[:len(fell)], fell)

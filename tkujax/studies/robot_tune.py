@@ -26,9 +26,13 @@ from pathlib import Path
 
 from tkujax.robot import robot_from_file
 from tkujax.sweeps.progress import StatusLog
-from tkujax.studies.robot_pushes import robot_pushes
+from tkujax.studies.robot_pushes import (PROBE_DURATION_S, PROBE_HORIZON_S, PROBE_ONSET_S,
+                                         robot_pushes, widest_pushes)
 from tkujax.studies.robot_structure import STRUCTURES, choose_structure, structure_start
 from tkujax.studies.robot_verdict import heldout_verdict, name_controller
+from tkujax.dialects.sweep_spec import SpecError, parse_spec
+from tkujax.dialects.push_limits import check_push_end
+from tkujax.studies.tune.tune_spec import parse_tune_spec
 
 TUNE_SEED, HELDOUT_SEED = 0, 11
 TUNE_BATCH, TUNE_HORIZON_S, POPSIZE = 256, 1.5, 13
@@ -129,6 +133,38 @@ def _stage_tune(out: Path, robot_file: str, robot, pushes: dict, structure: str,
     return json.loads(record_path.read_text())
 
 
+def check_stages(robot_file: str, robot, heldout_n: int) -> None:
+    """The stages' pushes checked before anything is simulated, by the checks of sweeps and
+    tunes (`tkujax.dialects.push_limits`, `tkujax.studies.tune.limits`): the probe's pushes
+    within its horizon, and the tune and held-out specs of every structure, built with the
+    widest pushes the probe can give, parsed (SpecError names the stage's key)."""
+    check_push_end("the probe's onset + pulse (tkujax.studies.robot_pushes.PROBE_ONSET_S + "
+                   "PROBE_DURATION_S)", PROBE_ONSET_S + PROBE_DURATION_S,
+                   "PROBE_HORIZON_S", PROBE_HORIZON_S)
+    widest = widest_pushes(robot).as_dict()
+    for structure in STRUCTURES:
+        parse_tune_spec(tune_spec(robot_file, robot, widest, structure, iterations=10_000))
+    parse_spec(heldout_spec(robot_file, robot, widest, heldout_n))
+
+
+def claim_out(out: Path, robot) -> None:
+    """The stages kept in `out` are this robot's: `robot.json` names the robot file and its
+    sha256 (with its model, included files and meshes); SpecError when it names another, or
+    the file changed since (the kept stages would be another robot's)."""
+    path = out / "robot.json"
+    mine = dict(robot=robot.name, robot_file=robot.source, robot_sha256=robot.digest)
+    if path.is_file():
+        held = json.loads(path.read_text())
+        if held.get("robot_sha256") != robot.digest:
+            raise SpecError(f"{out} holds the stages of robot {held.get('robot')!r} "
+                            f"({held.get('robot_file')}, sha256 {held.get('robot_sha256')}); "
+                            f"{robot.source} is {robot.digest} (another robot, or the file, its "
+                            "model, included files or meshes changed). Nothing was written: "
+                            "choose another --out")
+        return
+    path.write_text(json.dumps(mine, indent=1) + "\n")
+
+
 def tune_robot_controller(robot_file: str | Path, out: str | Path, budget_s: float = 480.0,
                           heldout_n: int = 8192, write: bool = True,
                           log=None) -> dict:
@@ -141,10 +177,12 @@ def tune_robot_controller(robot_file: str | Path, out: str | Path, budget_s: flo
         raise ValueError(f"heldout_n must be an integer in [64, 1048576], got {heldout_n!r}")
     t0 = time.perf_counter()
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     log = log or StatusLog(budget_s=budget_s, desc="tune --robot ")
     robot_file = str(Path(robot_file).resolve())
     robot = robot_from_file(robot_file)
+    check_stages(robot_file, robot, heldout_n)
+    out.mkdir(parents=True, exist_ok=True)
+    claim_out(out, robot)
     pushes = _stage_pushes(out, robot, log)
     structure = _stage_structure(out, robot, pushes, log)
     name = structure["chosen"]

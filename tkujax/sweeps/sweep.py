@@ -48,6 +48,7 @@ from tkujax.sweeps.sweep_folder import (chunk_provenance, claim_folder, describe
 from tkujax.sweeps.sweep_hash import input_digests, spec_hash
 from tkujax.dialects.push_limits import check_push_window
 from tkujax.dialects.walk_table import check_walk_sweep, walk_base, walk_for_robot
+from tkujax.sweeps.sweep_state import SweepRecords, sweep_state
 
 # Names other modules have imported from here; each lives in the module named.
 from tkujax.control.params_files import load_controller_params_json as load_params_json  # noqa: F401
@@ -415,13 +416,16 @@ def load(out: str | Path, as_frame: bool = False):
     pandas DataFrame with as_frame=True (pandas is optional: not a tkujax dependency).
 
     Every chunk is checked against its manifest entry (sha256, rows); a missing, truncated or
-    corrupted one raises ChunkError naming the file. Chunks still in flight are not loaded."""
+    corrupted one raises ChunkError naming the file. Chunks still in flight are not loaded: the
+    result says how complete the sweep was (`tkujax.sweeps.sweep_state`): the dict's `state`
+    and `complete`, the DataFrame's attrs complete, chunks_done and n_chunks."""
     out = Path(out)
-    parts = chunks.read_chunks(out, chunks.read_manifest(out))
+    manifest = chunks.read_manifest(out)
+    parts = chunks.read_chunks(out, manifest)
     if not parts:
         raise FileNotFoundError(f"no sweep chunks in {out}")
     cols = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-    return as_frame_if(cols, as_frame)
+    return as_frame_if(SweepRecords(cols, sweep_state(out) if manifest else None), as_frame)
 
 
 def as_frame_if(cols: dict, as_frame: bool):
@@ -433,4 +437,8 @@ def as_frame_if(cols: dict, as_frame: bool):
     except ImportError as err:
         raise ImportError("load(..., as_frame=True) needs pandas, which tkujax does not "
                           "install: pip install pandas") from err
-    return pd.DataFrame(cols)
+    frame = pd.DataFrame(dict(cols))
+    state = getattr(cols, "state", None)
+    if state is not None:
+        frame.attrs.update(state.describe())
+    return frame

@@ -23,18 +23,18 @@ import numpy as np
 
 from tkujax.sweeps import chunks
 from tkujax.sweeps import sweep as sweep_records
+from tkujax.sweeps.sweep_state import (IncompleteSweep, SweepRecords, SweepState,
+                                       require_complete)
 
 MANIFEST_KEY = b"tkujax.manifest"
 DTYPES_KEY = b"tkujax.dtypes"
 FORMATS = ("parquet", "csv")
+# The exported manifest's note of how complete the sweep was (`SweepState.describe`).
+EXPORTED_KEY = "exported_state"
 
-__all__ = ["DTYPES_KEY", "FORMATS", "MANIFEST_KEY", "IncompleteSweep", "default_output",
-           "export_records", "finished_manifest", "is_parquet", "load", "read_parquet",
-           "records_table"]
-
-
-class IncompleteSweep(ValueError):
-    """The folder is not a finished sweep (no manifest, or chunks still missing)."""
+__all__ = ["DTYPES_KEY", "EXPORTED_KEY", "FORMATS", "MANIFEST_KEY", "IncompleteSweep",
+           "default_output", "export_records", "exported_state", "finished_manifest",
+           "is_parquet", "load", "read_parquet", "records_table"]
 
 
 def _pyarrow():
@@ -46,20 +46,18 @@ def _pyarrow():
     return pa, pq
 
 
-def finished_manifest(run_dir: str | Path) -> dict:
-    """The manifest of a complete sweep folder; IncompleteSweep (a one-line reason) else."""
+def finished_manifest(run_dir: str | Path, allow_incomplete: bool = False) -> dict:
+    """The manifest of a complete sweep folder; IncompleteSweep (a one-line reason naming the
+    folder and "incomplete: k of n chunks") else, unless allow_incomplete: then the manifest
+    with the sweep's state added (`EXPORTED_KEY`: complete, chunks_done, n_chunks)."""
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise FileNotFoundError(f"{run_dir} is not a folder")
     manifest = chunks.read_manifest(run_dir)
     if not manifest:
         raise IncompleteSweep(f"{run_dir} has no manifest.json: not a sweep folder")
-    if not manifest.get("complete"):
-        done = len(manifest.get("chunks", {}))
-        raise IncompleteSweep(f"{run_dir} is an incomplete sweep ({done} of "
-                              f"{manifest.get('n_chunks', '?')} chunks): rerun the sweep "
-                              "command to finish it, then export")
-    return manifest
+    state = require_complete(run_dir, allow_incomplete, "tkujax export")
+    return manifest if state.complete else manifest | {EXPORTED_KEY: state.describe()}
 
 
 def default_output(run_dir: str | Path, fmt: str = "parquet") -> Path:
@@ -107,16 +105,18 @@ def _replace(tmp: Path, path: Path) -> Path:
 
 
 def export_records(run_dir: str | Path, out: str | Path | None = None,
-                   fmt: str = "parquet") -> Path:
+                   fmt: str = "parquet", allow_incomplete: bool = False) -> Path:
     """Write a finished sweep's records (all chunks, verified) to one file; returns its path.
 
     fmt: "parquet" (the manifest in the schema metadata) or "csv" (the manifest beside it as
     OUT.manifest.json). out: default `DIR.parquet` (or `DIR.csv`) beside the folder. The file
     is written to a temporary name and renamed, so a reader never sees half of it. An
-    incomplete sweep raises IncompleteSweep (a ValueError) and writes nothing."""
+    incomplete sweep raises IncompleteSweep (a ValueError) and writes nothing, unless
+    allow_incomplete: then the chunks done are written and the manifest's EXPORTED_KEY says
+    "incomplete" (`load(FILE)`'s state)."""
     if fmt not in FORMATS:
         raise ValueError(f"format must be one of {', '.join(FORMATS)}, got {fmt!r}")
-    manifest = finished_manifest(run_dir)
+    manifest = finished_manifest(run_dir, allow_incomplete)
     cols = sweep_records.load(run_dir)
     path = Path(out) if out is not None else default_output(run_dir, fmt)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -171,8 +171,21 @@ def read_parquet(path: str | Path) -> tuple[dict[str, np.ndarray], dict]:
 def load(path: str | Path, as_frame: bool = False):
     """A sweep's verified records as a dict of columns (or, with as_frame=True, a pandas
     DataFrame): from a sweep folder (`tkujax.sweeps.sweep.load`) or from a Parquet file that
-    `tkujax export` wrote, which gives the same columns, dtypes and rows."""
+    `tkujax export` wrote, which gives the same columns, dtypes and rows. Either says how
+    complete the sweep was: the dict's `state` and `complete` (`SweepRecords`), the
+    DataFrame's attrs."""
     if not is_parquet(path):
         return sweep_records.load(path, as_frame=as_frame)
-    cols, _ = read_parquet(path)
-    return sweep_records.as_frame_if(cols, as_frame)
+    cols, manifest = read_parquet(path)
+    return sweep_records.as_frame_if(SweepRecords(cols, exported_state(path, manifest)),
+                                     as_frame)
+
+
+def exported_state(path: str | Path, manifest: dict) -> SweepState | None:
+    """The state of the sweep a file of `export_records` holds (None: another writer's file;
+    without EXPORTED_KEY: a complete sweep, the only kind exported without it)."""
+    if not manifest:
+        return None
+    n = int(manifest.get("n_chunks", 0))
+    note = manifest.get(EXPORTED_KEY, dict(chunks_done=n, n_chunks=n))
+    return SweepState(str(path), int(note["chunks_done"]), int(note["n_chunks"]))

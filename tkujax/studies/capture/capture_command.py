@@ -19,6 +19,7 @@ from tkujax.studies.capture.region import analyse
 from tkujax.dialects.sweep_spec import SpecError, SweepSpec, load_spec
 from tkujax.control.params_files import controller_params_from
 from tkujax.sweeps.sweep import run_sweep
+from tkujax.sweeps.sweep_state import sweep_state
 
 
 def optimise_cases(regs, spec: SweepSpec, params: ControllerParams, n_cases: int,
@@ -143,13 +144,15 @@ def _summary_md(manifest: dict, rows: list[dict], j1: list[dict], opt: list[dict
 def run_capture(spec: SweepSpec | str | Path, out: str | Path,
                 params: ControllerParams | None = None, optimise: int = 4,
                 iterations: int = 15, robot=None, feet: theory.Feet | None = None,
-                **sweep_kwargs) -> dict:
+                allow_incomplete: bool = False, **sweep_kwargs) -> dict:
     """Run (or resume) the [step] sweep, then write DIR/capture/: regions.json, j1.json,
     optimise.json, summary.md and the figures. optimise: how many pushes get a
     gradient-optimal step (0 skips it; TKU-X only). robot, feet: a robot file's Robot and
     its capture geometry (`tkujax.studies.robot_inputs.capture_robot` loads both; the spec's [robot]
     file needs them), None for TKU-X. sweep_kwargs go to run_sweep (backend, max_chunks,
-    process ids, ...)."""
+    process ids, ...). A sweep left incomplete (max_chunks, other processes) is not analysed
+    (complete False) unless allow_incomplete: then its chunks done are, every output marked
+    "incomplete: k of n chunks" (`tkujax.sweeps.sweep_state`)."""
     spec = spec if isinstance(spec, SweepSpec) else load_spec(spec)
     if not spec.step_grid:
         raise SpecError("tkujax capture needs a spec with a [step.grid] table")
@@ -165,13 +168,14 @@ def run_capture(spec: SweepSpec | str | Path, out: str | Path,
         optimise = 0
         sweep_kwargs["robot"] = robot
     manifest = run_sweep(spec, out, params=params, **sweep_kwargs)
-    if not manifest["complete"]:
-        return dict(manifest=manifest, complete=False)
+    state = sweep_state(out)
+    if not state.complete and not allow_incomplete:
+        return dict(manifest=manifest, complete=False, incomplete=state.mark)
     feet = feet or theory.stand_feet(params=base)
-    res = analyse(out, feet)
+    res = analyse(out, feet, allow_incomplete)
     dest = res["dir"]
-    files = figures.region_panels(res["regions"], dest, feet.reach_m)
-    files.append(figures.j1_figure(res["j1"], dest))
+    files = figures.region_panels(res["regions"], dest, feet.reach_m, state.mark)
+    files.append(figures.j1_figure(res["j1"], dest, state.mark))
     opt = []
     if optimise:
         t0 = time.perf_counter()
@@ -179,8 +183,12 @@ def run_capture(spec: SweepSpec | str | Path, out: str | Path,
         (dest / "optimise.json").write_text(json.dumps(
             dict(wall_s=round(time.perf_counter() - t0, 1), iterations=iterations, cases=opt),
             indent=1))
-    (dest / "summary.md").write_text(_summary_md(manifest, res["rows"], res["j1"], opt, files,
-                                                 res["jn"]))
-    return dict(manifest=manifest, complete=True, regions=res["rows"], j1=res["j1"],
+    text = _summary_md(manifest, res["rows"], res["j1"], opt, files, res["jn"])
+    if state.mark:
+        text = f"**{state.mark}**: the regions below hold the records of " \
+            f"{state.chunks_done} of {state.n_chunks} chunks.\n\n" + text
+    (dest / "summary.md").write_text(text)
+    return dict(manifest=manifest, complete=state.complete, incomplete=state.mark,
+                regions=res["rows"], j1=res["j1"],
                 jn=res["jn"], optimise=opt, files=[str(p) for p in files],
                 summary=str(dest / "summary.md"), feet=feet)

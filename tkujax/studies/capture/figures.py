@@ -16,7 +16,14 @@ def _timing_name(t) -> str:
     return base + (f", T = {t[2]:.2f} s" if t[2] > 0 else "")
 
 
-def region_panels(regs: list[Region], out: Path, reach_m: float) -> list[Path]:
+def mark_figure(fig, mark: str) -> None:
+    """`mark` ("incomplete: k of n chunks") in red at the figure's top; nothing when empty."""
+    if mark:
+        fig.text(0.5, 0.995, mark, ha="center", va="top", color="red", fontsize=9,
+                 weight="bold")
+
+
+def region_panels(regs: list[Region], out: Path, reach_m: float, mark: str = "") -> list[Path]:
     """One figure per step timing: panels of region, Koolen R_1, ICP at touchdown, controller."""
     import matplotlib
     matplotlib.use("Agg")
@@ -77,12 +84,13 @@ def region_panels(regs: list[Region], out: Path, reach_m: float) -> list[Path]:
                      "pushed from behind, 90° = from the right", fontsize=8)
         fig.tight_layout(rect=(0, 0.07, 1, 0.93))
         files.append(out / f"regions_{k}.png")
+        mark_figure(fig, mark)
         fig.savefig(files[-1], dpi=90)
         plt.close(fig)
     return files
 
 
-def j1_figure(rows: list[dict], out: Path) -> Path:
+def j1_figure(rows: list[dict], out: Path, mark: str = "") -> Path:
     """Empirical vs theoretical J_1 per direction (one line pair per step timing)."""
     import matplotlib
     matplotlib.use("Agg")
@@ -110,6 +118,7 @@ def j1_figure(rows: list[dict], out: Path) -> Path:
                  "(grid resolution applies)", fontsize=8)
     fig.tight_layout()
     path = out / "j1.png"
+    mark_figure(fig, mark)
     fig.savefig(path, dpi=90)
     plt.close(fig)
     return path

@@ -18,6 +18,7 @@ import numpy as np
 
 from tkujax.studies.capture import theory
 from tkujax.sweeps.sweep import load
+from tkujax.sweeps.sweep_state import require_complete
 
 TIMING = ("step_start_delay_s", "step_from_detection", "step_period_s")
 
@@ -199,9 +200,14 @@ def j1_table(regs: list[Region], feet: theory.Feet) -> list[dict]:
     return rows
 
 
-def analyse(out_dir: str | Path, feet: theory.Feet | None = None) -> dict:
-    """Regions, J_1 table and summaries of the sweep in out_dir -> out_dir/capture/*.json."""
+def analyse(out_dir: str | Path, feet: theory.Feet | None = None,
+            allow_incomplete: bool = False) -> dict:
+    """Regions, J_1 table and summaries of the sweep in out_dir -> out_dir/capture/*.json. An
+    incomplete sweep is refused (`tkujax.sweeps.sweep_state.IncompleteSweep`) unless
+    allow_incomplete; the result's `incomplete` is then "incomplete: k of n chunks" ("" when
+    complete), also in regions.json's rows' place as {"incomplete", "rows"}."""
     out_dir = Path(out_dir)
+    state = require_complete(out_dir, allow_incomplete, "tkujax capture")
     rec = load(out_dir)
     if "step_active" not in rec:
         raise ValueError(f"{out_dir} is not a [step] sweep (no step_* columns)")
@@ -212,7 +218,8 @@ def analyse(out_dir: str | Path, feet: theory.Feet | None = None) -> dict:
     jn = jn_table(rec)
     dest = out_dir / "capture"
     dest.mkdir(exist_ok=True)
-    (dest / "regions.json").write_text(json.dumps(rows, indent=1))
-    (dest / "j1.json").write_text(json.dumps(j1, indent=1))
-    (dest / "jn.json").write_text(json.dumps(jn, indent=1))
-    return dict(regions=regs, rows=rows, j1=j1, jn=jn, dir=dest)
+    marked = (lambda x: {"incomplete": state.mark, "rows": x}) if state.mark else (lambda x: x)
+    (dest / "regions.json").write_text(json.dumps(marked(rows), indent=1))
+    (dest / "j1.json").write_text(json.dumps(marked(j1), indent=1))
+    (dest / "jn.json").write_text(json.dumps(marked(jn), indent=1))
+    return dict(regions=regs, rows=rows, j1=j1, jn=jn, dir=dest, incomplete=state.mark)

@@ -29,7 +29,7 @@ from tkujax.studies.tune.problem import x64
 from tkujax.studies.tune.parameterisations import PolicyReparam, save_policy
 from tkujax.studies.tune.tune_outputs import plot_outputs, summary_markdown
 from tkujax.studies.tune.search import GradientOptions, SearchConfig, calls_used, run_search
-from tkujax.dialects.validation import integer, number
+from tkujax.dialects.validation import SpecError, integer, number
 from tkujax.studies.tune.robot_table import on_robot, robot_record
 from tkujax.studies.tune.tune_spec import (TuneSpec, ensembles_record, grid_pushes,
                                            load_tune_spec, make_problem, parse_tune_spec,
@@ -120,8 +120,26 @@ def _log_method(run: TuneRun, log) -> None:
             f"(tune.method = \"auto\"; {EVIDENCE_NOTE})")
 
 
+def check_out(out: Path, spec: TuneSpec) -> None:
+    """SpecError when `out` holds another spec's tune (its history.json's spec differs): a
+    tune's outputs are replaced as a whole by a rerun of its spec, never mixed with another's."""
+    held = out / "history.json"
+    if not held.is_file():
+        return
+    try:
+        raw = json.loads(held.read_text()).get("spec")
+    except (OSError, ValueError, AttributeError):
+        raw = None
+    if raw != json.loads(json.dumps(spec.raw, default=json_default)):
+        name = raw.get("tune", {}).get("name") if isinstance(raw, dict) else None
+        raise SpecError(f"{out} holds another spec's tune ({name!r}, {held.name}), this is "
+                        f"{spec.name!r}: its outputs would mix with this one's. Nothing was "
+                        "written: choose another --out")
+
+
 def _run_tune(spec: TuneSpec, out: Path, quiet: bool, compiler_options: dict | None,
               evaluation: bool, compare: bool, budget_s: float | None = None) -> dict:
+    check_out(out, spec)
     out.mkdir(parents=True, exist_ok=True)
     log = StatusLog(quiet, desc="tune ")
     t_start = time.perf_counter()

@@ -35,6 +35,7 @@ from tkujax.dialects.sweep_spec import (CONTROLLER_FIELDS, ENSEMBLE_KEY, PUSH_FI
                                         RANDOMIZE_DEFAULTS, RANDOMIZE_FIELDS, ROBOT_ID_COLUMN,
                                         EnsembleRef, controller_value, parse_ensemble,
                                         parse_randomize)
+from tkujax.studies.tune.limits import check_tune_limits
 from tkujax.studies.tune.loss import LossConfig, parse_loss
 from tkujax.studies.tune.parameterisations import DEFAULT_SCHEDULE, PolicyReparam
 from tkujax.studies.tune.problem import RECORD_KEYS, TuneProblem
@@ -220,7 +221,7 @@ def _parse_ranges(tune: dict) -> dict[str, tuple[float, float]]:
     return ranges
 
 
-def _parse_push(data: dict, duration: float) -> tuple[dict, float]:
+def _parse_push(data: dict) -> tuple[dict, float]:
     """[push]: {field: value | (lo, hi) | list} and the azimuth jitter (deg)."""
     push_raw = table("push", data.get("push", {}), TUNE_PUSH_FIELDS)
     push = {}
@@ -236,11 +237,6 @@ def _parse_push(data: dict, duration: float) -> tuple[dict, float]:
             push[k] = number(key, v, lo, hi, unit)
     jitter = number("push.azimuth_jitter_deg", push_raw.get("azimuth_jitter_deg", 0.0),
                      0.0, 180.0, "deg")
-    onset_hi = push["onset_s"][1] if isinstance(push["onset_s"], tuple) else max(
-        np.atleast_1d(push["onset_s"]))
-    if onset_hi + 0.03 >= duration:
-        raise SpecError(f"push.onset_s: onsets up to {onset_hi} s leave no time after the push "
-                        f"within tune.duration_s = {duration} s")
     return push, jitter
 
 
@@ -284,7 +280,7 @@ def parse_tune_spec(data: dict) -> TuneSpec:
                                "compare", "study", "model", "robot"})
     robot_file_of(data)             # checked here, resolved by tkujax.studies.tune.robot_table
     tune = _parse_tune(data)
-    push, jitter = _parse_push(data, tune["duration_s"])
+    push, jitter = _parse_push(data)
     ctrl_raw = table("controller", data.get("controller", {}), CONTROLLER_FIELDS)
     controller = {k: controller_value(f"controller.{k}", k, v) for k, v in ctrl_raw.items()}
     rand = table("randomize", data.get("randomize", {}), set(RANDOMIZE_FIELDS) | {ENSEMBLE_KEY})
@@ -298,6 +294,7 @@ def parse_tune_spec(data: dict) -> TuneSpec:
     compare = parse_compare(data["compare"], tune["batch"]) if "compare" in data else None
     shift = _parse_shift(ev["shift"]) if "shift" in ev else None
     study = parse_study(data["study"], tune["batch"]) if "study" in data else None
+    check_tune_limits(tune, push, evaluate, dict(compare=compare, study=study))
     robots = tuple(e for e in (ensemble, (shift or {}).get("ensemble")) if e is not None)
     robots = tuple(e for i, e in enumerate(robots) if e not in robots[:i])   # by content
     if robots and tune["float64"]:
