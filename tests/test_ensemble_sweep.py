@@ -258,7 +258,8 @@ def test_map_of_an_ensemble_sweep_draws_and_writes_the_band(tmp_path):
         out = tmp_path / name
         out.mkdir()
         spec = _spec(tmp_path / "moved_away.json")     # maps do not read the ensemble file
-        chunks.update_manifest(out, lambda m, d={"name": name, "spec": spec, "n_pushes": n}: m | d)
+        chunks.update_manifest(out, lambda m, d={"name": name, "spec": spec, "n_pushes": n,
+                                                 "complete": True}: m | d)
         chunks.write_chunk(out, 0, cols)
         result = maps.make_maps(out)
         summary = Path(result["summary"]).read_text()
