@@ -6,8 +6,8 @@ optionally with the control setting to take from it: `DIR:off` or `DIR:on` (defa
 records with control on when the folder has any, else those with control off), so one sweep
 with `control = ["off", "on"]` gives both the reference (`DIR:off`) and a controller (`DIR:on`).
 The selected records of every run must be the same pushes in the same order: every input
-column (impulse, azimuth, height, onset, duration, phase, randomisation, controller-grid and
-step columns) is checked, and a mismatch is refused with the column and the first record that
+column (impulse or kick, azimuth, height, onset, duration, phase, randomisation, controller-grid
+and step columns) is checked, and a mismatch is refused with the column and the first record that
 differs named.
 
 Conventions (tkujax.sim.push): azimuth 0 deg = pushed from behind (the force points forward,
@@ -21,6 +21,9 @@ Walking sweeps ([walk], a walk_recovery column) pick the walking recovery settin
 default: recovery on when the folder has it), so one sweep with `recovery = ["off", "on"]`
 gives the reference and the run of the no-harm verdict. Their phase bands are of the gait
 phase at onset (`gait_phase`, 0 = left touchdown) instead of the control period's.
+
+Velocity kicks ([push] kind = "velocity_kick") are banded along kick_mps (m/s) instead of the
+impulse (`tkujax.analysis.map_cells.push_size`); the harmed cells then name a kick_mps band.
 
 Diverged records (numerical blow-up) are neither fell nor survived: each run's rates leave
 its own diverged records out; paired differences use the records that diverged in neither.
@@ -55,7 +58,7 @@ from tkujax.sweeps.chunks import read_manifest
 from tkujax.sweeps.sweep_robot import same_robot
 from tkujax.analysis.compare_report import (plot_by_sector, plot_difference_maps, summary_markdown,
                                             table_csv, table_markdown, write_text_atomic)
-from tkujax.analysis.map_cells import MAX_AZIMUTH_BINS, bin_axis
+from tkujax.analysis.map_cells import MAX_AZIMUTH_BINS, bin_axis, push_size
 from tkujax.dialects.sweep_spec import PHASE_KEY, RANDOMIZE_FIELDS, SpecError
 from tkujax.sweeps.sweep import load, outcome_keys
 from tkujax.dialects.walk_table import GAIT_PHASE_KEY
@@ -146,7 +149,7 @@ def load_run(arg: str, label: str | None = None, subset: str = "all",
         raise FileNotFoundError(f"run {arg!r}: {path} is not a folder (a tkujax sweep --out)")
     state = require_complete(path, allow_incomplete, "tkujax compare")
     rec = load(path)
-    for key in ("fell", "control", "impulse_ns", "azimuth_deg"):
+    for key in ("fell", "control", push_size(rec)[0], "azimuth_deg"):
         if key not in rec:
             raise SpecError(f"run {arg!r}: records have no {key!r} column (not a push sweep?)")
     on = rec["control"].astype(bool)
@@ -293,10 +296,11 @@ def cell_table(runs: list[Run], bands: Bands, unpaired: bool = False) -> dict:
     run label: n, falls, rate; per non-reference run: diff_pp, se_pp)."""
     ref = runs[0]
     names = SECTOR_NAMES[bands.sectors]
-    edges = impulse_edges(ref.inputs["impulse_ns"], bands)
+    size, label = push_size(ref.inputs)
+    edges = impulse_edges(ref.inputs[size], bands)
     n_j, n_p, n_s = len(edges) - 1, bands.phase_bands, bands.sectors
     s = sector_index(ref.inputs["azimuth_deg"], n_s)
-    j = band_index(ref.inputs["impulse_ns"], edges)
+    j = band_index(ref.inputs[size], edges)
     p = phase_index(ref.inputs[ref.phase_key], n_p)
     phase_edges = np.linspace(0.0, 1.0, n_p + 1)
     levels = [("phase", (s * n_j + j) * n_p + p, n_s * n_j * n_p),
@@ -331,7 +335,7 @@ def cell_table(runs: list[Run], bands: Bands, unpaired: bool = False) -> dict:
                 row["runs"][r.label] = entry
             rows.append(row)
     return dict(sector_names=list(names), impulse_edges=edges.tolist(),
-                phase_edges=phase_edges.tolist(), rows=rows)
+                phase_edges=phase_edges.tolist(), rows=rows, size_key=size, size_label=label)
 
 
 def verdict(runs: list[Run], table: dict, min_pushes: int = 100, harm_pp: float = 2.0) -> dict:
@@ -355,8 +359,8 @@ def verdict(runs: list[Run], table: dict, min_pushes: int = 100, harm_pp: float 
             checked += 1
             # Rounded: 22/100 - 20/100 is 2.0000000000000018 pp in floating point.
             if round(b["diff_pp"], 9) > harm_pp:
-                harmed.append(dict(sector=row["sector"], impulse_ns=[row["impulse_lo"],
-                                                                      row["impulse_hi"]],
+                harmed.append(dict(sector=row["sector"], **{table["size_key"]: [
+                                       row["impulse_lo"], row["impulse_hi"]]},
                                    phase=row["phase"], n=min(a["n"], b["n"]),
                                    reference_rate=a["rate"], rate=b["rate"],
                                    diff_pp=b["diff_pp"], se_pp=b["se_pp"],
@@ -391,7 +395,7 @@ def difference_cells(runs: list[Run], azimuth_bins: int = 24, impulse_bins: int 
         raise SpecError(f"impulse_bins must be in [1, 48], got {impulse_bins!r}")
     ref = runs[0]
     azs, ia = map_axis(np.mod(ref.inputs["azimuth_deg"], 360.0), azimuth_bins, 360.0)
-    js, ij = map_axis(ref.inputs["impulse_ns"], impulse_bins)
+    js, ij = map_axis(ref.inputs[push_size(ref.inputs)[0]], impulse_bins)
     p = phase_index(ref.inputs[ref.phase_key], phase_bands)
     n_cells = len(azs) * len(js)
     cell = ia * len(js) + ij
@@ -407,7 +411,7 @@ def difference_cells(runs: list[Run], azimuth_bins: int = 24, impulse_bins: int 
                 rate = np.where(count > 0, falls / np.maximum(count, 1), np.nan)
             per[r.label] = (rate.reshape(len(azs), len(js)), count.reshape(len(azs), len(js)))
         out.append((title, per))
-    return dict(azimuths=azs, impulses=js, bands=out)
+    return dict(azimuths=azs, impulses=js, bands=out, size_label=push_size(ref.inputs)[1])
 
 
 def compare_runs(run_args: list[str], out: str | Path, labels: list[str] | None = None,
@@ -464,9 +468,10 @@ def compare_runs(run_args: list[str], out: str | Path, labels: list[str] | None 
     write_text_atomic(files[2], table_csv(table, lab))
     write_text_atomic(files[3], table_markdown(table, lab))
     incomplete = {r.label: r.mark for r in runs if r.mark}
+    edges_key = table["size_key"].replace("_", "_edges_", 1)     # impulse_edges_ns
     write_text_atomic(files[4], json.dumps(dict(v, incomplete=incomplete,
                                                 unpaired_robots=unpaired_robots, bands=dict(
-        sectors=table["sector_names"], impulse_edges_ns=table["impulse_edges"],
+        sectors=table["sector_names"], **{edges_key: table["impulse_edges"]},
         phase_edges=table["phase_edges"])), indent=1))
     text = summary_markdown(runs, table, v, [str(f) for f in files])
     if runs[0].recovery is not None:

@@ -65,8 +65,9 @@ def plot_difference_maps(cells: dict, labels: list[str], path: Path, min_count: 
     if cols > 1:
         fig.colorbar(m1, ax=axes[-1, 1:].tolist(), location="bottom", shrink=0.6,
                      label="fall-rate difference (red: falls more often than the reference)")
-    fig.suptitle("radius: impulse (N·s); angle: push azimuth (0° = pushed from behind, at the "
-                 f"bottom; 90° = from the right); cells with < {min_count} pushes blank",
+    fig.suptitle(f"radius: {cells['size_label']}; angle: push azimuth (0° = pushed from "
+                 f"behind, at the bottom; 90° = from the right); cells with < {min_count} "
+                 "pushes blank",
                  fontsize=9)
     _save_fig(fig, path)
     plt.close(fig)
@@ -93,7 +94,7 @@ def plot_by_sector(table: dict, labels: list[str], path: Path) -> None:
             ax.plot(x, y, "o-", ms=3, label=lab)
         ax.set_title(f"pushed from {name}" if name != "behind" else "pushed from behind",
                      fontsize=9)
-        ax.set_xlabel("impulse band centre (N·s)", fontsize=8)
+        ax.set_xlabel(table["size_label"].replace(" ", " band centre ", 1), fontsize=8)
         ax.grid(alpha=0.3)
     for ax in axes[:, 0]:
         ax.set_ylabel("fall rate (%)")
@@ -106,7 +107,9 @@ def plot_by_sector(table: dict, labels: list[str], path: Path) -> None:
 
 
 def table_csv(table: dict, labels: list[str]) -> str:
-    head = ["sector", "impulse_lo_ns", "impulse_hi_ns", "phase_lo", "phase_hi"]
+    key = table["size_key"]                          # impulse_lo_ns, or kick_lo_mps
+    head = ["sector", key.replace("_", "_lo_", 1), key.replace("_", "_hi_", 1), "phase_lo",
+            "phase_hi"]
     for i, lab in enumerate(labels):
         head += [f"n[{lab}]", f"falls[{lab}]", f"fall_rate[{lab}]"]
         if i:
@@ -130,7 +133,7 @@ def _pct(v) -> str:
 
 def markdown_table(table: dict, labels: list[str], phase: str | None) -> list[str]:
     """Rows of one phase band ('all' = pooled; None = every phase band)."""
-    head = "| sector | impulse (N·s) | phase | " + " | ".join(
+    head = f"| sector | {table['size_label']} | phase | " + " | ".join(
         f"{lab}" + ("" if i == 0 else " (diff, pp ± s.e.)") for i, lab in enumerate(labels)) + " |"
     lines = [head, "|---" * (3 + len(labels)) + "|"]
     for r in table["rows"]:
@@ -179,11 +182,12 @@ def summary_markdown(runs: list, table: dict, verdict_: dict, files: list[str]) 
     for lab, v in verdict_["runs"].items():
         if v["harmed_cells"]:
             lines += ["", f"Harmed cells, `{lab}` (worst first):", "",
-                      "| sector | impulse (N·s) | phase | pushes | reference | run "
+                      f"| sector | {table['size_label']} | phase | pushes | reference | run "
                       "| diff (pp ± s.e.) | beyond 2 s.e. |", "|---|---|---|---|---|---|---|---|"]
             for h in sorted(v["harmed_cells"], key=lambda h: -h["diff_pp"]):
                 se = "" if h["se_pp"] is None else f" ± {h['se_pp']:.1f}"
-                lines.append(f"| {h['sector']} | {h['impulse_ns'][0]:.2f}-{h['impulse_ns'][1]:.2f}"
+                lo, hi = h[table["size_key"]]
+                lines.append(f"| {h['sector']} | {lo:.2f}-{hi:.2f}"
                              f" | {h['phase']} | {h['n']} | {_pct(h['reference_rate'])} | "
                              f"{_pct(h['rate'])} | {h['diff_pp']:+.1f}{se} | "
                              f"{'yes' if h['beyond_2se'] else 'no'} |")
@@ -209,12 +213,20 @@ def summary_markdown(runs: list, table: dict, verdict_: dict, files: list[str]) 
               "table.md and table.csv.", ""]
     lines += markdown_table(table, labels, "all")
     lines += ["", "Files: " + ", ".join(Path(f).name for f in files) + "."]
-    return "\n".join(lines) + "\n"
+    return _kick_words(table, "\n".join(lines) + "\n")
+
+
+def _kick_words(table: dict, text: str) -> str:
+    """A kick sweep's text (`tkujax.analysis.map_cells.push_size`): its bands are kicks'."""
+    if table["size_key"] == "impulse_ns":
+        return text
+    return text.replace("impulse band", "kick band").replace("impulses and", "kicks and")
 
 
 def table_markdown(table: dict, labels: list[str]) -> str:
     """table.md: the cells per phase band, then with the phases pooled."""
-    return ("# Fall rate by sector × impulse band × phase band\n\nCells: fall rate (pushes); "
-            "after the reference: difference to it, pp ± paired s.e.\n\n"
-            + "\n".join(markdown_table(table, labels, None)) + "\n\n## Phases pooled\n\n"
-            + "\n".join(markdown_table(table, labels, "all")) + "\n")
+    return _kick_words(table, "# Fall rate by sector × impulse band × phase band\n\nCells: "
+                       "fall rate (pushes); after the reference: difference to it, pp ± paired "
+                       "s.e.\n\n" + "\n".join(markdown_table(table, labels, None))
+                       + "\n\n## Phases pooled\n\n"
+                       + "\n".join(markdown_table(table, labels, "all")) + "\n")

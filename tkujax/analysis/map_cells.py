@@ -2,6 +2,9 @@
 and phase bins, fall fractions per cell, fall boundaries (the impulse where the fall fraction
 crosses 1/2), per ensemble member and by the push's phase in the control period.
 
+A velocity-kick sweep's axis is its kick_mps column in place of the impulse (`push_size`, the
+one definition of the push's size column and label).
+
 Diverged records (numerical blow-up) are neither fell nor survived: every cell and fraction
 leaves them out. Pure functions of the record columns (`tkujax.sweeps.sweep.load`); the
 figures and files are `tkujax.analysis.maps`'s.
@@ -12,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from tkujax.sim.push import onset_phase
+from tkujax.dialects.kick_table import KICK_KEY
 from tkujax.dialects.sweep_spec import PHASE_KEY
 
 ROUND = 6
@@ -21,6 +25,12 @@ MAX_PHASE_BINS = 15      # 2 ms: the physics time step
 MIN_MEMBER_PUSHES = 6    # records of a member at an azimuth (one control setting) for its boundary
 MIN_BAND_MEMBERS = 3     # members with a boundary at an azimuth for the band there
 BAND_QUANTILES = (0.1, 0.5, 0.9)
+
+
+def push_size(rec: dict) -> tuple[str, str]:
+    """(the push's size column, its axis label): kick_mps, "kick (m/s)" for velocity kicks
+    (`tkujax.dialects.kick_table`), else impulse_ns, "impulse (N·s)"."""
+    return (KICK_KEY, "kick (m/s)") if KICK_KEY in rec else ("impulse_ns", "impulse (N·s)")
 
 
 def bin_axis(values: np.ndarray, max_bins: int, period: float | None = None,
@@ -48,12 +58,13 @@ def bin_axis(values: np.ndarray, max_bins: int, period: float | None = None,
 
 
 def cell_means(rec: dict, key: str, control: bool):
-    """(azimuths, impulses, mean of rec[key] per cell as (n_az, n_J)), NaN where empty."""
+    """(azimuths, impulses (or kicks: `push_size`), mean of rec[key] per cell as (n_az, n_J)),
+    NaN where empty."""
     sel = rec["control"].astype(bool) == control
     if "diverged" in rec:
         sel &= ~rec["diverged"].astype(bool)
     azs, ia = bin_axis(np.mod(rec["azimuth_deg"][sel], 360.0), MAX_AZIMUTH_BINS, 360.0)
-    js, ij = bin_axis(rec["impulse_ns"][sel], MAX_IMPULSE_BINS)
+    js, ij = bin_axis(rec[push_size(rec)[0]][sel], MAX_IMPULSE_BINS)
     v = rec[key][sel].astype(float)
     total = np.zeros((len(azs), len(js)))
     count = np.zeros_like(total)
@@ -124,7 +135,7 @@ def member_boundaries(rec: dict, control: bool, min_pushes: int = MIN_MEMBER_PUS
     if "diverged" in rec:
         sel &= ~rec["diverged"].astype(bool)
     azs, ia = bin_axis(np.mod(rec["azimuth_deg"][sel], 360.0), MAX_AZIMUTH_BINS, 360.0)
-    js, ij = bin_axis(rec["impulse_ns"][sel], MAX_IMPULSE_BINS)
+    js, ij = bin_axis(rec[push_size(rec)[0]][sel], MAX_IMPULSE_BINS)
     rid = np.asarray(rec["robot_id"])[sel].astype(int)
     fell = rec["fell"][sel].astype(float)
     members = np.unique(rid[rid >= 0])

@@ -8,6 +8,9 @@ the 30 ms control period instead, per control setting and controller-grid point.
 Diverged records (numerical blow-up, `tkujax.sim.metrics`) are neither fell nor survived: they
 are left out of every cell and fraction, and counted on their own in the summary.
 
+Velocity kicks ([push] kind = "velocity_kick") are mapped along kick_mps instead of the
+impulse (`push_size`); the capturability overlay is then the LIP's impulse bounds over its mass.
+
 A walking sweep ([walk]) gets the walking maps instead (`tkujax.analysis.walk_maps`: the fall
 rate by impulse x direction x gait phase, per walking recovery setting).
 
@@ -35,7 +38,7 @@ from tkujax.sim.push import peak_on_sample_phase
 # this module are imported here too.
 from tkujax.analysis.map_cells import (BAND_QUANTILES, MIN_BAND_MEMBERS, MIN_MEMBER_PUSHES, ROUND,
                                        cell_means, fall_by_phase, max_recoverable_impulse,
-                                       member_boundaries, polar_mesh)
+                                       member_boundaries, polar_mesh, push_size)
 from tkujax.sweeps.sweep_robot import check_robot
 from tkujax.dialects.sweep_spec import parse_spec
 from tkujax.sweeps.sweep import load
@@ -150,7 +153,7 @@ def _stability_figure(rec: dict, controls: list[bool], maps: Path, plt,
             if bands and c2 in bands:
                 _band(ax, bands[c2], colour, _name(c2))
     axes[0, -1].legend(loc="lower left", bbox_to_anchor=(0.75, -0.12), fontsize=7)
-    fig.suptitle("radius: impulse (N·s); angle: push azimuth (0° = pushed from behind, "
+    fig.suptitle(f"radius: {push_size(rec)[1]}; angle: push azimuth (0° = pushed from behind, "
                  "90° = from the right)", fontsize=8, y=0.02)
     fig.colorbar(mesh, ax=axes[0].tolist(), shrink=0.7)
     return _save(fig, maps / "stability_polar.png", plt)
@@ -172,12 +175,19 @@ def _recovery_figure(rec: dict, controls: list[bool], maps: Path, plt) -> Path:
     return _save(fig, maps / "recovery_and_step.png", plt)
 
 
+def _ns_per_size(rec: dict, lip) -> float:
+    """N·s per unit of the push's size (`push_size`): 1 for impulses; for velocity kicks the
+    LIP's mass (a kick of v m/s is the impulse m v on the LIP)."""
+    return 1.0 if push_size(rec)[0] == "impulse_ns" else lip.mass_kg
+
+
 def _capture_figure(rec: dict, lip, maps: Path, plt) -> Path:
     """Capture region: where the swing foot landed vs where the LIP capture point said."""
     sel = rec["control"].astype(bool) & ~rec["fell"].astype(bool) & (
         np.hypot(rec["step_length_m"], rec["step_width_m"]) > 0.005)
     az = np.radians(rec["azimuth_deg"][sel])
-    shift = capturability.capture_point_shift_m(lip, rec["impulse_ns"][sel])
+    shift = capturability.capture_point_shift_m(
+        lip, rec[push_size(rec)[0]][sel] * _ns_per_size(rec, lip))
     fig, ax = plt.subplots(figsize=(5.5, 5))
     poly = np.vstack([lip.support_polygon, lip.support_polygon[:1]]) - lip.com_xy_m
     ax.plot(100 * poly[:, 0], 100 * poly[:, 1], "k-", lw=1, label="support polygon (stand)")
@@ -201,7 +211,8 @@ def _theory_figure(rec: dict, controls: list[bool], lip, params: ControllerParam
     (azimuth, control, sim max) it plots."""
     fine = np.radians(np.arange(0, 361, 2.0))
     fig, ax = plt.subplots(figsize=(7.5, 4))
-    theory = {n: capturability.max_impulse_ns(lip, fine, n, params) for n in (0, 1)}
+    per = _ns_per_size(rec, lip)        # the theory in the push's size (a kick: J / m)
+    theory = {n: capturability.max_impulse_ns(lip, fine, n, params) / per for n in (0, 1)}
     ax.plot(np.degrees(fine), theory[0], "k:", label="J_0 = mω r_max (no step)")
     ax.plot(np.degrees(fine), theory[1], "k--", label="J_1 (one step, l_max, Δt_s)")
     table = []
@@ -211,15 +222,17 @@ def _theory_figure(rec: dict, controls: list[bool], lip, params: ControllerParam
         for a, j in zip(azs, jmax):
             table.append((float(a), c, float(j)))
     ax.set_xlabel("push azimuth (deg; 0 = from behind, 90 = from the right)")
-    ax.set_ylabel("impulse (N·s)")
+    ax.set_ylabel(push_size(rec)[1])
     ax.legend(fontsize=7)
     ax.grid(alpha=0.3)
     fig.tight_layout()
     return _save(fig, maps / "max_impulse_vs_theory.png", plt), table
 
 
-def _theory_table(table, lip, params: ControllerParams) -> tuple[list[str], list[dict]]:
-    """The summary's markdown rows and JSON records: theory vs sim max per azimuth."""
+def _theory_table(table, lip, params: ControllerParams,
+                  per: float = 1.0) -> tuple[list[str], list[dict]]:
+    """The summary's markdown rows and JSON records: theory vs sim max per azimuth (the theory
+    divided by `per`: `_ns_per_size`)."""
     azs_all = sorted({a for a, _, _ in table})
     lookup = {(a, c): j for a, c, j in table}
     rows = ["| azimuth (deg) | r_max (cm) | J_0 theory | sim max, off | J_1 theory | sim max, on |",
@@ -227,8 +240,8 @@ def _theory_table(table, lip, params: ControllerParams) -> tuple[list[str], list
     summary = []
     for a in azs_all:
         ar = math.radians(a)
-        j0 = float(capturability.max_impulse_ns(lip, ar, 0, params)[0])
-        j1 = float(capturability.max_impulse_ns(lip, ar, 1, params)[0])
+        j0 = float(capturability.max_impulse_ns(lip, ar, 0, params)[0] / per)
+        j1 = float(capturability.max_impulse_ns(lip, ar, 1, params)[0] / per)
         off, on = lookup.get((a, False)), lookup.get((a, True))
         fmt = lambda v: "-" if v is None else f"{v:.2f}"  # noqa: E731
         rows.append(f"| {a:.0f} | {100 * float(capturability.r_max(lip, ar)[0]):.1f} | "
@@ -262,6 +275,9 @@ def _summary_text(manifest: dict, everything: dict, rec: dict, grid: np.ndarray,
             f"ω = {lip.omega:.2f} 1/s, l_max = {capturability.step_reach_m(params):.3f} m, "
             f"Δt_s = {capturability.step_time_s(params):.3f} s. Sim max = largest tested impulse "
             "below which every impulse was survived (grid resolution applies).\n\n"
+            + ("" if push_size(rec)[0] == "impulse_ns" else
+               f"Velocity kicks: every size in this table is a {push_size(rec)[1]}; the theory "
+               "is the LIP's J / m.\n\n")
             + "\n".join(rows) + "\n\n" + phase_md)
 
 
@@ -393,7 +409,7 @@ def make_maps(out_dir: str | Path, params: ControllerParams | None = None, robot
     variant_keys = tuple(sorted(_spec_of(manifest).controller_grid))
     phase_png, phase_md = _phase_outputs(rec, variant_keys, maps, plt)
     files.append(phase_png)
-    rows, summary = _theory_table(table, lip, params)
+    rows, summary = _theory_table(table, lip, params, _ns_per_size(rec, lip))
     text = _summary_text(manifest, everything, rec, grid, n_diverged, controls, lip, params,
                          rows, phase_md)
     if ensemble_md:

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from tkujax.analysis.map_cells import (MAX_AZIMUTH_BINS, MAX_IMPULSE_BINS, ROUND, bin_axis,
-                                       max_recoverable_impulse, polar_mesh)
+                                       max_recoverable_impulse, polar_mesh, push_size)
 from tkujax.dialects.walk_table import GAIT_PHASE_KEY
 
 MAX_GAIT_PHASE_BINS = 16
@@ -44,7 +44,7 @@ def walk_cells(rec: dict) -> dict:
     on = r["walk_recovery"] > 0.5
     settings = [s for s in (False, True) if (on == s).any()]
     azs, ia = bin_axis(np.mod(r["azimuth_deg"], 360.0), MAX_AZIMUTH_BINS, 360.0)
-    js, ij = bin_axis(r[size_key(r)], MAX_IMPULSE_BINS)
+    js, ij = bin_axis(r[push_size(r)[0]], MAX_IMPULSE_BINS)
     phs, ip = bin_axis(r[GAIT_PHASE_KEY], MAX_GAIT_PHASE_BINS, 1.0)
     i_s = np.searchsorted(np.array(settings, bool), on)
     shape = (len(settings), len(azs), len(js), len(phs))
@@ -53,16 +53,6 @@ def walk_cells(rec: dict) -> dict:
     np.add.at(count, (i_s, ia, ij, ip), 1.0)
     return dict(settings=settings, azimuth_deg=azs, impulse_ns=js, gait_phase=phs, falls=falls,
                 count=count)
-
-
-def size_key(rec: dict) -> str:
-    """The push's size column: kick_mps for velocity kicks (tkujax.dialects.kick_table), else
-    impulse_ns."""
-    return "kick_mps" if "kick_mps" in rec else "impulse_ns"
-
-
-def _size_label(rec: dict) -> str:
-    return "kick (m/s)" if "kick_mps" in rec else "impulse (N·s)"
 
 
 def _rate(falls, count):
@@ -86,7 +76,7 @@ def _polar_figure(cells: dict, rec: dict, path: Path, plt) -> Path:
         ax.set_title(f"fall fraction while walking, {_setting(on)}", fontsize=9)
         ax.set_rlabel_position(135)
     axes[0, -1].legend(loc="lower left", bbox_to_anchor=(0.7, -0.14), fontsize=7)
-    fig.suptitle(f"radius: {_size_label(rec)}; angle: push azimuth (0° = pushed from behind, "
+    fig.suptitle(f"radius: {push_size(rec)[1]}; angle: push azimuth (0° = pushed from behind, "
                  "90° = from the right); gait phases pooled", fontsize=8, y=0.02)
     fig.colorbar(mesh, ax=axes[0].tolist(), shrink=0.7)
     fig.savefig(path, dpi=80)
@@ -98,7 +88,6 @@ def _boundary(rec: dict, on: bool):
     """max_recoverable_impulse over one recovery setting's records (phases pooled)."""
     sel = (rec["walk_recovery"] > 0.5) == on
     sub = {k: np.asarray(v)[sel] for k, v in rec.items()}
-    sub["impulse_ns"] = sub[size_key(sub)]    # the boundary along the push's size
     return max_recoverable_impulse(dict(sub, control=np.ones(int(sel.sum()), bool)), True)
 
 
@@ -148,7 +137,7 @@ def _summary(manifest: dict, rec: dict, cells: dict, n_diverged: int) -> tuple[s
              "onset (0 = left touchdown).", ""]
     cube = []
     for k, s in enumerate(cells["settings"]):
-        lines += [f"## {_setting(s)}", "", f"| azimuth (deg) | {_size_label(rec)} | {phases} |",
+        lines += [f"## {_setting(s)}", "", f"| azimuth (deg) | {push_size(rec)[1]} | {phases} |",
                   "|---|---|" + "---|" * len(cells["gait_phase"])]
         for a, az in enumerate(cells["azimuth_deg"]):
             for j, imp in enumerate(cells["impulse_ns"]):
@@ -158,7 +147,7 @@ def _summary(manifest: dict, rec: dict, cells: dict, n_diverged: int) -> tuple[s
                 lines.append(f"| {az:g} | {imp:g} | " + " | ".join(
                     "-" if n == 0 else f"{x / n:.2f} ({int(n)})" for x, n in zip(f, c)) + " |")
                 cube += [dict(recovery=_setting(s), azimuth_deg=float(az),
-                              **{size_key(rec): float(imp)},
+                              **{push_size(rec)[0]: float(imp)},
                               gait_phase=float(ph), n=int(n), falls=int(x))
                          for ph, x, n in zip(cells["gait_phase"], f, c) if n > 0]
         lines.append("")

@@ -66,7 +66,8 @@ def _add_compare(sub) -> None:
     p.add_argument("--impulse-bands", type=int, default=4,
                    help="equal impulse bands from the smallest impulse to the largest (1-50)")
     p.add_argument("--impulse-edges", default=None, metavar="E0,E1,...",
-                   help="impulse band edges in N·s instead (must cover every impulse)")
+                   help="impulse band edges in N·s instead (a kick sweep's: m/s; "
+                        "must cover every push)")
     p.add_argument("--phase-bands", type=int, default=3,
                    help="equal bands of the onset phase in the control period (1-30)")
     p.add_argument("--min-pushes", type=int, default=100,
