@@ -95,15 +95,20 @@ def controller_params_from_dict(data, where: str,
 PARAMS_NOTE_KEYS = ("recommended_from",)
 
 
+def without_notes(data):
+    """A parameter file's content without its string notes (PARAMS_NOTE_KEYS: not parameters,
+    `tkujax tune` writes them); anything but a dict unchanged."""
+    if not isinstance(data, dict):
+        return data
+    return {k: v for k, v in data.items() if not (k in PARAMS_NOTE_KEYS and isinstance(v, str))}
+
+
 def _read_json(path: Path):
     try:
         data = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as err:
         raise ValueError(f"--params {path}: cannot read JSON: {err}") from err
-    if isinstance(data, dict):        # a note, not a parameter (tkujax tune writes it)
-        data = {k: v for k, v in data.items()
-                if not (k in PARAMS_NOTE_KEYS and isinstance(v, str))}
-    return data
+    return without_notes(data)
 
 
 def is_policy(data) -> bool:

@@ -10,7 +10,6 @@ harmed_cells, method, n_params, wall_s, device, passed and why.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import re
 import time
@@ -18,7 +17,8 @@ from pathlib import Path
 
 import jax
 
-from tkujax.control.params_files import controller_params_from_dict, save_controller_params_json
+from tkujax.control.params_files import (controller_params_from_dict, save_controller_params_json,
+                                         without_notes)
 from tkujax.control.controller_params import ControllerParams
 from tkujax.analysis.compare import Bands, compare_runs
 from tkujax.dialects.sweep_spec import parse_spec
@@ -31,9 +31,7 @@ _CONTROLLER_LINE = re.compile(r"^\s*controller\s*=.*$", re.MULTILINE)
 def controller_params(params: dict) -> ControllerParams:
     """A parameter file's dict (its notes, such as recommended_from, left out) as
     ControllerParams."""
-    fields = {f.name for f in dataclasses.fields(ControllerParams)}
-    return controller_params_from_dict({k: v for k, v in params.items() if k in fields},
-                                       "the tuned controller")
+    return controller_params_from_dict(without_notes(params), "the tuned controller")
 
 
 def device_name() -> str:
