@@ -28,10 +28,6 @@ PUSH_FIELDS = {
 # (the tune specs share PUSH_FIELDS and have no phase).
 PHASE_KEY = "onset_phase"
 PHASE_UNIT = "(fraction of the 30 ms control period; 1 excluded)"
-# The push's phase in the control period (tkujax.dialects.sweep_spec's docstring): its own key, not
-# in PUSH_FIELDS (the tune specs share PUSH_FIELDS and have no phase).
-PHASE_KEY = "onset_phase"
-PHASE_UNIT = "(fraction of the 30 ms control period; 1 excluded)"
 # Limits of a sweep: records (a larger sweep is several sweeps: its input columns, expanded
 # before the first chunk, take about 0.25 GB per million records at peak, 2 s per 8 million;
 # tests/test_hostile_spec.py), pushes per chunk, the seed (JAX's PRNGKey keeps 32 bits: a

@@ -46,6 +46,7 @@ from tkujax.sim.push import CONTROL_PERIOD_S
 from tkujax.sweeps.chunk_program import (OUTCOME_KEYS, SWEEP_COMPILER_OPTIONS, record_episode,
                                          sweep_base)
 from tkujax.dialects.sweep_spec import PHASE_KEY, PUSH_FIELDS, EnsembleRef
+from tkujax.dialects.walk_table import GAIT_PHASE_KEY
 
 DECIDED_COLUMN = "decided_s"   # early records: the time of the last simulated tick
 # The readings an early record takes up to the fall decision when the push fell (the full
@@ -150,8 +151,10 @@ def snapshot_groups(recs: dict[str, np.ndarray], steps: bool) -> tuple[np.ndarra
     (sensor noise, whose keys differ per push, or a commanded step)."""
     n = len(recs["onset_s"])
     k0 = np.floor(np.asarray(recs["onset_s"], np.float64) / CONTROL_PERIOD_S + 1e-6)
+    # The push's timing (its onset's phase in the control period and in the gait) is the
+    # push's, not the setting's: records that differ only there share their walk until k0.
     setting = [np.asarray(v, np.float64) for k, v in sorted(recs.items())
-               if k not in PUSH_FIELDS and k != PHASE_KEY]
+               if k not in PUSH_FIELDS and k not in (PHASE_KEY, GAIT_PHASE_KEY)]
     quiet = (np.asarray(recs["gyro_noise_std"]) == 0) & (np.asarray(recs["accel_noise_std"]) == 0)
     if steps or not quiet.any():
         return np.full(n, -1), np.zeros(0, np.int64)
