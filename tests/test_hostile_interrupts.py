@@ -1,7 +1,8 @@
 """Ctrl-C is never lost nor turned into a traceback: one landing where Python drops exceptions
 (a __del__, a garbage-collection callback such as JAX's) is delivered again; one cutting an
 extension module's import short (an ImportError from it) or arriving while JAX loads (its
-import deferred over) ends the command as any other Ctrl-C: one line, exit 130."""
+import deferred over) ends the command as any other Ctrl-C: one line, exit 130. The line says
+what a rerun does: a plain tune starts over, a [study] and `tune --robot` resume."""
 
 from __future__ import annotations
 
@@ -11,7 +12,9 @@ import subprocess
 import sys
 import textwrap
 from pathlib import Path
+from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
 from tkujax.cli.errors import EXIT_INTERRUPTED, interrupts_deferred, run_command
@@ -77,3 +80,69 @@ def test_an_interrupt_while_deferred_takes_effect_at_the_end():
     with interrupts_deferred():             # without a Ctrl-C: nothing raised
         reached.append("again")
     assert reached[-1] == "again"
+
+
+TUNE = """
+[tune]
+name = "interrupted_tune"
+iterations = 2
+batch = 4
+popsize = 3
+duration_s = 0.6
+
+[push]
+impulse_ns = {uniform = [0.2, 1.0]}
+onset_s = 0.2
+duration_s = 0.02
+
+[evaluate]
+n = 4
+"""
+
+
+def test_an_interrupted_tune_says_a_rerun_starts_it_over(capsys, monkeypatch, tmp_path):
+    """A plain tune keeps nothing of its search in --out: Ctrl-C in the search leaves no
+    record, and its line says that a rerun starts the tune over, which the rerun does (its
+    search starts again at the start latent, with the full iteration count)."""
+    from hostile_helpers import run
+
+    from tkujax.cli.studies import TUNE_RESTARTS
+    from tkujax.studies.tune import tune_command
+
+    searches = []
+
+    def search(method, problem, z0, train, keys, cfg, **kwargs):
+        searches.append((np.asarray(z0).tolist(), cfg.max_iterations))
+        raise KeyboardInterrupt                 # Ctrl-C in the middle of the search
+
+    monkeypatch.setattr(tune_command, "make_problem", lambda *args, **kwargs: object())
+    monkeypatch.setattr(tune_command, "run_search", search)
+    spec, out = tmp_path / "t.toml", tmp_path / "out"
+    spec.write_text(TUNE)
+    for _ in range(2):
+        code, _, err = run(capsys, "tune", spec, "--out", out, "--no-compare")
+        assert code == EXIT_INTERRUPTED
+        assert err.strip().splitlines()[-1] == f"tkujax tune: interrupted; {TUNE_RESTARTS}"
+        assert "resume" not in err and list(out.iterdir()) == []
+    assert len(searches) == 2 and searches[0] == searches[1]     # the rerun started over
+
+
+def test_an_interrupted_study_or_robot_tune_says_it_resumes(capsys, monkeypatch, tmp_path):
+    """A [study] spec keeps its finished runs and `tune --robot` its finished stages: their
+    rerun resumes, and their line says so."""
+    from hostile_helpers import run
+
+    from tkujax.cli.studies import ROBOT_RESUMES, STUDY_RESUMES, TUNE_RESTARTS, tune_rerun
+    from tkujax.studies import robot_tune
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(robot_tune, "tune_robot_controller", interrupted)
+    code, _, err = run(capsys, "tune", "--robot", tmp_path / "r.toml", "--out", tmp_path / "o")
+    assert code == EXIT_INTERRUPTED
+    assert err.strip() == f"tkujax tune: interrupted; {ROBOT_RESUMES}"
+    study = tmp_path / "study.toml"
+    study.write_text(TUNE + "\n[study]\npolicies = [\"scalars\"]\n")
+    assert tune_rerun(SimpleNamespace(spec=str(study))) == STUDY_RESUMES
+    assert tune_rerun(SimpleNamespace(spec=str(tmp_path / "gone.toml"))) == TUNE_RESTARTS

@@ -99,3 +99,51 @@ def test_name_controller_replaces_an_existing_line(tmp_path):
 def test_tune_without_spec_or_robot_is_refused(capsys):
     assert main(["tune", "--out", "unused"]) == 2
     assert "--robot FILE" in capsys.readouterr().err
+
+
+class _Swept(Exception):
+    """Stands for the held-out sweep: raised once it has its spec."""
+
+
+def test_the_heldout_spec_records_the_robot_file_relative_to_its_folder(tmp_path, monkeypatch):
+    """heldout_spec.json names the robot file relative to its own folder (not by a path of
+    the machine it was made on) and still runs when that folder moves with the robot file;
+    absolute only where no relative path exists (another drive)."""
+    import os
+    import shutil
+    from types import SimpleNamespace
+
+    from tkujax.dialects.sweep_spec import parse_spec
+    from tkujax.studies import robot_verdict
+    from tkujax.studies.robot_tune import heldout_spec
+
+    robot_file = write_generated_robot(tmp_path / "here" / "robots", name="gen")
+    out = tmp_path / "here" / "runs" / "gen_tune"
+    out.mkdir(parents=True)
+    swept = []
+
+    def sweep(spec, *args, **kwargs):
+        swept.append(spec.robot_file)
+        raise _Swept
+
+    monkeypatch.setattr(robot_verdict, "run_sweep", sweep)
+    pushes = dict(impulse_ns=[0.1, 1.0], height_m=[0.3, 0.36], duration_s=[0.01, 0.08])
+    spec = heldout_spec(str(robot_file.resolve()), SimpleNamespace(name="gen"), pushes, 64)
+    with pytest.raises(_Swept):
+        robot_verdict.heldout_verdict(out, None, spec, {}, method="cma", n_params=1)
+    record = json.loads((out / "heldout_spec.json").read_text())
+    assert record["robot"]["file"] == "../../robots/gen.toml"
+    assert swept == [str(robot_file.resolve())]              # the sweep ran on the robot file
+    assert {k: v for k, v in record.items() if k != "robot"} == {
+        k: v for k, v in spec.items() if k != "robot"}
+    shutil.move(tmp_path / "here", tmp_path / "there")       # the folder with the robot file
+    moved = tmp_path / "there" / "runs" / "gen_tune" / "heldout_spec.json"
+    assert parse_spec(robot_verdict.read_spec_record(moved)).robot_file == str(
+        (tmp_path / "there" / "robots" / "gen.toml").resolve())
+
+    def other_drive(path, start=None):
+        raise ValueError("path is on mount 'D:', start on mount 'C:'")
+
+    monkeypatch.setattr(os.path, "relpath", other_drive)
+    far = robot_verdict.spec_record(spec, tmp_path / "there")
+    assert far["robot"]["file"] == str(robot_file.resolve())

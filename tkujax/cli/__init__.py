@@ -45,4 +45,6 @@ def main(argv: list[str] | None = None) -> int:
         configure_runtime()
         return args.func(args)
 
-    return run_command(f"tkujax {args.command}", command)
+    rerun = getattr(args, "rerun", None)      # a command's own account of its rerun
+    return run_command(f"tkujax {args.command}", command,
+                       rerun=None if rerun is None else (lambda: rerun(args)))

@@ -4,7 +4,8 @@
   exit 2 (argparse's own errors too, without the usage block: `OneLineParser`);
 - an OS error (a file in the way, no permission, a name too long): the path and what is wrong,
   exit 2;
-- Ctrl-C: "interrupted; rerun the same command to resume", exit 130 (128 + SIGINT), no
+- Ctrl-C: "interrupted; rerun the same command to resume" (`RESUMES`; a command whose rerun
+  does something else says what, `run_command`'s rerun), exit 130 (128 + SIGINT), no
   traceback; the sweep's writers remove their temporary files on the way out
   (`tkujax.sweeps.chunks`).
 """
@@ -20,6 +21,7 @@ import threading
 
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
+RESUMES = "rerun the same command to resume"
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -106,16 +108,18 @@ def interrupts_deferred():
         raise KeyboardInterrupt
 
 
-def run_command(name: str, command) -> int:
-    """`command()`'s exit code, or the one line and code of the error that ended it."""
+def run_command(name: str, command, rerun=None) -> int:
+    """`command()`'s exit code, or the one line and code of the error that ended it. rerun:
+    what a rerun of an interrupted command does, a callable asked after the Ctrl-C (None:
+    `RESUMES`)."""
     keep_interrupts()
     try:
         return command()
     except KeyboardInterrupt:
-        return _interrupted(name)
+        return _interrupted(name, rerun)
     except Exception as err:
         if from_interrupt(err):
-            return _interrupted(name)
+            return _interrupted(name, rerun)
         if isinstance(err, OSError):
             print(f"{name}: error: {os_error_text(err)}", file=sys.stderr)
             return EXIT_BAD_INPUT
@@ -125,8 +129,12 @@ def run_command(name: str, command) -> int:
         raise
 
 
-def _interrupted(name: str) -> int:
-    print(f"{name}: interrupted; rerun the same command to resume", file=sys.stderr)
+def _interrupted(name: str, rerun=None) -> int:
+    try:
+        said = RESUMES if rerun is None else rerun()
+    except (OSError, ValueError):     # the line comes out whatever the command left behind
+        said = RESUMES
+    print(f"{name}: interrupted; {said}", file=sys.stderr)
     return EXIT_INTERRUPTED
 
 

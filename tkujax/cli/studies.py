@@ -81,6 +81,29 @@ def _cmd_tune(args) -> int:
     return 0
 
 
+# What a rerun of an interrupted `tkujax tune` does. A plain tune keeps nothing of its search
+# in --out (its outputs are written at its end); a [study] keeps its finished runs and
+# `--robot` its finished stages, the search in progress starting over in both.
+TUNE_RESTARTS = ("a rerun of the same command starts the tune over (a tune keeps no search "
+                 "state in --out)")
+STUDY_RESUMES = "rerun the same command to resume (finished runs are kept)"
+ROBOT_RESUMES = ("rerun the same command to resume (finished stages are kept; a search cut "
+                 "short starts over)")
+
+
+def tune_rerun(args) -> str:
+    """What a rerun of `tkujax tune` with `args` does after a Ctrl-C."""
+    if args.spec is None:
+        return ROBOT_RESUMES
+    from tkujax.dialects.validation import read_toml
+
+    try:
+        study = "study" in read_toml(args.spec)
+    except (OSError, ValueError):          # unreadable now: no study ran from it
+        study = False
+    return STUDY_RESUMES if study else TUNE_RESTARTS
+
+
 def _cmd_converge(args) -> int:
     from tkujax.studies.converge import load_spec, run_converge
 
@@ -141,7 +164,7 @@ def _add_tune(sub) -> None:
                    help="without a spec: held-out pushes of the verdict (default 8192)")
     p.add_argument("--no-write", action="store_true",
                    help="without a spec: judge, but leave the robot file as it is")
-    p.set_defaults(func=_cmd_tune)
+    p.set_defaults(func=_cmd_tune, rerun=tune_rerun)
 
 
 def _add_calibrate(sub) -> None:

@@ -6,11 +6,17 @@ them (`tkujax.analysis.compare`: 4 directions x impulse bands x phase bands) and
 record of `results/robots/<name>/verdict.json`: robot, n_pushes, off_fall, on_fall, ratio,
 harmed_cells, method, n_params, wall_s, device, passed and why.
 `name_controller` writes the controller next to the robot file and names it there.
+
+The held-out spec is kept as `heldout_spec.json` (`spec_record`): its [robot] file relative to
+that file's folder, so the record runs wherever the folder goes along with the robot file
+(`read_spec_record` takes the path from the record's folder); absolute only where no relative
+path exists (another drive).
 """
 
 from __future__ import annotations
 
 import json
+import os
 import re
 import time
 from pathlib import Path
@@ -61,9 +67,10 @@ def heldout_verdict(out: Path, robot, spec: dict, params: dict, method: str,
     """Sweep `spec` (a sweep spec's TOML dict) into out/heldout with `params` (a parameter
     file's dict) and judge it (module doc). Resumable: the sweep resumes, the rest reruns."""
     t0 = time.perf_counter()
-    (out / "heldout_spec.json").write_text(json.dumps(spec, indent=1) + "\n")
+    path = out / "heldout_spec.json"
+    path.write_text(json.dumps(spec_record(spec, out), indent=1) + "\n")
     controller = controller_params(params)
-    manifest = run_sweep(parse_spec(spec), out / "heldout", params=controller,
+    manifest = run_sweep(parse_spec(read_spec_record(path)), out / "heldout", params=controller,
                          model_params=robot, quiet=True)
     if not manifest["complete"]:
         raise RuntimeError(f"{out / 'heldout'}: the held-out sweep is incomplete; rerun to "
@@ -83,6 +90,36 @@ def heldout_verdict(out: Path, robot, spec: dict, params: dict, method: str,
                 method=method, n_params=n_params,
                 wall_s=round(time.perf_counter() - t0, 1), device=device_name(),
                 passed=passed, why=_why(v))
+
+
+def relative_path(path: str | Path, folder: str | Path) -> str:
+    """`path` relative to `folder` (both resolved; '/' separated), or absolute where no
+    relative path exists (another drive)."""
+    target = Path(path).resolve()
+    try:
+        return Path(os.path.relpath(target, Path(folder).resolve())).as_posix()
+    except ValueError:
+        return str(target)
+
+
+def spec_record(spec: dict, folder: str | Path) -> dict:
+    """`spec` (a spec's TOML dict) as a spec file in `folder` records it: its [robot] file
+    relative to the folder (`relative_path`)."""
+    robot = spec.get("robot")
+    if not isinstance(robot, dict) or not isinstance(robot.get("file"), str):
+        return spec
+    return spec | {"robot": robot | {"file": relative_path(robot["file"], folder)}}
+
+
+def read_spec_record(path: str | Path) -> dict:
+    """The spec's TOML dict of a `spec_record` file: its [robot] file taken from the file's
+    folder (an absolute one as it is)."""
+    path = Path(path)
+    spec = json.loads(path.read_text())
+    robot = spec.get("robot")
+    if isinstance(robot, dict) and isinstance(robot.get("file"), str):
+        spec["robot"] = robot | {"file": str((path.parent / robot["file"]).resolve())}
+    return spec
 
 
 def name_controller(robot_file: str | Path, params: dict) -> Path:
