@@ -55,6 +55,7 @@ import numpy as np
 
 from tkujax.sim.push import onset_phase
 from tkujax.sweeps.chunks import read_manifest
+from tkujax.sweeps.early import DECIDED_COLUMN
 from tkujax.sweeps.sweep_robot import same_robot
 from tkujax.analysis.compare_report import (plot_by_sector, plot_difference_maps, summary_markdown,
                                             table_csv, table_markdown, write_text_atomic)
@@ -67,9 +68,11 @@ from tkujax.sweeps.sweep_state import require_complete
 SECTOR_NAMES = {4: ("behind", "right", "front", "left"),
                 8: ("behind", "behind-right", "right", "front-right", "front", "front-left",
                     "left", "behind-left")}
-# Columns that are not inputs of a push: outcomes, the control setting (selected on), the
-# record number (differs between the control blocks of one spec), a replay's state.
-NOT_INPUTS = set(outcome_keys(True, True)) | {"control", "push_id", "qpos", "walk_recovery"}
+# Columns that are not inputs of a push: outcomes (an early sweep's decision time among them),
+# the control setting (selected on), the record number (differs between the control blocks of
+# one spec), a replay's state.
+NOT_INPUTS = (set(outcome_keys(True, True))
+              | {"control", "push_id", "qpos", "walk_recovery", DECIDED_COLUMN})
 RECOVERY_SUFFIXES = (":recovery-on", ":recovery-off")
 SUBSETS = ("all", "grid", "random")
 MATCH_ATOL = 1e-9
