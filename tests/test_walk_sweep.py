@@ -293,3 +293,26 @@ def test_a_robot_given_on_the_command_line_resolves_the_walk_again():
     for k in ("onset_s", "walk_step_period_s", "gait_phase"):
         np.testing.assert_array_equal(given[k], named[k])
     assert given["onset_s"][0] != parse_spec(_spec()).records()["onset_s"][0]
+
+
+def test_random_walking_pushes_are_mapped_in_cells_of_many_pushes():
+    """A grid keeps its values; random pushes share a binning whose cells hold about
+    MIN_PUSHES_PER_CELL pushes on average, never fewer than MIN_RANDOM_BINS bins an axis."""
+    from tkujax.analysis.walk_maps import (MIN_PUSHES_PER_CELL, MIN_RANDOM_BINS, cell_bins,
+                                           walk_cells)
+
+    grid = [np.repeat([0.0, 90.0, 180.0, 270.0], 16), np.tile([0.5, 0.7, 0.9, 1.2], 16),
+            np.tile([0.0, 0.25, 0.5, 0.75], 16)]
+    assert cell_bins(grid, (72, 48, 16), 64) == [72, 48, 16]
+    rng = np.random.default_rng(0)
+    n = 65536
+    rec = {"azimuth_deg": rng.uniform(0, 360, 2 * n), "impulse_ns": rng.uniform(0.1, 2.4, 2 * n),
+           "gait_phase": rng.uniform(0, 1, 2 * n), "fell": rng.random(2 * n) < 0.5,
+           "walk_recovery": np.repeat([0.0, 1.0], n)}
+    cells = walk_cells(rec)
+    per_cell = cells["count"][0][cells["count"][0] > 0]
+    assert 0.8 * MIN_PUSHES_PER_CELL <= per_cell.mean() <= 1.5 * MIN_PUSHES_PER_CELL
+    assert cells["count"].sum() == 2 * n
+    few = cell_bins([a[:200] for a in (rec["azimuth_deg"], rec["impulse_ns"], rec["gait_phase"])],
+                    (72, 48, 16), 100)
+    assert few == [MIN_RANDOM_BINS] * 3

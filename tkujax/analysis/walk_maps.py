@@ -1,8 +1,9 @@
 """`tkujax map DIR` of a walking sweep ([walk]; docs/walking.md): the fall rate by impulse x
 direction x gait phase, per walking recovery setting.
 
-Cells are the grid's exact values (random samples binned as the standing maps bin them:
-`tkujax.analysis.map_cells.bin_axis`); diverged records are left out. Outputs in DIR/maps:
+Cells are the grid's exact values; random samples are binned as the standing maps bin them
+(`tkujax.analysis.map_cells.bin_axis`), coarser as the sweep is sparser (`cell_bins`: about
+MIN_PUSHES_PER_CELL pushes a cell); diverged records are left out. Outputs in DIR/maps:
 
   walk_polar.png      fall fraction per (azimuth, impulse), gait phases pooled, one panel per
                       recovery setting, with each setting's fall boundary (the largest impulse
@@ -28,6 +29,11 @@ from tkujax.analysis.map_cells import (MAX_AZIMUTH_BINS, MAX_IMPULSE_BINS, ROUND
 from tkujax.dialects.walk_table import GAIT_PHASE_KEY
 
 MAX_GAIT_PHASE_BINS = 16
+# Random pushes: cells of about this many pushes on average (65,536 pushes per setting: 19
+# azimuths x 13 impulses x 4 gait phases; tests/test_walk_sweep.py), never fewer bins than
+# MIN_RANDOM_BINS per axis. A grid keeps its values.
+MIN_PUSHES_PER_CELL = 64
+MIN_RANDOM_BINS = 4
 
 
 def _setting(on: bool) -> str:
@@ -43,9 +49,12 @@ def walk_cells(rec: dict) -> dict:
     r = {k: np.asarray(v)[ok] for k, v in rec.items()}
     on = r["walk_recovery"] > 0.5
     settings = [s for s in (False, True) if (on == s).any()]
-    azs, ia = bin_axis(np.mod(r["azimuth_deg"], 360.0), MAX_AZIMUTH_BINS, 360.0)
-    js, ij = bin_axis(r[push_size(r)[0]], MAX_IMPULSE_BINS)
-    phs, ip = bin_axis(r[GAIT_PHASE_KEY], MAX_GAIT_PHASE_BINS, 1.0)
+    axes = [np.mod(r["azimuth_deg"], 360.0), r[push_size(r)[0]], r[GAIT_PHASE_KEY]]
+    bins = cell_bins(axes, (MAX_AZIMUTH_BINS, MAX_IMPULSE_BINS, MAX_GAIT_PHASE_BINS),
+                     len(on) / max(len(settings), 1))
+    azs, ia = bin_axis(axes[0], bins[0], 360.0)
+    js, ij = bin_axis(axes[1], bins[1])
+    phs, ip = bin_axis(axes[2], bins[2], 1.0)
     i_s = np.searchsorted(np.array(settings, bool), on)
     shape = (len(settings), len(azs), len(js), len(phs))
     falls, count = np.zeros(shape), np.zeros(shape)
@@ -53,6 +62,20 @@ def walk_cells(rec: dict) -> dict:
     np.add.at(count, (i_s, ia, ij, ip), 1.0)
     return dict(settings=settings, azimuth_deg=azs, impulse_ns=js, gait_phase=phs, falls=falls,
                 count=count)
+
+
+def cell_bins(axes: list, max_bins: tuple, pushes_per_setting: float) -> list[int]:
+    """Bins per axis: a grid's axis (no more values than its max_bins) keeps its values; the
+    random axes share a coarser binning, so that a cell holds about MIN_PUSHES_PER_CELL pushes
+    on average (at least MIN_RANDOM_BINS bins each, at most max_bins)."""
+    random = [len(np.unique(np.round(np.asarray(a, float), ROUND))) > m
+              for a, m in zip(axes, max_bins)]
+    if not any(random):
+        return list(max_bins)
+    full = float(np.prod([m for m, rnd in zip(max_bins, random) if rnd]))
+    scale = min(1.0, (pushes_per_setting / (MIN_PUSHES_PER_CELL * full)) ** (1.0 / sum(random)))
+    return [max(MIN_RANDOM_BINS, int(round(m * scale))) if rnd else m
+            for m, rnd in zip(max_bins, random)]
 
 
 def _rate(falls, count):
