@@ -253,12 +253,13 @@ def controller_step(state: ControllerState, sensors: Sensors, params: Controller
     steps, step_start = _later_steps(steps, state.time_s, step_start, step_weight, det, enabled,
                                      params)
 
-    # With lateral steps off y_sup is 0 and cpg_feet_lateral equals the paper's cpg_feet; the
-    # paper's function is kept on that path so the paper mode is its literal transcription.
+    # With lateral steps off y_sup is 0 and cpg_feet_lateral equals the paper's cpg_feet (with
+    # no support shift); the paper's function is kept on that path so the paper mode is its
+    # literal transcription.
     t_step = state.time_s - step_start
     p_paper = cpg_feet(t_step, x_sup, params)
     p_lateral = cpg_feet_lateral(t_step, x_sup, y_sup, params)
-    use_lateral = params.lateral_steps > 0
+    use_lateral = (params.lateral_steps > 0) | (params.step_shift_m > 0)
     p_right = jnp.where(use_lateral, p_lateral[0], p_paper[0])
     p_left = jnp.where(use_lateral, p_lateral[1], p_paper[1])
     later = later_step_feet(t_step, steps, params)

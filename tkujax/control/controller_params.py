@@ -106,6 +106,12 @@ class ControllerParams:
       stance_roll_kp        rad/rad      ankle-roll feedback on the roll (both ankles).
       stance_roll_kd        rad/(rad/s)  the same on the gyro roll rate.
       stance_limit          rad    bound of each stance offset (a smooth tanh saturation).
+      step_shift_m          m      the waist's shift toward the support foot during the first
+                                   (or commanded) recovery step: a half-cosine ramp over the
+                                   first double support, held through the swing, back over the
+                                   last (`cpg.support_shift`); 0 = paper. A heavy robot needs it
+                                   to lift a foot at all (Booster T1 rolls over the lifted foot
+                                   without it; tests/test_weight_shift.py).
       max_steps             -      1 (paper): one step; 2 or 3: once a step has finished and the
                                    capture point is still beyond the new support's edge (the
                                    trigger distances from the front / rear foot), the other foot
@@ -152,6 +158,7 @@ class ControllerParams:
     stance_roll_kd: float = 0.0
     stance_limit: float = 0.3
     max_steps: float = 1.0
+    step_shift_m: float = 0.0
     hip_offset_y: float = 0.045
     hip_to_ankle_z: float = 0.20
     thigh_length: float = 0.11
@@ -228,6 +235,7 @@ class ControllerParams:
         check("cp_update_window", lambda v: 0.0 <= v <= 2.0, "[0, 2] s")
         check("cp_gain", lambda v: 0.0 <= v <= 10.0, "[0, 10]")
         check("cp_gain_lateral", lambda v: -3.0 <= v <= 3.0, "[-3, 3]")
+        check("step_shift_m", lambda v: 0.0 <= v <= 0.25, "[0, 0.25] m")
         check("gate_temperature", lambda v: 0.0 <= v <= 1.0, "[0, 1] rad")
         check("lateral_steps", lambda v: v in (0.0, 1.0), "{0, 1}")
         check("eps_lateral", lambda v: 0.0 <= v < half_pi, "[0, pi/2) rad")

@@ -65,6 +65,18 @@ def unit_oscillators(t: jax.Array, params: ControllerParams):
     return unit_x, unit_y, unit_z
 
 
+def support_shift(t: jax.Array, params: ControllerParams) -> jax.Array:
+    """(...) the waist's shift toward the support foot at time t of a step (m): 0 before it,
+    a half-cosine ramp to params.step_shift_m over the first double support (gamma T / 2), held
+    through the swing, back to 0 over the last double support, 0 from T on."""
+    T = params.step_period
+    ds = jnp.maximum(0.5 * params.double_support_ratio * T, 1e-6)   # gamma = 0: a jump
+    up = jnp.clip(t / ds, 0.0, 1.0)
+    down = jnp.clip((T - t) / ds, 0.0, 1.0)
+    ramp = jnp.where(t < T - ds, up, down)
+    return jnp.where(t < 0.0, 0.0, params.step_shift_m * 0.5 * (1.0 - jnp.cos(jnp.pi * ramp)))
+
+
 def cpg_feet_lateral(t: jax.Array, x_sup: jax.Array, y_sup: jax.Array,
                      params: ControllerParams, swing_left=None) -> tuple[jax.Array, jax.Array]:
     """The recovery step extended with a sideways component (a tkujax extension).
@@ -73,7 +85,8 @@ def cpg_feet_lateral(t: jax.Array, x_sup: jax.Array, y_sup: jax.Array,
     otherwise, so the legs never cross. The swing foot moves by (+x_sup/2, +y_sup/2) relative to
     the waist and lifts by H_Sup, the support foot by (-x_sup/2, -y_sup/2); y follows the same
     quarter-sine-then-hold profile as x (Eq. 13/16 with rho^y = +-y_sup/2 instead of the paper's
-    zero-amplitude Eq. 14/17). With y_sup = 0 this equals `cpg_feet` exactly. swing_left
+    zero-amplitude Eq. 14/17). With y_sup = 0 and step_shift_m = 0 this equals `cpg_feet`
+    exactly; step_shift_m moves the waist toward the support foot (`support_shift`). swing_left
     (optional, bool array or scalar): choose the swing foot explicitly (a commanded second step
     swings the other foot, `tkujax.control.StepOverride`); None: by the sign of y_sup.
     """
@@ -86,8 +99,10 @@ def cpg_feet_lateral(t: jax.Array, x_sup: jax.Array, y_sup: jax.Array,
     d_y, d_z = params.hip_offset_y, params.hip_to_ankle_z
     half_x, half_y = 0.5 * x_sup * unit_x, 0.5 * y_sup * unit_x
     swing_sign_l = jnp.where(swing_left, 1.0, -1.0)
-    p_left = jnp.stack([swing_sign_l * half_x, d_y + swing_sign_l * half_y,
+    # The waist toward the support foot is both feet away from it (0 with step_shift_m = 0).
+    shift = swing_sign_l * support_shift(t, params)
+    p_left = jnp.stack([swing_sign_l * half_x, d_y + swing_sign_l * half_y + shift,
                         -d_z + jnp.where(swing_left, lift, 0.0)], -1)
-    p_right = jnp.stack([-swing_sign_l * half_x, -d_y - swing_sign_l * half_y,
+    p_right = jnp.stack([-swing_sign_l * half_x, -d_y - swing_sign_l * half_y + shift,
                          -d_z + jnp.where(swing_left, 0.0, lift)], -1)
     return p_right.astype(dtype), p_left.astype(dtype)

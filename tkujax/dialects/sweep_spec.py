@@ -119,7 +119,7 @@ CONTROLLER_FIELDS = (
     "cp_rate_blend", "cp_lookahead_s", "cp_trigger", "cp_trigger_forward_m",
     "cp_trigger_backward_m", "cp_trigger_lateral_m", "cp_gain_lateral", "stance_ankle_kp",
     "stance_ankle_kd", "stance_hip_kp", "stance_hip_kd", "stance_roll_kp", "stance_roll_kd",
-    "stance_limit", "max_steps",
+    "stance_limit", "max_steps", "step_shift_m",
 )
 # Randomisation: multiplicative scales and additive values applied per push.
 RANDOMIZE_FIELDS = {

@@ -28,6 +28,7 @@ Versions:
      in each chunk's entry the run_id, backend, device and git_commit that wrote it; the
      top-level backend, git_commit and devices are the first run's. Before it, the top level
      named the last run's backend for every chunk (`tkujax.sweeps.replay.record_backend`).
+  7  also records controller_params.step_shift_m (the support shift of a step; 0.0 before it).
 
 Adding a field to one of the three dataclasses: append an AddedField with `since` =
 SCHEMA_VERSION + 1 and the value that reproduces the code without it, and bump SCHEMA_VERSION
@@ -46,7 +47,7 @@ from tkujax.model.params_json import model_params_from_dict
 from tkujax.dialects.sweep_spec import SweepSpec, parse_spec
 from tkujax.dialects.program_keys import decisions_of
 
-SCHEMA_VERSION = 6
+SCHEMA_VERSION = 7
 UNVERSIONED = 1               # the version of a manifest that records none
 SCHEMA_KEY = "schema_version"
 # The sweep's passes over the body tree, recorded from version 3 on, and what ran before.
@@ -125,6 +126,7 @@ ADDED_FIELDS: tuple[AddedField, ...] = (
     # The sideways step's gain (negative: the widening step); 1.0 is the step toward the
     # capture point that every controller took before it.
     AddedField("controller_params", "cp_gain_lateral", 1.0, since=5),
+    AddedField("controller_params", "step_shift_m", 0.0, since=7),
     # The IMU low-pass filters: before them the controller read the instantaneous sample
     # (0 = no filter), not today's default cut-off.
     AddedField("model_params", "accel_lowpass_hz", 0.0, since=2),
