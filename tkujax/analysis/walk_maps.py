@@ -148,9 +148,11 @@ def _summary(manifest: dict, rec: dict, cells: dict, n_diverged: int) -> tuple[s
             rec["distance_m"][ok & (on == s) & ~fell])), ROUND) if (ok & (on == s) & ~fell).any()
         else None) for s in cells["settings"]}
     phases = " | ".join(f"{p:.3g}" for p in cells["gait_phase"])
-    slope = manifest.get("spec", {}).get("sweep", {}).get("floor_pitch_deg", 0)
+    floor = manifest.get("spec", {}).get("sweep", {})
+    slope, roll = floor.get("floor_pitch_deg", 0), floor.get("floor_roll_deg", 0)
     lines = [f"# Walking sweep `{manifest.get('name')}`: {len(fell)} pushes"
-             + (f" on a {slope:g}° floor (+ = uphill)" if slope else ""), "",
+             + (f" on a {slope:g}° floor (+ = uphill)" if slope else " on a floor" if roll
+                else "") + (f" rolled {roll:g}° (+ = rising to the left)" if roll else ""), "",
              f"Walk: {json.dumps(walk)}; devices: {', '.join(manifest.get('devices', []))}; "
              f"wall {manifest.get('wall_s')} s. " + "; ".join(
                  f"{k}: fall rate {v['fall_rate']:.3f} of {v['n']}, survivors walked "

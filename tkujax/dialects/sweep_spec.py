@@ -66,7 +66,7 @@ FPGA fixed-point controller (`tkujax.control.fixed`):
     start_delay_s = [0.03]     # after the push onset (from_detection = 0) or the detection (1)
 
 [walk] and gait_phase: studies.spec_walk; [push.sequence]: spec_sequence; [push] kind (velocity
-kicks): spec_kick; [sweep] floor_pitch_deg (-15 to 15 deg): sim.slope. See docs/walking.md.
+kicks): spec_kick; [sweep] floor_pitch_deg, floor_roll_deg: floor_table. See docs/walking.md.
 """
 
 from __future__ import annotations
@@ -85,7 +85,6 @@ from tkujax.control.params_files import checked_value
 from tkujax.model.ensemble import load_ensemble
 from tkujax.model.model_params import ModelParams
 from tkujax.sim.push import onset_from_phase, onset_phase
-from tkujax.sim.slope import FLOOR_PITCH_RANGE_DEG
 from tkujax.dialects.program_keys import SWEEP_TREE_PASSES, Decisions, decisions_of, tree_passes_of
 from tkujax.dialects.push_limits import (MAX_CHUNK_SIZE, MAX_RECORDS, MAX_SEED, PHASE_KEY,
                                          PHASE_UNIT, PUSH_FIELDS, check_limits, record_count)
@@ -97,6 +96,7 @@ from tkujax.dialects.walk_table import (GAIT_PHASE_KEY, GAIT_PHASE_UNIT, WalkSpe
                                         check_gait_phase_keys, check_walk_sweep, cross_walk,
                                         gait_params_of, gait_phase_values, onsets_at_phase,
                                         parse_walk, resolve_walk)
+from tkujax.dialects.floor_table import FLOOR_FIELDS, floor_columns, parse_floor
 from tkujax.dialects.fpga_table import (ARITHMETIC, FPGA_COLUMN, FPGA_FIELDS,
                                         check_fixed_controller, fixed_point_config, parse_fpga)
 from tkujax.dialects.validation import SpecError, number, read_toml, table, uniform, values
@@ -140,7 +140,7 @@ ENSEMBLE_KEY = "ensemble"
 ROBOT_ID_COLUMN = "robot_id"
 SWEEP_FIELDS = {"name": str, "seed": int, "chunk_size": int, "duration_s": (int, float),
                 "control": list, "description": str, "tree_passes": str, "decisions": str,
-                "lanes": int, "segment_ticks": int, "floor_pitch_deg": (int, float)}
+                "lanes": int, "segment_ticks": int, **FLOOR_FIELDS}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -211,7 +211,8 @@ class SweepSpec:
     walk: WalkSpec | None = None   # [walk]: the robot walks (tkujax.dialects.walk_table)
     sequence: SequenceSpec | None = None   # [push.sequence] (tkujax.dialects.sequence_table)
     push_kind: str = "impulse"   # [push] kind (tkujax.dialects.kick_table)
-    floor_pitch_deg: float = 0.0   # [sweep] floor_pitch_deg: a slope (tkujax.sim.slope)
+    floor_pitch_deg: float = 0.0   # [sweep] floor_pitch_deg: a slope (floor_table)
+    floor_roll_deg: float = 0.0    # [sweep] floor_roll_deg: a sideways slope
 
     def fixed_point_config(self, rec: dict | None = None) -> FixedPointConfig | None:
         """The FixedPointConfig of a record (its fpga_* columns over [fpga]); None for float."""
@@ -301,8 +302,7 @@ def _parse_sweep(data: dict) -> dict:
                         "keeps 32 bits)")
     sweep["duration_s"] = number("sweep.duration_s", sweep.get("duration_s", 2.4), 0.1, 30.0,
                                  "s")
-    sweep["floor_pitch_deg"] = number("sweep.floor_pitch_deg", sweep.get("floor_pitch_deg", 0.0),
-                                      *FLOOR_PITCH_RANGE_DEG, "deg (+ = uphill toward +x)")
+    sweep |= parse_floor(sweep)
     control = sweep.setdefault("control", ["off", "on"])
     if (not control or any(not isinstance(c, str) or c not in ("on", "off") for c in control)
             or len(set(control)) != len(control)):
@@ -387,7 +387,8 @@ def parse_spec(data: dict) -> SweepSpec:
                      fpga_grid=fpga_grid, ensemble=ensemble, tree_passes=tree_passes,
                      robot_file=robot_file, decisions=decisions_of(sweep, chunk), walk=walk,
                      sequence=sequence, push_kind=kind,
-                     floor_pitch_deg=sweep["floor_pitch_deg"]))
+                     floor_pitch_deg=sweep["floor_pitch_deg"],
+                     floor_roll_deg=sweep["floor_roll_deg"]))
     check_walk_sweep(spec)
     return spec
 
@@ -494,7 +495,6 @@ def expand(spec: SweepSpec) -> dict[str, np.ndarray]:
     out = cross_walk(spec.walk, cross_steps(spec, out))
     if kick:
         out = kick_columns(out)
-    if spec.floor_pitch_deg:   # a slope: stated in every record (compare checks it)
-        out["floor_pitch_deg"] = np.full(len(out["control"]), spec.floor_pitch_deg)
+    out |= floor_columns(spec, len(out["control"]))   # a slope: compare checks it
     out["push_id"] = np.arange(len(out["control"]))
     return out

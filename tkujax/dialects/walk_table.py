@@ -26,6 +26,7 @@ import numpy as np
 
 from tkujax.control.gait import WalkCommand, gait_phase, time_at_phase
 from tkujax.control.controller_params import ControllerParams
+from tkujax.dialects.floor_table import check_floor_decisions
 from tkujax.dialects.validation import SpecError, integer, number, table
 
 GAIT_PHASE_KEY = "gait_phase"
@@ -176,8 +177,7 @@ def check_walk_sweep(spec) -> None:
     sequences ([push.sequence]): no commanded step, and no early decisions (the settled rule
     would not wait for the last pulse); for slopes no early decisions (the lanes' program is
     the level floor's)."""
-    if spec.floor_pitch_deg and spec.decisions.early:
-        raise SpecError("sweep.floor_pitch_deg: a slope runs with decisions = \"full\"")
+    check_floor_decisions(spec)
     if spec.sequence is not None and (spec.step_grid or spec.decisions.early):
         raise SpecError("[push.sequence]: a push sequence runs with the controller's own steps "
                         "and decisions = \"full\"; leave out [step] and early decisions")

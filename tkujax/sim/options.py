@@ -24,7 +24,7 @@ import jax
 from tkujax.control.fixed import FixedPointConfig
 from tkujax.control.gait import WalkCommand
 from tkujax.sim.push import CONTROL_PERIOD_S, Push
-from tkujax.sim.slope import check_floor_pitch
+from tkujax.sim.slope import check_floor_pitch, check_floor_roll
 
 # jax.checkpoint (less memory under grad): False / "none": off; True / "tick": each control
 # tick; "tick_nocse": the same with prevent_cse=False (JAX's advice inside scan); "tick_dots":
@@ -101,15 +101,18 @@ class RolloutConfig:
     fixed: FixedPointConfig | None = None
     # How the program is laid out (the same simulated result; see ProgramOptions).
     program: ProgramOptions = ProgramOptions()
-    # The floor's pitch, deg (+ = uphill toward +x; tkujax.sim.slope): a tilted gravity. 0:
-    # the level floor, and the program unchanged (a Python branch on the value).
+    # The floor's pitch, deg (+ = uphill toward +x; tkujax.sim.slope), and its roll after it,
+    # deg (+ = the floor rises toward +y): a tilted gravity. Both 0: the level floor, and the
+    # program unchanged (a Python branch on the values).
     floor_pitch_deg: float = 0.0
+    floor_roll_deg: float = 0.0
 
     def __post_init__(self):
         if not isinstance(self.program, ProgramOptions):
             raise ValueError(f"RolloutConfig.program must be a ProgramOptions, got "
                              f"{self.program!r}")
         check_floor_pitch(self.floor_pitch_deg)
+        check_floor_roll(self.floor_roll_deg)
 
 
 @jax.tree_util.register_dataclass

@@ -126,10 +126,12 @@ def _setup(robot: Robot) -> _Setup:
 
 
 @functools.lru_cache(maxsize=8)
-def _slope_setup(robot: Robot, floor_pitch_deg: float) -> _Setup:
-    """_setup's, on a floor pitched by floor_pitch_deg (tkujax.sim.slope: its gravity)."""
+def _slope_setup(robot: Robot, floor_pitch_deg: float, floor_roll_deg: float) -> _Setup:
+    """_setup's, on a floor pitched by floor_pitch_deg and rolled by floor_roll_deg
+    (tkujax.sim.slope: its gravity)."""
     setup = _setup(robot)
-    return dataclasses.replace(setup, model=tilt_host_model(setup.model, floor_pitch_deg))
+    return dataclasses.replace(setup, model=tilt_host_model(setup.model, floor_pitch_deg,
+                                                            floor_roll_deg))
 
 
 @functools.lru_cache(maxsize=4)
@@ -425,7 +427,8 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
     """
     if push_wrench not in PUSH_WRENCH_MODES:
         raise ValueError(f"push_wrench must be one of {PUSH_WRENCH_MODES}, got {push_wrench!r}")
-    setup = _slope_setup(as_robot(robot, model_params), config.floor_pitch_deg)
+    setup = _slope_setup(as_robot(robot, model_params), config.floor_pitch_deg,
+                         config.floor_roll_deg)
     idx = setup.index
     n = int(np.shape(pushes.impulse_ns)[0])
     phys = _Physics(setup, n, n_threads)

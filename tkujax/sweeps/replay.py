@@ -151,7 +151,8 @@ def _rerun(spec, manifest: dict, inputs: dict, chunk: int, pos: int, base, model
                            fpga=spec.fpga if spec.arithmetic == "fixed" else None,
                            fpga_varied=tuple(sorted(spec.fpga_grid)), ensemble=spec.ensemble,
                            schedule=schedule, walk=walk_base(spec),
-                           floor_pitch_deg=spec.floor_pitch_deg)
+                           floor_pitch_deg=spec.floor_pitch_deg,
+                           floor_roll_deg=spec.floor_roll_deg)
         return {k: v[pos] for k, v in res.items()}
     import jax
 
@@ -160,7 +161,8 @@ def _rerun(spec, manifest: dict, inputs: dict, chunk: int, pos: int, base, model
                        model_params, with_qpos=True, steps=bool(spec.step_grid),
                        fixed=spec.fixed_point_config({k: v[pos] for k, v in inputs.items()}),
                        ensemble=spec.ensemble, tree_passes=spec.tree_passes,
-                       walk=walk_base(spec), floor_pitch_deg=spec.floor_pitch_deg)
+                       walk=walk_base(spec), floor_pitch_deg=spec.floor_pitch_deg,
+                       floor_roll_deg=spec.floor_roll_deg)
     one = {k: np.asarray(v[pos:pos + 1], np.float32) for k, v in inputs.items()}
     key = chunk_keys(spec.seed, chunk, padded)[pos:pos + 1]
     return jax.tree_util.tree_map(lambda x: np.asarray(x)[0],

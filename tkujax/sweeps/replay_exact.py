@@ -58,7 +58,8 @@ def exact_outcomes(spec, manifest: dict, inputs: dict, chunk: int, pos: int, bas
         return {k: np.asarray(v)[0] for k, v in out.items()}
     fn = make_chunk_fn(varied, spec.duration_s, model_params, steps=steps, fixed=fixed,
                        ensemble=spec.ensemble, tree_passes=spec.tree_passes,
-                       walk=walk_base(spec), floor_pitch_deg=spec.floor_pitch_deg)
+                       walk=walk_base(spec), floor_pitch_deg=spec.floor_pitch_deg,
+                       floor_roll_deg=spec.floor_roll_deg)
     rows = np.zeros(padded, np.int64)
     batch = {k: jax.device_put(v[rows].astype(np.float32), sharding) for k, v in one.items()}
     out = fn(batch, jax.device_put(keys[rows], sharding), traced_params(base), schedule)

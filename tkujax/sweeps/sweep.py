@@ -118,7 +118,8 @@ class _ChunkJob:
                                steps=steps, fpga=spec.fpga if spec.arithmetic == "fixed" else None,
                                fpga_varied=tuple(sorted(spec.fpga_grid)), ensemble=spec.ensemble,
                                schedule=self.schedule, walk=walk_base(spec),
-                               floor_pitch_deg=spec.floor_pitch_deg)
+                               floor_pitch_deg=spec.floor_pitch_deg,
+                               floor_roll_deg=spec.floor_roll_deg)
             return {k: recs[k][lo:hi] for k in recs} | res
         keys = chunk_keys(spec.seed, i, self.padded)   # (early decisions: early_parts)
         res = {}
@@ -132,7 +133,8 @@ class _ChunkJob:
                      for k in self.input_keys}
             fn = make_chunk_fn(varied, spec.duration_s, self.robot, steps=steps,
                                fixed=fixed, ensemble=spec.ensemble, tree_passes=spec.tree_passes,
-                               walk=walk_base(spec), floor_pitch_deg=spec.floor_pitch_deg)
+                               walk=walk_base(spec), floor_pitch_deg=spec.floor_pitch_deg,
+                               floor_roll_deg=spec.floor_roll_deg)
             part = fn(batch, jax.device_put(keys[rows], self.sharding), traced_params(self.base),
                       self.schedule)
             for k, v in part.items():
