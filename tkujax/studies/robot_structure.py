@@ -1,6 +1,6 @@
 """Which recovery structure a robot's controller is tuned in, chosen on the robot itself.
 
-Two structures (`STRUCTURES`), each a start on the robot's scaled defaults:
+Three structures (`STRUCTURES`), each a start on the robot's scaled defaults:
 
 - "step": the structure the OP3 evidence chose (docs/robots.md): the accelerometer gate, the
   capture-point triggers at 15 % of the leg's reach, one step, the widening sideways step,
@@ -9,10 +9,14 @@ Two structures (`STRUCTURES`), each a start on the robot's scaled defaults:
   before it tips sideways; a heavy, wide-hipped one may not (Booster T1 pushed from the front
   lifts its left foot, rolls over it and falls: 54 % of 3.8-12 N s front pushes that standing
   still survives).
+- "shift_step": the same step with the waist shifted toward the support foot before the
+  other lifts (`step_shift_m`, starting at the hip's half-width d_y, over a double support
+  of 0.3 T): on T1 a commanded step then stands where without it every one fell
+  (tests/test_weight_shift.py).
 - "stance": no step, stance feedback (ankle and hip on pitch, ankle on roll) and the
   accelerometer gate, as the conservative default.
 
-`choose_structure` runs both starts and control off on `PROBE_N` pushes of the robot's tuning
+`choose_structure` runs every start and control off on `PROBE_N` pushes of the robot's tuning
 distribution (MuJoCo C, another seed than the tune's) and keeps the one with the lower
 harm-weighted loss: falls + HARM_WEIGHT x pushes that fall only with the controller (the
 tune's own weight). The choice and its counts go into the record.
@@ -30,6 +34,7 @@ from tkujax.sim.rollout_mujoco import simulate_mujoco
 
 PROBE_N, PROBE_SEED, PROBE_HORIZON_S = 192, 5, 1.5
 HARM_WEIGHT = 2.0
+SHIFT_MAX_M = 0.2           # the shift step's start: d_y, at most this (ControllerParams: 0.25)
 STEP_FIELDS = ("step_period", "double_support_ratio", "lift_height", "cp_gain",
                "cp_trigger_forward_m", "cp_trigger_backward_m", "cp_trigger_lateral_m",
                "cp_gain_lateral")
@@ -38,6 +43,10 @@ STRUCTURES = {
                             cp_rate_blend=1.0, cp_gain_lateral=-1.0,
                             double_support_ratio=0.05, cp_gain=1.5),
                  tuned=STEP_FIELDS + ("accel_gate",) + STANCE_GAINS),
+    "shift_step": dict(fixed=dict(cp_trigger=1.0, max_steps=1.0, lateral_steps=1.0,
+                                  cp_rate_blend=1.0, cp_gain_lateral=1.0,
+                                  double_support_ratio=0.3, cp_gain=1.5),
+                       tuned=STEP_FIELDS + ("step_shift_m", "accel_gate") + STANCE_GAINS),
     "stance": dict(fixed=dict(cp_trigger=0.0, max_steps=1.0, lateral_steps=0.0,
                               eps_forward=NO_STEP_THRESHOLD_RAD,
                               eps_backward=NO_STEP_THRESHOLD_RAD),
@@ -50,11 +59,13 @@ def structure_start(robot, name: str) -> dict:
     d = robot.defaults
     reach = float(d.thigh_length + d.calf_length)
     start = dict(STRUCTURES[name]["fixed"]) | conservative_stance()
-    if name == "step":
+    if name in ("step", "shift_step"):
         start |= dict(step_period=float(d.step_period), lift_height=float(d.lift_height))
         start |= {k: round(0.15 * reach, 4) for k in ("cp_trigger_forward_m",
                                                        "cp_trigger_backward_m",
                                                        "cp_trigger_lateral_m")}
+    if name == "shift_step":
+        start["step_shift_m"] = round(min(SHIFT_MAX_M, float(d.hip_offset_y)), 4)
     return start
 
 

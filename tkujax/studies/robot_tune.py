@@ -54,6 +54,8 @@ def ranges_for(robot, start: dict, tuned: tuple[str, ...]) -> dict:
         t, lift = start["step_period"], start["lift_height"]
         ranges |= dict(step_period=[round(0.5 * t, 4), round(min(2.0, 2.0 * t), 4)],
                        lift_height=[round(0.2 * lift, 4), round(min(0.1, 2.5 * lift), 4)])
+    if "step_shift_m" in start:
+        ranges["step_shift_m"] = [0.0, round(min(0.25, max(0.02, 2.0 * start["step_shift_m"])), 4)]
     return {k: v for k, v in ranges.items() if k in tuned}
 
 

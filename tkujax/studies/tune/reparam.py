@@ -35,6 +35,7 @@ TUNABLE: dict[str, tuple[str, tuple[float, float], bool, str]] = {
     "cp_trigger_backward_m": ("cp_trigger_backward_m", (0.0, 0.15), False, "m"),
     "cp_trigger_lateral_m": ("cp_trigger_lateral_m", (0.02, 0.15), False, "m"),
     "cp_gain_lateral": ("cp_gain_lateral", (-2.0, 1.5), False, ""),
+    "step_shift_m": ("step_shift_m", (0.0, 0.1), False, "m"),
     "stance_ankle_kp": ("stance_ankle_kp", (-1.0, 3.0), False, "rad/rad"),
     "stance_ankle_kd": ("stance_ankle_kd", (-0.1, 0.3), False, "rad/(rad/s)"),
     "stance_hip_kp": ("stance_hip_kp", (-2.0, 2.0), False, "rad/rad"),
