@@ -12,7 +12,8 @@ roles given twice, the MJCF's existence); the names are checked against the comp
     [legs.right]
     [stand]                       # optional: keyframe = "home", or joints = {name = rad, ...},
                                   # or hip_height_frac = 0.93 for the computed stand
-    [collision]                   # optional: mode = "primitives" (default) or "model"
+    [collision]                   # optional: mode = "primitives" (default) or "model";
+                                  # floor = "all" (default) or "feet" (tkujax.robot.collision)
     controller = "robot.json"     # optional: the robot's tuned controller, relative to this file
     [servo]                       # optional: PD servos on the leg joints (tkujax.robot.servos)
 
@@ -29,7 +30,8 @@ import re
 from pathlib import Path
 
 from tkujax.model.files import SpecError, read_toml
-from tkujax.robot.collision import COLLISION_MODES, DEFAULT_COLLISION_MODE
+from tkujax.robot.collision import (COLLISION_MODES, DEFAULT_COLLISION_MODE,
+                                   DEFAULT_FLOOR_CONTACTS, FLOOR_CONTACTS)
 from tkujax.robot.file_checks import RobotFileError, check_keys, string
 from tkujax.robot.servos import ServoTable, parse_servo_table
 
@@ -41,7 +43,7 @@ SIDES = ("left", "right")
 TOP_KEYS = ("mjcf", "imu", "legs", "stand", "name", "collision", "controller", "servo")
 REQUIRED_TOP = ("mjcf", "imu", "legs")
 STAND_KEYS = ("keyframe", "joints", "hip_height_frac")
-COLLISION_KEYS = ("mode",)
+COLLISION_KEYS = ("mode", "floor")
 HIP_HEIGHT_FRAC = 0.93        # computed stand: hip-to-ankle = this x (thigh + calf)
 _VAR = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)(?::-([^}]*))?\}")
 
@@ -79,6 +81,7 @@ class RobotDescription:
     stand: StandDescription
     source: str
     collision_mode: str = DEFAULT_COLLISION_MODE   # tkujax.robot.collision.COLLISION_MODES
+    floor_contacts: str = DEFAULT_FLOOR_CONTACTS   # tkujax.robot.collision.FLOOR_CONTACTS
     controller_path: Path | None = None            # the robot's tuned controller (absolute)
     servo: ServoTable | None = None                # [servo]: PD servos replacing the legs'
 
@@ -158,17 +161,22 @@ def _stand(data) -> StandDescription:
                             hip_height_frac=float(frac))
 
 
-def _collision_mode(data) -> str:
+def _collision(data) -> tuple[str, str]:
+    """([collision] mode, floor), each checked against its allowed values."""
     if data is None:
-        return DEFAULT_COLLISION_MODE
+        return DEFAULT_COLLISION_MODE, DEFAULT_FLOOR_CONTACTS
     if not isinstance(data, dict):
         raise RobotFileError(f"collision: expected a table, got {data!r}")
     check_keys(data, COLLISION_KEYS, (), "collision")
-    mode = data.get("mode", DEFAULT_COLLISION_MODE)
-    if mode not in COLLISION_MODES:
-        raise RobotFileError(f"collision.mode: expected one of {list(COLLISION_MODES)}, got "
-                             f"{mode!r}")
-    return mode
+    out = []
+    for key, allowed, default in (("mode", COLLISION_MODES, DEFAULT_COLLISION_MODE),
+                                  ("floor", FLOOR_CONTACTS, DEFAULT_FLOOR_CONTACTS)):
+        value = data.get(key, default)
+        if value not in allowed:
+            raise RobotFileError(f"collision.{key}: expected one of {list(allowed)}, got "
+                                 f"{value!r}")
+        out.append(value)
+    return out[0], out[1]
 
 
 def parse_description(data: dict, base: Path, source: str = "<robot file>") -> RobotDescription:
@@ -193,9 +201,10 @@ def parse_description(data: dict, base: Path, source: str = "<robot file>") -> R
     if not isinstance(name, str):
         raise RobotFileError(f"name: expected a string, got {name!r}")
     servo = parse_servo_table(data["servo"], roles=left.roles) if "servo" in data else None
+    mode, floor = _collision(data.get("collision"))
     return RobotDescription(name=name, mjcf_path=mjcf, imu=string(data, "imu", ""),
                             left=left, right=right, stand=_stand(data.get("stand")),
-                            source=source, collision_mode=_collision_mode(data.get("collision")),
+                            source=source, collision_mode=mode, floor_contacts=floor,
                             controller_path=_controller_path(data, base), servo=servo)
 
 

@@ -27,7 +27,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from tkujax.robot.collision import approximate_collisions
+from tkujax.robot.collision import approximate_collisions, feet_only
 from tkujax.robot.description import (ANKLE_ROLES, HIP_ROLES, LEG_ROLES, RobotDescription,
                                       RobotFileError, load_description)
 from tkujax.robot.servos import apply_servo, is_position_servo
@@ -400,6 +400,8 @@ def load_robot(robot: RobotDescription | str | Path) -> RobotModel:
     _apply_servos(spec, raw, desc, legs, waist)
     if desc.collision_mode == "primitives":
         approximate_collisions(spec, raw, {legs[s][1] for s in LEG_ORDER})
+    if desc.floor_contacts == "feet":
+        feet_only(spec, {raw.body(legs[s][1]).name for s in LEG_ORDER})
     raw = _compile(spec, f"{desc.mjcf_path} with tkujax's servos and collisions")
     imu, ankles, touch = _complete(spec, raw, desc, root, legs)
     model = _compile(spec, f"{desc.mjcf_path} with tkujax's sensors")
