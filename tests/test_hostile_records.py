@@ -50,11 +50,18 @@ def _env(**extra) -> dict:
     return env
 
 
+def _default_sigint() -> None:
+    """Ctrl-C's default in the child, as at a terminal: a suite started in the background by a
+    non-interactive shell inherits SIGINT ignored, and the Ctrl-C tests would send nothing."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _writer(spec: Path, out: Path, slow_s: float = 0.0) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", "tkujax.cli", "sweep", str(spec), "--out",
                              str(out), "--backend", "mujoco"],
                             env=_env(TKUJAX_TEST_SLOW_WRITE=str(slow_s)), text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            preexec_fn=_default_sigint)
 
 
 # --- class 1: the check and the claim under one lock ---
