@@ -146,3 +146,34 @@ def test_an_interrupted_study_or_robot_tune_says_it_resumes(capsys, monkeypatch,
     study.write_text(TUNE + "\n[study]\npolicies = [\"scalars\"]\n")
     assert tune_rerun(SimpleNamespace(spec=str(study))) == STUDY_RESUMES
     assert tune_rerun(SimpleNamespace(spec=str(tmp_path / "gone.toml"))) == TUNE_RESTARTS
+
+
+def test_a_ctrl_c_while_the_command_line_loads_is_one_line(monkeypatch, capsys):
+    """The console script (`tkujax.console.main`) loads tkujax.cli inside its handler: a
+    KeyboardInterrupt while that import runs is one line and exit 130, as during a command."""
+    import tomllib
+    import types
+
+    from tkujax import console
+
+    class Loading(types.ModuleType):
+        def __getattr__(self, name):
+            raise KeyboardInterrupt
+
+    monkeypatch.setitem(sys.modules, "tkujax.cli", Loading("tkujax.cli"))
+    assert console.main() == EXIT_INTERRUPTED == console.EXIT_INTERRUPTED
+    assert capsys.readouterr().err.strip() == console.INTERRUPTED
+    scripts = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"]
+    assert scripts["tkujax"] == "tkujax.console:main"
+
+
+def test_the_console_module_loads_nothing_heavy():
+    """Importing tkujax.console loads neither the command line nor JAX (a Ctrl-C before the
+    handler is then only Python's own start)."""
+    done = _python("""
+        import sys
+        import tkujax.console
+        print(sorted(m for m in ("tkujax.cli", "jax", "mujoco") if m in sys.modules))
+    """)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[]"
