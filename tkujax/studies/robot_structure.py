@@ -38,14 +38,13 @@ SHIFT_MAX_M = 0.2           # the shift step's start: d_y, at most this (Control
 STEP_FIELDS = ("step_period", "double_support_ratio", "lift_height", "cp_gain",
                "cp_trigger_forward_m", "cp_trigger_backward_m", "cp_trigger_lateral_m",
                "cp_gain_lateral")
+STEP_FIXED = dict(cp_trigger=1.0, max_steps=1.0, lateral_steps=1.0, cp_rate_blend=1.0,
+                  cp_gain_lateral=-1.0, double_support_ratio=0.05, cp_gain=1.5)
 STRUCTURES = {
-    "step": dict(fixed=dict(cp_trigger=1.0, max_steps=1.0, lateral_steps=1.0,
-                            cp_rate_blend=1.0, cp_gain_lateral=-1.0,
-                            double_support_ratio=0.05, cp_gain=1.5),
-                 tuned=STEP_FIELDS + ("accel_gate",) + STANCE_GAINS),
-    "shift_step": dict(fixed=dict(cp_trigger=1.0, max_steps=1.0, lateral_steps=1.0,
-                                  cp_rate_blend=1.0, cp_gain_lateral=1.0,
-                                  double_support_ratio=0.3, cp_gain=1.5),
+    "step": dict(fixed=STEP_FIXED, tuned=STEP_FIELDS + ("accel_gate",) + STANCE_GAINS),
+    # The step toward the capture point (its support foot is away from the fall, where the
+    # shift moves the waist), with a double support long enough to shift in.
+    "shift_step": dict(fixed=STEP_FIXED | dict(cp_gain_lateral=1.0, double_support_ratio=0.3),
                        tuned=STEP_FIELDS + ("step_shift_m", "accel_gate") + STANCE_GAINS),
     "stance": dict(fixed=dict(cp_trigger=0.0, max_steps=1.0, lateral_steps=0.0,
                               eps_forward=NO_STEP_THRESHOLD_RAD,
