@@ -113,10 +113,9 @@ class Intruders(threading.Thread):
                                        chunks_done=done, n_chunks=n, pid=p.pid)))
             delay = self.rng.uniform(*self.gap_s)
         for p, err, rec in procs:
-            p.wait()
+            code = p.wait()                 # its stderr is complete once it has exited
             lines = [x for x in err.read_text(errors="replace").splitlines() if x.strip()]
-            self.records.append(rec | dict(exit_code=p.wait(),
-                                           message=lines[-1] if lines else ""))
+            self.records.append(rec | dict(exit_code=code, message=lines[-1] if lines else ""))
 
     def summary(self) -> dict:
         recs = self.records
