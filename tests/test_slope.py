@@ -24,7 +24,7 @@ from tkujax.sim import physics
 from tkujax.sim.options import RolloutConfig
 from tkujax.sim.push import make_push, stack_pushes
 from tkujax.sim.rollout_mujoco import simulate_mujoco
-from tkujax.sim.slope import slope_gravity, tilt_host_model
+from tkujax.sim.slope import LEVEL_FLOOR, Floor, slope_gravity, tilt_host_model
 from tkujax.dialects.sweep_spec import SpecError, parse_spec
 from tkujax.sweeps.record_schema import (manifest_controller_params, manifest_model_params,
                                          manifest_spec)
@@ -72,6 +72,18 @@ def test_rollout_config_refuses_steep_floors():
     assert RolloutConfig(floor_pitch_deg=15, floor_roll_deg=-15).floor_roll_deg == -15
 
 
+def test_floor_is_one_checked_hashable_value():
+    """RolloutConfig.floor: the two angles as one Floor (floats, a cache key), its gravity
+    slope_gravity's, the level floor LEVEL_FLOOR; a Floor checks as RolloutConfig does."""
+    floor = RolloutConfig(floor_pitch_deg=4, floor_roll_deg=-3).floor
+    assert floor == Floor(4.0, -3.0) and hash(floor) == hash(Floor(4.0, -3.0))
+    assert type(floor.pitch_deg) is float and not floor.is_level
+    assert floor.gravity(9.81).tobytes() == slope_gravity(4.0, 9.81, -3.0).tobytes()
+    assert RolloutConfig().floor == LEVEL_FLOOR and LEVEL_FLOOR.is_level
+    with pytest.raises(ValueError, match=r"floor_roll_deg must be a number in \[-15, 15\]"):
+        Floor(0.0, 16.0)
+
+
 def _ry(phi: float) -> np.ndarray:
     c, s = math.cos(phi), math.sin(phi)
     return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
@@ -97,7 +109,7 @@ def test_tilted_gravity_is_a_rolled_floor(pitch_deg, roll_deg):
 
 def _check_against_tilted_plane(pitch_deg: float, roll_deg: float) -> None:
     base = physics.host_model(ModelParams())
-    model_a = tilt_host_model(base, pitch_deg, roll_deg)
+    model_a = tilt_host_model(base, Floor(pitch_deg, roll_deg))
     rot = _rx(math.radians(roll_deg)) @ _ry(-math.radians(pitch_deg))
     quat = np.zeros(4)
     mujoco.mju_mat2Quat(quat, rot.ravel())

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from tkujax.sim.slope import (FLOOR_PITCH_RANGE_DEG, FLOOR_PITCH_SIGN, FLOOR_ROLL_RANGE_DEG,
-                              FLOOR_ROLL_SIGN)
+                              FLOOR_ROLL_SIGN, Floor)
 from tkujax.dialects.validation import SpecError, number
 
 # key: (range, unit as a refusal states it)
@@ -27,6 +27,11 @@ def parse_floor(sweep: dict) -> dict[str, float]:
     """{key: its checked value, 0.0 when left out} of the FLOOR_KEYS of a [sweep] table."""
     return {k: number(f"sweep.{k}", sweep.get(k, 0.0), *bounds, unit)
             for k, (bounds, unit) in FLOOR_KEYS.items()}
+
+
+def spec_floor(spec) -> Floor:
+    """A sweep's floor (its floor_pitch_deg and floor_roll_deg) as one value."""
+    return Floor(spec.floor_pitch_deg, spec.floor_roll_deg)
 
 
 def floor_columns(spec, n: int) -> dict[str, np.ndarray]:

@@ -7,8 +7,9 @@
   foot always the body's frame, so the sole stays flat); the mesh geom stays, for its mass and
   its looks, with its collisions off; the box is massless, in the mesh's group, with its
   contact parameters (friction, solref, solimp, condim, margin, gap, priority). Self-collisions
-  are off: each robot collision geom gets contype 0 and conaffinity 1, the world's colliding
-  geoms (the floor) contype bit 1, so a robot geom touches the world and never the robot;
+  are off: each robot collision geom gets contype 0 and conaffinity bit 1, the world's
+  colliding geoms (the floor) contype bit 1 (`world_only_collisions`, the one place that rule
+  is written), so a robot geom touches the world and never the robot;
   explicit <pair>s between two robot geoms are removed, those with a world geom kept (a pair
   naming a replaced mesh then names its box). Spheres, capsules, boxes and the other primitives
   keep their shapes.
@@ -144,15 +145,28 @@ def _box_meshes(spec: mujoco.MjSpec, model: mujoco.MjModel, feet: set[int]) -> l
     return boxed
 
 
+def _colliding_robot_geoms(spec: mujoco.MjSpec) -> list:
+    """The spec's geoms on robot bodies (not the world) with a dynamic collision."""
+    return [g for g in spec.geoms if g.parent.name != "world" and (g.contype or g.conaffinity)]
+
+
+def world_only_collisions(robot_geoms, world_geoms) -> None:
+    """The floor-only collision rule: each of robot_geoms (spec geoms on robot bodies) gets
+    contype 0 and conaffinity bit 1, each of world_geoms contype bit 1, so such a robot geom
+    touches those world geoms, and another robot geom only through that geom's own contype
+    (none once every colliding robot geom has had this rule: no self-collision)."""
+    for g in robot_geoms:
+        g.contype, g.conaffinity = 0, int(g.conaffinity) | 1
+    for g in world_geoms:
+        g.contype = int(g.contype) | 1
+
+
 def _floor_only(spec: mujoco.MjSpec, model: mujoco.MjModel) -> tuple[int, int]:
     """Robot geoms collide with the world's geoms only; (geoms changed, pairs removed)."""
-    robot = [g for g in spec.geoms if g.parent.name != "world" and (g.contype or g.conaffinity)]
-    for g in robot:
-        g.contype, g.conaffinity = 0, 1
+    robot = _colliding_robot_geoms(spec)
     if robot:
-        for g in spec.worldbody.geoms:
-            if g.contype or g.conaffinity:
-                g.contype = int(g.contype) | 1
+        world_only_collisions(robot, [g for g in spec.worldbody.geoms
+                                      if g.contype or g.conaffinity])
     world = {model.geom(g).name for g in range(model.ngeom) if model.geom_bodyid[g] == 0}
     removed = [p for p in spec.pairs
                if p.geomname1 not in world and p.geomname2 not in world]
@@ -175,9 +189,10 @@ def feet_only(spec: mujoco.MjSpec, foot_bodies: set[str]) -> int:
     """Exclude the floor's contacts with every robot body outside foot_bodies (`[collision]
     floor = "feet"`): one <exclude> between the world and each such body that has a colliding
     geom. A <pair> of such a geom with a world geom becomes that geom's floor-only collision
-    (contype 0, conaffinity 1, the world geom's contype bit 1), which the exclusion then
-    stops. The geoms keep colliding in the model's bookkeeping, so the fall test still reads
-    them (`tkujax.robot.simsetup.floor_geoms`). The number of bodies excluded."""
+    (`world_only_collisions`: contype 0, conaffinity bit 1, the world geom's contype bit 1),
+    which the exclusion then stops. The geoms keep colliding in the model's bookkeeping, so
+    the fall test still reads them (`tkujax.robot.simsetup.floor_geoms`). The number of
+    bodies excluded."""
     geoms = {g.name: g for g in spec.geoms if g.name}
     for pair in list(spec.pairs):
         a, b = geoms.get(pair.geomname1), geoms.get(pair.geomname2)
@@ -186,12 +201,10 @@ def feet_only(spec: mujoco.MjSpec, foot_bodies: set[str]) -> int:
         world, body = (a, b) if a.parent.name == "world" else (b, a)
         if body.parent.name in foot_bodies:
             continue
-        body.contype, body.conaffinity = 0, int(body.conaffinity) | 1
-        world.contype = int(world.contype) | 1
+        world_only_collisions([body], [world])
         spec.delete(pair)
-    bodies = sorted({g.parent.name for g in spec.geoms
-                     if g.parent.name != "world" and g.parent.name not in foot_bodies
-                     and (g.contype or g.conaffinity)})
+    bodies = sorted({g.parent.name for g in _colliding_robot_geoms(spec)
+                     if g.parent.name not in foot_bodies})
     for name in bodies:
         spec.add_exclude(bodyname1="world", bodyname2=name)
     return len(bodies)

@@ -24,7 +24,7 @@ import jax
 from tkujax.control.fixed import FixedPointConfig
 from tkujax.control.gait import WalkCommand
 from tkujax.sim.push import CONTROL_PERIOD_S, Push
-from tkujax.sim.slope import check_floor_pitch, check_floor_roll
+from tkujax.sim.slope import Floor, check_floor_pitch, check_floor_roll
 
 # jax.checkpoint (less memory under grad): False / "none": off; True / "tick": each control
 # tick; "tick_nocse": the same with prevent_cse=False (JAX's advice inside scan); "tick_dots":
@@ -113,6 +113,11 @@ class RolloutConfig:
                              f"{self.program!r}")
         check_floor_pitch(self.floor_pitch_deg)
         check_floor_roll(self.floor_roll_deg)
+
+    @property
+    def floor(self) -> Floor:
+        """The floor of floor_pitch_deg and floor_roll_deg (tkujax.sim.slope.Floor)."""
+        return Floor(self.floor_pitch_deg, self.floor_roll_deg)
 
 
 @jax.tree_util.register_dataclass

@@ -94,7 +94,7 @@ def rollout(model: mjx.Model, state: mjx.Data, episode: Episode, params: Control
     params = dataclasses.replace(params, control_period=config.control_period_s)
     if override is not None:
         override = dataclasses.replace(override, onset_s=episode.push.onset_s)
-    model = tilt_mjx_model(model, config.floor_pitch_deg, config.floor_roll_deg)   # a slope
+    model = tilt_mjx_model(model, config.floor)   # a slope
     pieces = tick_pieces(model, idx, episode, params, config, override, schedule)
     return run_tick_pieces(pieces, state, episode, params, config, idx, schedule)
 

@@ -83,7 +83,7 @@ from tkujax.sim.rollout_mjx import RolloutConfig
 from tkujax.sim.robot import Robot, as_robot
 from tkujax.sim.setup import ModelIndex
 from tkujax.sim.kicks_host import kick_ticks
-from tkujax.sim.slope import tilt_host_model
+from tkujax.sim.slope import Floor, tilt_host_model
 from tkujax.sim.tick import control_tick, control_tick_fx
 
 PUSH_WRENCH_MODES = ("exact", "period_start")
@@ -126,12 +126,10 @@ def _setup(robot: Robot) -> _Setup:
 
 
 @functools.lru_cache(maxsize=8)
-def _slope_setup(robot: Robot, floor_pitch_deg: float, floor_roll_deg: float) -> _Setup:
-    """_setup's, on a floor pitched by floor_pitch_deg and rolled by floor_roll_deg
-    (tkujax.sim.slope: its gravity)."""
+def _slope_setup(robot: Robot, floor: Floor) -> _Setup:
+    """_setup's, on that floor (tkujax.sim.slope: its gravity)."""
     setup = _setup(robot)
-    return dataclasses.replace(setup, model=tilt_host_model(setup.model, floor_pitch_deg,
-                                                            floor_roll_deg))
+    return dataclasses.replace(setup, model=tilt_host_model(setup.model, floor))
 
 
 @functools.lru_cache(maxsize=4)
@@ -427,8 +425,7 @@ def simulate_mujoco(pushes: Push, enabled, params: ControllerParams, seed: int =
     """
     if push_wrench not in PUSH_WRENCH_MODES:
         raise ValueError(f"push_wrench must be one of {PUSH_WRENCH_MODES}, got {push_wrench!r}")
-    setup = _slope_setup(as_robot(robot, model_params), config.floor_pitch_deg,
-                         config.floor_roll_deg)
+    setup = _slope_setup(as_robot(robot, model_params), config.floor)
     idx = setup.index
     n = int(np.shape(pushes.impulse_ns)[0])
     phys = _Physics(setup, n, n_threads)

@@ -1,5 +1,5 @@
 """Slopes: the floor pitched uphill or downhill and rolled sideways, as a tilted gravity
-(RolloutConfig.floor_pitch_deg, RolloutConfig.floor_roll_deg).
+(RolloutConfig.floor_pitch_deg, RolloutConfig.floor_roll_deg; one Floor value inside).
 
 Pitching the floor by theta about the world y axis (theta > 0: the floor rises toward +x,
 the robot's forward in its stand, so a walk forward goes uphill) and then rolling it by phi
@@ -20,6 +20,7 @@ same way: MJX the traced model's opt.gravity, MuJoCo C a copy of the host model.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 
 import numpy as np
@@ -56,22 +57,45 @@ def slope_gravity(pitch_deg: float, g: float, roll_deg: float = 0.0) -> np.ndarr
                      -g * math.cos(th) * math.cos(ph)])
 
 
-def tilt_mjx_model(model, pitch_deg: float, roll_deg: float = 0.0):
-    """An MJX model whose gravity is the slope's (a level floor: the model itself)."""
-    if pitch_deg == 0.0 and roll_deg == 0.0:
+@dataclasses.dataclass(frozen=True)
+class Floor:
+    """The floor's inclination: pitch_deg, then roll_deg (the module doc; each checked, as a
+    float). Floor() is the level floor (LEVEL_FLOOR). Hashable: a cache key."""
+
+    pitch_deg: float = 0.0
+    roll_deg: float = 0.0
+
+    def __post_init__(self):
+        object.__setattr__(self, "pitch_deg", check_floor_pitch(self.pitch_deg))
+        object.__setattr__(self, "roll_deg", check_floor_roll(self.roll_deg))
+
+    @property
+    def is_level(self) -> bool:
+        """Both angles 0: the model's own gravity, the program unchanged."""
+        return self.pitch_deg == 0.0 and self.roll_deg == 0.0
+
+    def gravity(self, g: float) -> np.ndarray:
+        """(3,) gravity (m/s^2) in this floor's frame (slope_gravity)."""
+        return slope_gravity(self.pitch_deg, g, self.roll_deg)
+
+
+LEVEL_FLOOR = Floor()
+
+
+def tilt_mjx_model(model, floor: Floor):
+    """An MJX model whose gravity is the floor's (a level floor: the model itself)."""
+    if floor.is_level:
         return model
     g = float(np.linalg.norm(np.asarray(model.opt.gravity)))
-    gravity = np.asarray(slope_gravity(pitch_deg, g, roll_deg),
-                         np.asarray(model.opt.gravity).dtype)
+    gravity = np.asarray(floor.gravity(g), np.asarray(model.opt.gravity).dtype)
     return model.replace(opt=model.opt.replace(gravity=gravity))
 
 
-def tilt_host_model(model, pitch_deg: float, roll_deg: float = 0.0):
-    """A copy of a MuJoCo C model whose gravity is the slope's (a level floor: the model
+def tilt_host_model(model, floor: Floor):
+    """A copy of a MuJoCo C model whose gravity is the floor's (a level floor: the model
     itself)."""
-    if pitch_deg == 0.0 and roll_deg == 0.0:
+    if floor.is_level:
         return model
     tilted = copy.deepcopy(model)
-    tilted.opt.gravity[:] = slope_gravity(pitch_deg, float(np.linalg.norm(model.opt.gravity)),
-                                          roll_deg)
+    tilted.opt.gravity[:] = floor.gravity(float(np.linalg.norm(model.opt.gravity)))
     return tilted

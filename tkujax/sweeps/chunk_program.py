@@ -25,6 +25,7 @@ from tkujax.sim.push import Push, first_onset
 from tkujax.sim.randomize import randomize_model
 from tkujax.sim.rollout_mjx import Episode, ProgramOptions, RolloutConfig, rollout
 from tkujax.sim.robot import Robot, as_robot
+from tkujax.sim.slope import LEVEL_FLOOR, Floor
 from tkujax.dialects.sweep_spec import (FPGA_COLUMN, RANDOMIZE_DEFAULTS, ROBOT_ID_COLUMN,
                                         SWEEP_TREE_PASSES, EnsembleRef, SpecError, SweepSpec)
 from tkujax.dialects.sequence_table import pulse_fields
@@ -77,7 +78,7 @@ def make_chunk_fn(varied: tuple[str, ...], duration_s: float,
                   steps: bool = False, fixed: FixedPointConfig | None = None,
                   ensemble: EnsembleRef | None = None, unroll_substeps: int | None = None,
                   tree_passes: str = SWEEP_TREE_PASSES[0], walk=None,
-                  floor_pitch_deg: float = 0.0, floor_roll_deg: float = 0.0):
+                  floor: Floor = LEVEL_FLOOR):
     """jit(vmap) of push records -> outcomes: f(batch, keys, params) with `params` a
     ControllerParams shared by the batch (pass it through `traced_params`), and `varied` the
     controller fields given per record instead (a [controller.grid]).
@@ -102,8 +103,8 @@ def make_chunk_fn(varied: tuple[str, ...], duration_s: float,
     the tree in a fixed order, repeatable on a GPU).
     walk: a [walk] sweep's base WalkCommand (python floats: part of the cache key; the
     records' walk_* columns set its speeds, step period and recovery, traced), with the
-    WALK_KEYS outcomes; None: the robots stand. floor_pitch_deg, floor_roll_deg: a slope
-    (RolloutConfig.floor_pitch_deg, .floor_roll_deg)."""
+    WALK_KEYS outcomes; None: the robots stand. floor: a slope (tkujax.sim.slope.Floor; part of
+    the cache key)."""
     if ensemble is not None and model_params is not None:
         raise SpecError("[randomize] ensemble gives the robots: pass no model_params with it")
     unroll = SWEEP_UNROLL_SUBSTEPS if unroll_substeps is None else int(unroll_substeps)
@@ -112,8 +113,7 @@ def make_chunk_fn(varied: tuple[str, ...], duration_s: float,
     # Positional call into the cache: lru_cache keys f(a, b) and f(a, b, steps=False) apart,
     # which would compile the same program twice.
     return _make_chunk_fn(tuple(varied), duration_s, model_params, with_qpos, steps, fixed,
-                          ensemble, unroll, tree_passes, walk, float(floor_pitch_deg),
-                          float(floor_roll_deg))
+                          ensemble, unroll, tree_passes, walk, floor)
 
 
 @functools.lru_cache(maxsize=4)
@@ -169,13 +169,13 @@ def record_episode(base, rec: dict, key, base_params: ControllerParams, varied: 
 
 @functools.lru_cache(maxsize=16)
 def _make_chunk_fn(varied, duration_s, model_params, with_qpos, steps, fixed, ensemble, unroll,
-                   tree_passes, walk, floor_pitch_deg, floor_roll_deg):
+                   tree_passes, walk, floor):
     base = sweep_base(model_params, ensemble)
     index, robots = base[1], base[3]
     config = RolloutConfig(duration_s=duration_s, record_qpos=with_qpos, fixed=fixed,
                            program=ProgramOptions(unroll_substeps=unroll, loop=SWEEP_LOOP,
                                                   tree_passes=tree_passes),
-                           floor_pitch_deg=floor_pitch_deg, floor_roll_deg=floor_roll_deg)
+                           floor_pitch_deg=floor.pitch_deg, floor_roll_deg=floor.roll_deg)
 
     def one(rec, key, base_params, schedule, robot_values=None):
         m, s, episode, params, override = record_episode(base, rec, key, base_params, varied,

@@ -12,6 +12,7 @@ from tkujax.model import ModelParams
 from tkujax.sim.metrics import capture_outcomes, walk_outcomes
 from tkujax.sim.push import Push
 from tkujax.sim.rollout_mjx import RolloutConfig
+from tkujax.sim.slope import LEVEL_FLOOR, Floor
 from tkujax.sweeps.chunk_program import OUTCOME_KEYS, step_override
 from tkujax.dialects.sweep_spec import FPGA_COLUMN, ROBOT_ID_COLUMN, EnsembleRef, fixed_point_config
 from tkujax.dialects.sequence_table import pulse_fields
@@ -33,7 +34,7 @@ def mujoco_chunk(batch: dict, seed: int, base: ControllerParams, duration_s: flo
                  varied: tuple[str, ...] = (), steps: bool = False,
                  fpga: dict | None = None, fpga_varied: tuple[str, ...] = (),
                  ensemble: EnsembleRef | None = None, schedule=None, walk=None,
-                 floor_pitch_deg: float = 0.0, floor_roll_deg: float = 0.0) -> dict:
+                 floor: Floor = LEVEL_FLOOR) -> dict:
     """One chunk on MuJoCo C (tkujax.sim.rollout_mujoco), outcomes (and qpos) as numpy: one
     batch per controller-grid point present in the chunk (`varied` names the grid's fields; the
     controller's parameters are shared by a batch there). steps: records carry a commanded step
@@ -44,7 +45,7 @@ def mujoco_chunk(batch: dict, seed: int, base: ControllerParams, duration_s: flo
     unused: each batch runs its member's ModelParams). schedule: a scheduled policy's Schedule
     (None: the plain controller). walk: a [walk] sweep's base WalkCommand (the records'
     walk_* columns set each robot's walk) with the WALK_KEYS outcomes; None: standing.
-    floor_pitch_deg, floor_roll_deg: a slope (RolloutConfig.floor_pitch_deg, .floor_roll_deg)."""
+    floor: a slope (tkujax.sim.slope.Floor)."""
     from tkujax.sim.rollout_mujoco import simulate_mujoco
 
     n = len(batch["onset_s"])
@@ -77,8 +78,8 @@ def mujoco_chunk(batch: dict, seed: int, base: ControllerParams, duration_s: flo
             gyro_noise_std=float(batch["gyro_noise_std"][0]),
             accel_noise_std=float(batch["accel_noise_std"][0]), model_params=robot,
             config=RolloutConfig(duration_s=duration_s, record_qpos=with_qpos, fixed=fixed,
-                                 floor_pitch_deg=floor_pitch_deg,
-                                 floor_roll_deg=floor_roll_deg),
+                                 floor_pitch_deg=floor.pitch_deg,
+                                 floor_roll_deg=floor.roll_deg),
             overrides=overrides, schedule=schedule, walk=walks)
         fields = {k: np.asarray(out[k]) for k in OUTCOME_KEYS}
         if with_qpos:

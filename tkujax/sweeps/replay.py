@@ -39,6 +39,7 @@ from tkujax.sweeps.mujoco_chunk import mujoco_chunk
 from tkujax.sweeps.sweep_robot import check_robot
 from tkujax.sweeps.record_schema import (fields_missing, manifest_controller_params,
                                          manifest_model_params, manifest_spec)
+from tkujax.dialects.floor_table import spec_floor
 from tkujax.dialects.walk_table import walk_base
 
 RTOL, ATOL = 1e-4, 1e-5     # "identical" numbers; fell and diverged must be equal exactly
@@ -151,8 +152,7 @@ def _rerun(spec, manifest: dict, inputs: dict, chunk: int, pos: int, base, model
                            fpga=spec.fpga if spec.arithmetic == "fixed" else None,
                            fpga_varied=tuple(sorted(spec.fpga_grid)), ensemble=spec.ensemble,
                            schedule=schedule, walk=walk_base(spec),
-                           floor_pitch_deg=spec.floor_pitch_deg,
-                           floor_roll_deg=spec.floor_roll_deg)
+                           floor=spec_floor(spec))
         return {k: v[pos] for k, v in res.items()}
     import jax
 
@@ -161,8 +161,7 @@ def _rerun(spec, manifest: dict, inputs: dict, chunk: int, pos: int, base, model
                        model_params, with_qpos=True, steps=bool(spec.step_grid),
                        fixed=spec.fixed_point_config({k: v[pos] for k, v in inputs.items()}),
                        ensemble=spec.ensemble, tree_passes=spec.tree_passes,
-                       walk=walk_base(spec), floor_pitch_deg=spec.floor_pitch_deg,
-                       floor_roll_deg=spec.floor_roll_deg)
+                       walk=walk_base(spec), floor=spec_floor(spec))
     one = {k: np.asarray(v[pos:pos + 1], np.float32) for k, v in inputs.items()}
     key = chunk_keys(spec.seed, chunk, padded)[pos:pos + 1]
     return jax.tree_util.tree_map(lambda x: np.asarray(x)[0],

@@ -26,6 +26,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from tkujax.sweeps.chunk_program import chunk_keys, make_chunk_fn, traced_params
 from tkujax.sweeps.early import make_lane_fns, run_lanes
+from tkujax.dialects.floor_table import spec_floor
 from tkujax.dialects.walk_table import walk_base
 
 
@@ -58,8 +59,7 @@ def exact_outcomes(spec, manifest: dict, inputs: dict, chunk: int, pos: int, bas
         return {k: np.asarray(v)[0] for k, v in out.items()}
     fn = make_chunk_fn(varied, spec.duration_s, model_params, steps=steps, fixed=fixed,
                        ensemble=spec.ensemble, tree_passes=spec.tree_passes,
-                       walk=walk_base(spec), floor_pitch_deg=spec.floor_pitch_deg,
-                       floor_roll_deg=spec.floor_roll_deg)
+                       walk=walk_base(spec), floor=spec_floor(spec))
     rows = np.zeros(padded, np.int64)
     batch = {k: jax.device_put(v[rows].astype(np.float32), sharding) for k, v in one.items()}
     out = fn(batch, jax.device_put(keys[rows], sharding), traced_params(base), schedule)

@@ -47,6 +47,7 @@ from tkujax.sweeps.sweep_folder import (chunk_provenance, claim_folder, describe
                                         processes, run_record)
 from tkujax.sweeps.sweep_hash import input_digests, spec_hash
 from tkujax.dialects.push_limits import check_push_window
+from tkujax.dialects.floor_table import spec_floor
 from tkujax.dialects.walk_table import check_walk_sweep, walk_base, walk_for_robot
 from tkujax.sweeps.sweep_state import SweepRecords, sweep_state
 
@@ -118,8 +119,7 @@ class _ChunkJob:
                                steps=steps, fpga=spec.fpga if spec.arithmetic == "fixed" else None,
                                fpga_varied=tuple(sorted(spec.fpga_grid)), ensemble=spec.ensemble,
                                schedule=self.schedule, walk=walk_base(spec),
-                               floor_pitch_deg=spec.floor_pitch_deg,
-                               floor_roll_deg=spec.floor_roll_deg)
+                               floor=spec_floor(spec))
             return {k: recs[k][lo:hi] for k in recs} | res
         keys = chunk_keys(spec.seed, i, self.padded)   # (early decisions: early_parts)
         res = {}
@@ -133,8 +133,7 @@ class _ChunkJob:
                      for k in self.input_keys}
             fn = make_chunk_fn(varied, spec.duration_s, self.robot, steps=steps,
                                fixed=fixed, ensemble=spec.ensemble, tree_passes=spec.tree_passes,
-                               walk=walk_base(spec), floor_pitch_deg=spec.floor_pitch_deg,
-                               floor_roll_deg=spec.floor_roll_deg)
+                               walk=walk_base(spec), floor=spec_floor(spec))
             part = fn(batch, jax.device_put(keys[rows], self.sharding), traced_params(self.base),
                       self.schedule)
             for k, v in part.items():
