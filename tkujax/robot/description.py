@@ -16,6 +16,8 @@ roles given twice, the MJCF's existence); the names are checked against the comp
                                   # floor = "all" (default) or "feet" (tkujax.robot.collision)
     controller = "robot.json"     # optional: the robot's tuned controller, relative to this file
     [servo]                       # optional: PD servos on the leg joints (tkujax.robot.servos)
+    [solver]                      # optional: iterations = 1, ls_iterations = 4 (the constraint
+                                  # solver's caps; default: the model's own)
 
 Each leg names hip_yaw, hip_roll, hip_pitch (in whatever order the chain has them), knee,
 ankle_pitch and, optionally, ankle_roll (a five-joint leg has none).
@@ -40,10 +42,14 @@ OPTIONAL_ROLES = ("ankle_roll",)     # a five-joint leg (hip x 3, knee, ankle pi
 HIP_ROLES = LEG_ROLES[:3]
 ANKLE_ROLES = LEG_ROLES[4:]
 SIDES = ("left", "right")
-TOP_KEYS = ("mjcf", "imu", "legs", "stand", "name", "collision", "controller", "servo")
+TOP_KEYS = ("mjcf", "imu", "legs", "stand", "name", "collision", "controller", "servo",
+            "solver")
 REQUIRED_TOP = ("mjcf", "imu", "legs")
 STAND_KEYS = ("keyframe", "joints", "hip_height_frac")
 COLLISION_KEYS = ("mode", "floor")
+# [solver]: each key's allowed range; MuJoCo's defaults are 100 and 50 (the caps MJX's batched
+# solver runs to: tests/test_robot_solver.py)
+SOLVER_RANGES = {"iterations": (1, 1000), "ls_iterations": (1, 1000)}
 HIP_HEIGHT_FRAC = 0.93        # computed stand: hip-to-ankle = this x (thigh + calf)
 _VAR = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)(?::-([^}]*))?\}")
 
@@ -84,6 +90,8 @@ class RobotDescription:
     floor_contacts: str = DEFAULT_FLOOR_CONTACTS   # tkujax.robot.collision.FLOOR_CONTACTS
     controller_path: Path | None = None            # the robot's tuned controller (absolute)
     servo: ServoTable | None = None                # [servo]: PD servos replacing the legs'
+    solver_iterations: int | None = None           # [solver] iterations (None: the model's)
+    ls_iterations: int | None = None               # [solver] ls_iterations (None: the model's)
 
     @property
     def roles(self) -> tuple[str, ...]:
@@ -179,6 +187,23 @@ def _collision(data) -> tuple[str, str]:
     return out[0], out[1]
 
 
+def _solver(data) -> dict:
+    """[solver]'s keys as RobotDescription fields, each an integer in its SOLVER_RANGES."""
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise RobotFileError(f"solver: expected a table, got {data!r}")
+    check_keys(data, tuple(SOLVER_RANGES), (), "solver")
+    out = {}
+    for key, value in data.items():
+        lo, hi = SOLVER_RANGES[key]
+        if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+            raise RobotFileError(f"solver.{key}: expected an integer in [{lo}, {hi}], got "
+                                 f"{value!r}")
+        out["solver_iterations" if key == "iterations" else key] = value
+    return out
+
+
 def parse_description(data: dict, base: Path, source: str = "<robot file>") -> RobotDescription:
     """A RobotDescription from the TOML's dict; relative paths are relative to `base`."""
     check_keys(data, TOP_KEYS, REQUIRED_TOP, "")
@@ -205,7 +230,8 @@ def parse_description(data: dict, base: Path, source: str = "<robot file>") -> R
     return RobotDescription(name=name, mjcf_path=mjcf, imu=string(data, "imu", ""),
                             left=left, right=right, stand=_stand(data.get("stand")),
                             source=source, collision_mode=mode, floor_contacts=floor,
-                            controller_path=_controller_path(data, base), servo=servo)
+                            controller_path=_controller_path(data, base), servo=servo,
+                            **_solver(data.get("solver")))
 
 
 def _controller_path(data: dict, base: Path) -> Path | None:

@@ -385,6 +385,15 @@ def _use_tkujax_integrator(model: mujoco.MjModel) -> None:
     model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP)
 
 
+def _cap_solver(model: mujoco.MjModel, desc: RobotDescription) -> None:
+    """The robot file's [solver] caps, where it gives them. MJX's batched solver runs every lane
+    to the cap, so a model's 100 iterations cost many times 1-4 (docs/robots.md, "Solver")."""
+    if desc.solver_iterations is not None:
+        model.opt.iterations = desc.solver_iterations
+    if desc.ls_iterations is not None:
+        model.opt.ls_iterations = desc.ls_iterations
+
+
 def load_robot(robot: RobotDescription | str | Path) -> RobotModel:
     """The checked and completed model of a robot file (or a parsed description)."""
     desc = robot if isinstance(robot, RobotDescription) else load_description(robot)
@@ -407,6 +416,7 @@ def load_robot(robot: RobotDescription | str | Path) -> RobotModel:
     model = _compile(spec, f"{desc.mjcf_path} with tkujax's sensors")
     _check_waist(model, waist)
     _use_tkujax_integrator(model)
+    _cap_solver(model, desc)
     joints = np.array([legs[s][0] for s in LEG_ORDER])
     feet = np.array([legs[s][1] for s in LEG_ORDER])
     geoms = tuple(frozenset(_foot_geoms(model, int(f))) for f in feet)
