@@ -63,7 +63,9 @@ class WalkCommand:
     the step grows linearly over this many steps (0: the full step from the first).
     recovery: 1 = the capture point moves the next footstep (`walk_recovery`), 0 = the nominal
     gait; recovery_band_m: how far the capture point must leave the undisturbed gait's for
-    that. heading_gain: each step turns by -heading_gain x the heading error (the yaw the
+    that; recovery_forward_gain: multiplies the footstep's forward move (a push from behind; 1:
+    as far as backward, 0: forward moves off, for a robot that they harm: docs/walking.md).
+    heading_gain: each step turns by -heading_gain x the heading error (the yaw the
     controller integrates from the gyro since the start; at most MAX_TURN_RAD), with the hip
     yaws (`advance`'s turn); 0: the hip yaws stay 0. The defaults are TKU-X's
     (`for_params(ControllerParams.paper())`)."""
@@ -78,6 +80,7 @@ class WalkCommand:
     ramp_steps: jax.Array = RAMP_STEPS
     recovery: jax.Array = 0.0
     recovery_band_m: jax.Array = 0.0154
+    recovery_forward_gain: jax.Array = 1.0
     heading_gain: jax.Array = HEADING_GAIN
 
     @classmethod
@@ -100,7 +103,8 @@ class WalkCommand:
                       lift_m=(0.0, 0.1), double_support_ratio=(0.0, 0.8),
                       sway_m=(-0.05, 0.05), start_s=(0.0, 100.0),
                       ramp_steps=(0.0, 20.0), recovery=(0.0, 1.0),
-                      recovery_band_m=(0.0, 0.5), heading_gain=(0.0, 2.0))
+                      recovery_band_m=(0.0, 0.5), recovery_forward_gain=(0.0, 2.0),
+                      heading_gain=(0.0, 2.0))
         for name, (lo, hi) in limits.items():
             v = float(getattr(self, name))
             if not lo <= v <= hi:       # also refuses NaN

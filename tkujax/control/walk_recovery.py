@@ -21,7 +21,8 @@ earlier cycles:
               WARM_VISITS of learning in every bin (with the bin's spread alone and 3 cycles
               of learning, OP3 walking 0.2 m/s undisturbed triggered on its own gait and fell;
               docs/walking.md);
-  offset      cp_gain x the deviation, clipped per axis to MAX_OFFSET_FRAC of thigh + calf,
+  offset      cp_gain x the deviation (its forward part x command.recovery_forward_gain),
+              clipped per axis to MAX_OFFSET_FRAC of thigh + calf,
               taken by the current step if its swing foot lands more than one period later
               (before its lift, or in the air), else by the next: the step grows by it,
               centred (`gait.move_footstep`), sideways only outward for that swing foot (the
@@ -110,8 +111,10 @@ def recovery_update(state: RecoveryState, xi, time_s, command: WalkCommand,
                                                    & (jnp.abs(deviation[1]) > band[1]))
     trigger = (on > 0.5) & warm & beyond
     reach = MAX_OFFSET_FRAC * (params.thigh_length + params.calf_length)
+    forward = jnp.where(deviation[0] > 0.0, jnp.asarray(command.recovery_forward_gain, dtype),
+                        jnp.ones((), dtype))
     offset = jnp.clip(params.cp_gain * deviation * jnp.stack(
-        [jnp.ones((), dtype), jnp.asarray(params.lateral_steps, dtype)]), -reach, reach)
+        [forward, jnp.asarray(params.lateral_steps, dtype)]), -reach, reach)
     armed = jnp.where(trigger, 1.0, state.armed).astype(dtype)
     pending = jnp.where(trigger, offset, state.pending).astype(dtype)
     cycle = 2.0 * jnp.asarray(command.step_period_s, dtype)

@@ -6,6 +6,7 @@
     step_period_s = 0.3        # default: the robot's (WalkCommand.for_params)
     recovery = ["off", "on"]   # the walking recovery (WalkCommand.recovery), crossed like control
     push_cycle = 9             # the gait cycle that push.*.gait_phase onsets fall in
+    recovery_forward_gain = 1  # the recovery's forward footstep moves x this (0: none)
 
     [push.grid]
     gait_phase = {start = 0, stop = 1, num = 8, endpoint = false}   # instead of onset_s
@@ -37,6 +38,7 @@ WALK_FIELDS = {
     "speed_mps": (-1.0, 1.0, "m/s"),
     "lateral_mps": (-0.5, 0.5, "m/s"),
     "step_period_s": (0.1, 2.0, "s"),
+    "recovery_forward_gain": (0.0, 2.0, "(a gain)"),
 }
 PUSH_CYCLE_RANGE = (0, 100)
 DEFAULT_PUSH_CYCLE = 9      # as tkujax.walking.walk_push.PUSH_CYCLE: the recovery is armed
@@ -53,6 +55,7 @@ class WalkSpec:
     speed_mps: float = 0.0
     lateral_mps: float = 0.0
     step_period_s: float | None = None     # None: the robot's
+    recovery_forward_gain: float = 1.0     # WalkCommand.recovery_forward_gain
     recovery: tuple[str, ...] = ("off",)
     push_cycle: int = DEFAULT_PUSH_CYCLE
     base: WalkCommand | None = None
@@ -96,6 +99,7 @@ def resolve_walk(walk: WalkSpec, gait_params: ControllerParams) -> WalkSpec:
     """`walk` with its base command for the robot whose gait defaults are `gait_params`
     (the step period the spec gives, or the robot's); SpecError from WalkCommand.validate."""
     fields = {} if walk.step_period_s is None else dict(step_period_s=walk.step_period_s)
+    fields["recovery_forward_gain"] = walk.recovery_forward_gain
     base = WalkCommand.for_params(gait_params, walk.speed_mps, walk.lateral_mps, **fields)
     try:
         base.validate()
