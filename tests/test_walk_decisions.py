@@ -21,6 +21,8 @@ from tkujax.sim.options import Episode
 from tkujax.sim.push import make_push
 from tkujax.sim.records import SERIES_FIELDS, Series
 
+from walk_helpers import full_and_early
+
 PERIOD_S = 0.03
 STEP_S = 0.3                    # a gait cycle of 0.6 s = 20 ticks
 AMPLITUDE_RAD = 0.02
@@ -107,17 +109,11 @@ def test_early_walking_sweep_matches_the_full_horizon(tmp_path):
     """TKU-X walking at 0.1 m/s, pushed in gait cycle 5 (after the ramp and two reference
     cycles), recovery off and on: early decisions (MJX lanes) give the full horizon's falls;
     every push is decided before the horizon."""
-    from tkujax.dialects.sweep_spec import parse_spec
-    from tkujax.sweeps.sweep import load, run_sweep
-
     horizon_s = 6.3
     data = {"sweep": {"duration_s": horizon_s, "chunk_size": 4, "lanes": 4},
             "walk": {"speed_mps": 0.1, "recovery": ["off", "on"], "push_cycle": 5},
             "push": {"grid": {"impulse_ns": [0.5, 1.6], "gait_phase": [0.25, 0.75]}}}
-    out = {}
-    for mode in ("full", "early"):
-        run_sweep(parse_spec(data), tmp_path / mode, backend="mjx", quiet=True, decisions=mode)
-        out[mode] = load(tmp_path / mode)
+    out = full_and_early(data, tmp_path)
     fell = out["full"]["fell"].astype(bool)
     assert fell.any() and not fell.all()
     np.testing.assert_array_equal(out["early"]["fell"].astype(bool), fell)

@@ -26,6 +26,8 @@ from tkujax.sweeps.sweep_hash import spec_hash
 from tkujax.walking.walk import run_walk, walk_metrics, walker
 from tkujax.walking.walk_push import push_at_gait_phase
 
+from walk_helpers import full_and_early
+
 PARAMS = ControllerParams.paper()
 
 
@@ -225,10 +227,7 @@ def test_early_walking_decisions_stop_only_at_falls(tmp_path):
     data = _spec(walk={"recovery": "on", "push_cycle": 0},
                  sweep={"duration_s": 1.5, "chunk_size": 4, "lanes": 2},
                  grid={"impulse_ns": [0.4, 1.5], "gait_phase": [0.25, 0.75]})
-    out = {}
-    for mode in ("full", "early"):
-        run_sweep(parse_spec(data), tmp_path / mode, backend="mjx", quiet=True, decisions=mode)
-        out[mode] = load(tmp_path / mode)
+    out = full_and_early(data, tmp_path)
     fell = out["full"]["fell"].astype(bool)
     assert fell.any() and not fell.all()
     np.testing.assert_array_equal(out["early"]["fell"].astype(bool), fell)

@@ -387,7 +387,7 @@ def _use_tkujax_integrator(model: mujoco.MjModel) -> None:
 
 def _cap_solver(model: mujoco.MjModel, desc: RobotDescription) -> None:
     """The robot file's [solver] caps, where it gives them. MJX's batched solver runs every lane
-    to the cap, so a model's 100 iterations cost many times 1-4 (docs/robots.md, "Solver")."""
+    to its line-search cap, which then sets a step's cost (docs/robots.md, "The solver's caps")."""
     if desc.solver_iterations is not None:
         model.opt.iterations = desc.solver_iterations
     if desc.ls_iterations is not None:
