@@ -147,3 +147,17 @@ def test_the_heldout_spec_records_the_robot_file_relative_to_its_folder(tmp_path
     monkeypatch.setattr(os.path, "relpath", other_drive)
     far = robot_verdict.spec_record(spec, tmp_path / "there")
     assert far["robot"]["file"] == str(robot_file.resolve())
+
+
+def test_a_harmed_verdict_names_the_cell_that_lost_the_most():
+    """The reason a verdict fails names the harmed cell with the largest excess, its impulse
+    band and phase (it printed "at None N s", naming the first cell listed)."""
+    from tkujax.studies.robot_verdict import verdict_reason
+
+    cell = dict(sector="behind", impulse_ns=[0.738, 1.249], phase="0.00-0.33", diff_pp=5.6)
+    worse = dict(cell, phase="0.67-1.00", diff_pp=9.0)
+    v = dict(cells_checked=64, ratio_to_reference=0.68, fall_rate=0.156,
+             reference_fall_rate=0.231, harmed_cells=[cell, worse])
+    assert verdict_reason(v) == ("2 harmed cell(s), the worst behind at 0.74-1.25 N s, "
+                                 "phase 0.67-1.00: +9.0 points")
+    assert verdict_reason(dict(v, harmed_cells=[])).startswith("passed")

@@ -46,7 +46,9 @@ def device_name() -> str:
     return getattr(d, "device_kind", d.platform) or d.platform
 
 
-def _why(v: dict) -> str:
+def verdict_reason(v: dict) -> str:
+    """One line: why a `tkujax compare` run entry (`v`) passes the no-harm verdict or not; a
+    harmed verdict names the cell that lost the most."""
     if v["cells_checked"] == 0:
         return (f"too few held-out pushes: no direction x impulse x phase cell has "
                 f"{MIN_CELL_PUSHES}; raise --heldout-n")
@@ -56,9 +58,11 @@ def _why(v: dict) -> str:
         return (f"falls {100 * v['fall_rate']:.1f} % against {100 * v['reference_fall_rate']:.1f}"
                 " % with control off")
     if v["harmed_cells"]:
-        worst = v["harmed_cells"][0]
+        worst = max(v["harmed_cells"], key=lambda c: c.get("diff_pp", 0.0))
+        lo, hi = worst.get("impulse_ns", (float("nan"), float("nan")))
         return (f"{len(v['harmed_cells'])} harmed cell(s), the worst {worst.get('sector')} at "
-                f"{worst.get('impulse')} N s: +{worst.get('diff_pp', 0):.1f} points")
+                f"{lo:.2f}-{hi:.2f} N s, phase {worst.get('phase')}: "
+                f"+{worst.get('diff_pp', 0):.1f} points")
     return "passed: fewer falls than control off and no harmed cell"
 
 
@@ -89,7 +93,7 @@ def heldout_verdict(out: Path, robot, spec: dict, params: dict, method: str,
                 harmed_cells=v["harmed_cells"], cells_checked=int(v["cells_checked"]),
                 method=method, n_params=n_params,
                 wall_s=round(time.perf_counter() - t0, 1), device=device_name(),
-                passed=passed, why=_why(v))
+                passed=passed, why=verdict_reason(v))
 
 
 def relative_path(path: str | Path, folder: str | Path) -> str:
