@@ -79,6 +79,12 @@ def test_status_log_plain_lines_off_a_terminal_and_a_budget_bar_on_one():
     log.close()
     text = term.getvalue()
     assert "generation 1" in text and "of 1:00:00 budget" in text and "left" in text
+    term = Terminal()
+    log = StatusLog(stream=term, budget_s=3600, desc="tune --robot ")
+    log.add_budget(1800)                       # a retry the budget did not foresee
+    log("retry")
+    log.close()
+    assert log.budget_s == 5400 and "of 1:30:00 budget" in term.getvalue()
 
 
 def test_sweep_off_a_terminal_prints_no_bar(tmp_path, capsys):

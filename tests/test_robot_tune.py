@@ -51,38 +51,104 @@ def test_structure_is_chosen_by_the_harm_weighted_loss(robot_file, pushes):
     assert set(STRUCTURES["stance"]["tuned"]) < set(STRUCTURES["step"]["tuned"])
 
 
-def _resumable_run(out, robot_file, pushes, params: dict):
-    """An output folder as a run that has finished its search leaves it."""
+def _resumable_run(out, pushes, params: dict, retry: dict | None = None):
+    """An output folder as a run that has finished its search (and its retry's) leaves it."""
     (out / "tune").mkdir(parents=True)
     (out / "pushes.json").write_text(json.dumps(pushes.as_dict()))
     (out / "structure.json").write_text(json.dumps(dict(chosen="stance", why="given")))
     (out / "tune" / "params_after.json").write_text(json.dumps(
         dict(params, recommended_from="start")))
+    if retry is not None:
+        (out / "retry" / "tune").mkdir(parents=True)
+        (out / "retry" / "tune" / "params_tuned.json").write_text(json.dumps(retry))
 
 
-def test_a_passing_controller_is_written_and_named(tmp_path, robot_file, pushes):
+def test_a_failed_controller_is_retried_and_a_passing_one_written(tmp_path, robot_file, pushes,
+                                                                  monkeypatch):
+    """A first controller that harms (stance feedback with its signs reversed) fails its
+    verdict; the retry's controller (the conservative stance) is judged on the same held-out
+    pushes against the same control-off run, the better reported, and written when it
+    passes. (512 held-out pushes fill no cell of 100: cells of 4 pushes are judged here.)"""
+    from tkujax.studies import robot_verdict
+
+    monkeypatch.setattr(robot_verdict, "MIN_CELL_PUSHES", 4)
     folder = tmp_path / "robot"
     folder.mkdir()
     copy = write_generated_robot(folder, name="gen")
     robot = robot_setup(copy)
-    params = dataclasses.asdict(dataclasses.replace(
+    good = dataclasses.asdict(dataclasses.replace(
         robot.defaults, **structure_start(robot, "stance")))
-    _resumable_run(tmp_path / "run", copy, pushes, params)
+    harmful = dict(good, stance_ankle_kp=-3.0, stance_hip_kp=-3.0, stance_roll_kp=-3.0)
+    _resumable_run(tmp_path / "run", pushes, harmful, retry=good)
     before = file_digest(copy)
     record = tune_robot_controller(copy, tmp_path / "run", budget_s=30, heldout_n=512)
     assert set(record) >= {"robot", "n_pushes", "off_fall", "on_fall", "ratio", "harmed_cells",
                            "method", "n_params", "wall_s", "device"}
     assert record["n_pushes"] == 512 and record["n_params"] == 7
+    first = json.loads((tmp_path / "run" / "first_verdict.json").read_text())
+    assert not first["passed"] and first["on_fall"] > first["off_fall"]
+    assert first["cells_checked"] > 0
+    second = json.loads((tmp_path / "run" / "retry" / "compare" / "verdict.json").read_text())
+    assert second["reference"]["path"] == str(tmp_path / "run" / "heldout")
+    assert record["stages"]["retry"]["on_fall"] == pytest.approx(
+        second["runs"]["tuned"]["fall_rate"], abs=1e-5)
+    assert record["off_fall"] == first["off_fall"]
+    assert record["chosen_stage"] == "retry"                 # far fewer harmed cells
+    assert record["on_fall"] == record["stages"]["retry"]["on_fall"] < first["on_fall"]
     assert record["passed"] == (record["on_fall"] < record["off_fall"]
                                 and not record["harmed_cells"] and record["cells_checked"] > 0)
     if record["passed"]:
         assert load_description(copy).controller_path == folder / "gen_controller.json"
         assert robot_setup(copy).controller == "file gen_controller.json"
         assert file_digest(copy) == before          # naming a controller is the same robot
+        written = json.loads((folder / "gen_controller.json").read_text())
+        assert written["stance_ankle_kp"] == pytest.approx(good["stance_ankle_kp"])
     else:
         assert load_description(copy).controller_path is None
     saved = json.loads((tmp_path / "run" / "verdict.json").read_text())
     assert saved["ratio"] == record["ratio"]
+
+
+def test_the_retry_starts_at_the_tuned_controller_with_the_harm_weight(robot_file, pushes):
+    """The retry's spec: the first search's parameters and ranges, started at the tuned
+    values (nudged strictly inside a range they sit on), a harmed push weighing
+    RETRY_HARM_WEIGHT, twice the tuning pushes."""
+    from tkujax.studies.robot_tune import (RETRY_BATCH, RETRY_HARM_WEIGHT, TUNE_BATCH,
+                                           TUNE_HARM_WEIGHT, tune_spec)
+    from tkujax.studies.tune.tune_spec import parse_tune_spec
+
+    robot = robot_setup(robot_file)
+    first = tune_spec(str(robot_file), robot, pushes.as_dict(), "step", iterations=5)
+    lo, hi = first["tune"]["ranges"]["cp_gain"]
+    tuned = dict(structure_start(robot, "step"), cp_gain=hi, stance_hip_kp=0.123)
+    again = tune_spec(str(robot_file), robot, pushes.as_dict(), "step", iterations=5,
+                      retry_from=tuned)
+    assert (first["tune"]["loss"]["w_harm"], first["tune"]["batch"]) == (TUNE_HARM_WEIGHT,
+                                                                         TUNE_BATCH)
+    assert (again["tune"]["loss"]["w_harm"], again["tune"]["batch"]) == (RETRY_HARM_WEIGHT,
+                                                                         RETRY_BATCH)
+    assert again["tune"]["ranges"] == first["tune"]["ranges"]
+    assert again["tune"]["params"] == first["tune"]["params"]
+    assert again["controller"]["stance_hip_kp"] == 0.123
+    assert lo < again["controller"]["cp_gain"] < hi
+    assert again["controller"]["cp_gain"] == pytest.approx(hi, rel=1e-5)
+    parse_tune_spec(again)                       # a start strictly inside its ranges
+
+
+def test_which_verdict_is_retried_and_reported():
+    from tkujax.studies.robot_tune import better_verdict, should_retry
+
+    base = dict(passed=False, ratio=0.7, cells_checked=64, harmed_cells=[{}], on_fall=0.2)
+    assert should_retry(base)
+    assert not should_retry(dict(base, passed=True, harmed_cells=[]))
+    assert not should_retry(dict(base, ratio=None))          # control off never fell
+    assert not should_retry(dict(base, cells_checked=0))     # no cell to judge
+    passing = dict(base, passed=True, harmed_cells=[], on_fall=0.25)
+    assert better_verdict(base, passing) is passing
+    fewer = dict(base, harmed_cells=[], on_fall=0.3)
+    assert better_verdict(base, fewer) is fewer
+    assert better_verdict(base, dict(base, on_fall=0.1))["on_fall"] == 0.1
+    assert better_verdict(base, dict(base)) is base
 
 
 def test_name_controller_replaces_an_existing_line(tmp_path):

@@ -45,11 +45,15 @@ def _cmd_tune_robot(args) -> int:
     from tkujax.studies.robot_tune import tune_robot_controller
 
     record = tune_robot_controller(args.robot, args.out, budget_s=args.budget_s or 480.0,
-                                   heldout_n=args.heldout_n, write=not args.no_write)
+                                   heldout_n=args.heldout_n, write=not args.no_write,
+                                   retry=not args.no_retry)
     ratio = "-" if record["ratio"] is None else f"{record['ratio']:.3f}"
     print(f"{record['robot']}: {100 * record['on_fall']:.1f} % of {record['n_pushes']} held-out "
           f"pushes fall with the tuned controller, {100 * record['off_fall']:.1f} % with control "
           f"off (ratio {ratio}); {len(record['harmed_cells'])} harmed cell(s); {record['why']}")
+    if "retry" in record["stages"]:
+        print(f"the first controller: {record['stages']['tune']['why']}; the retry's: "
+              f"{record['stages']['retry']['why']}; reported: the {record['chosen_stage']}'s")
     if record.get("controller_file"):
         print(f"controller written to {record['controller_file']} and named in {args.robot}")
     print(f"verdict: {Path(args.out, 'verdict.json')}")
@@ -159,11 +163,15 @@ def _add_tune(sub) -> None:
     p.add_argument("--budget-s", type=bounded_float(1.0, 86_400.0), default=None,
                    help="override the search's wall-clock budget per run (s; [study] specs: "
                         "study.budget_s); without a spec: the whole command's budget "
-                        "(default 480 s), 60 %% of it for the search")
+                        "(default 480 s), 60 %% of it for the search; a retry, when the first "
+                        "controller fails, takes as long again")
     p.add_argument("--heldout-n", type=bounded_int(64, 1 << 20), default=8192,
                    help="without a spec: held-out pushes of the verdict (default 8192)")
     p.add_argument("--no-write", action="store_true",
                    help="without a spec: judge, but leave the robot file as it is")
+    p.add_argument("--no-retry", action="store_true",
+                   help="without a spec: no second search with the harm weight when the first "
+                        "controller fails its verdict")
     p.set_defaults(func=_cmd_tune, rerun=tune_rerun)
 
 

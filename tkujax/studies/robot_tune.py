@@ -10,11 +10,19 @@ Stages, each kept in DIR and skipped when done (rerun the command to resume):
    `TUNE_SEED`) with the no-harm weight, for the budget's tuning share.
 3. `heldout/`: a sweep of held-out pushes (seed `HELDOUT_SEED`, other onsets, longer
    rollouts), control off and on with the recommended set.
-4. `compare/` and `verdict.json`: `tkujax compare` of the two; the controller passes when it
-   falls less often than control off and no direction x impulse x phase cell with >= 100
-   pushes falls more than 2 points more often. Then it is written next to the robot file
-   (`<stem>_controller.json`) and named in it (`controller = ...`); otherwise the verdict says
-   why it failed and the robot file is left as it was.
+4. `compare/` and `first_verdict.json`: `tkujax compare` of the two; the controller passes
+   when it falls less often than control off and no direction x impulse x phase cell with
+   >= 100 pushes falls more than 2 points more often.
+5. `retry/` (only when that controller fails while control off falls): the search again from
+   the tuned controller, a harmed push weighing RETRY_HARM_WEIGHT (not 2) and twice the
+   tuning pushes, for the same share of the budget; then the search's result (`tune/`'s
+   params_tuned.json) is judged on the same held-out pushes (control on only, compared with
+   step 3's control off). On OP3 this turned 0.678x
+   with 4 harmed cells into 0.666x with none (results/robots/op3_command/).
+6. `verdict.json`: the passing controller (else the one with fewer harmed cells, then fewer
+   falls), with each stage's verdict under `stages`. A passing controller is written next to
+   the robot file (`<stem>_controller.json`) and named in it (`controller = ...`); otherwise
+   the verdict says why it failed and the robot file is left as it was.
 """
 
 from __future__ import annotations
@@ -38,6 +46,9 @@ TUNE_SEED, HELDOUT_SEED = 0, 11
 TUNE_BATCH, TUNE_HORIZON_S, POPSIZE = 256, 1.5, 13
 HELDOUT_HORIZON_S = 2.0
 TUNE_SHARE = 0.6                     # of --budget-s for the search's generations
+TUNE_HARM_WEIGHT = 2.0               # OP3's loss: a harmed push costs twice a saved one
+RETRY_HARM_WEIGHT = 8.0              # the retry's (module doc, step 5)
+RETRY_BATCH = 2 * TUNE_BATCH
 DEGREE_KEYS = ("eps_forward", "eps_backward")
 
 
@@ -63,28 +74,46 @@ def _uniform(pair) -> dict:
     return {"uniform": [float(pair[0]), float(pair[1])]}
 
 
-def tune_spec(robot_file: str, robot, pushes: dict, structure: str, iterations: int) -> dict:
-    """The tune spec (as its TOML dict) of the robot's controller in `structure` (module doc)."""
+def tune_spec(robot_file: str, robot, pushes: dict, structure: str, iterations: int,
+              retry_from: dict | None = None) -> dict:
+    """The tune spec (as its TOML dict) of the robot's controller in `structure` (module doc);
+    `retry_from` (a tuned controller's parameter dict): the retry's spec (step 5), which starts
+    there, within the first search's ranges."""
     start = structure_start(robot, structure)
     tuned = STRUCTURES[structure]["tuned"]
+    ranges = ranges_for(robot, start, tuned)
+    if retry_from is not None:
+        start = {k: _inside(retry_from[k], ranges.get(k)) for k in start}
     # The spec dialect gives the lean thresholds in degrees.
     controller = {(f"{k}_deg" if k in DEGREE_KEYS else k): (math.degrees(v) if k in DEGREE_KEYS
                                                             else v)
                   for k, v in start.items()}
+    retry = retry_from is not None
     return {
         "robot": {"file": robot_file},
-        "tune": {"name": f"{robot.name}_controller", "seed": TUNE_SEED, "method": "cma",
-                 "popsize": POPSIZE, "iterations": iterations, "batch": TUNE_BATCH,
+        "tune": {"name": f"{robot.name}_controller" + ("_retry" if retry else ""),
+                 "seed": TUNE_SEED, "method": "cma", "popsize": POPSIZE,
+                 "iterations": iterations, "batch": RETRY_BATCH if retry else TUNE_BATCH,
                  "duration_s": TUNE_HORIZON_S, "params": list(tuned), "float64": False,
-                 "remat": True, "ranges": ranges_for(robot, start, tuned),
-                 # OP3's loss: a harmed push costs twice a saved one (results/op3/).
-                 "loss": dict(w_fall=1.0, w_recovery=1.0, w_step=0.1, w_harm=2.0)},
+                 "remat": True, "ranges": ranges,
+                 "loss": dict(w_fall=1.0, w_recovery=1.0, w_step=0.1,
+                              w_harm=RETRY_HARM_WEIGHT if retry else TUNE_HARM_WEIGHT)},
         "controller": controller,
         "push": {"impulse_ns": _uniform(pushes["impulse_ns"]), "azimuth_deg": _uniform((0, 360)),
                  "height_m": _uniform(pushes["height_m"]), "onset_s": _uniform((0.25, 0.4)),
                  "duration_s": _uniform(pushes["duration_s"])},
         "baseline": {"sigma": 0.5},
     }
+
+
+def _inside(value: float, bounds) -> float:
+    """`value` nudged strictly inside `bounds` (a tuned value can round onto its range's edge,
+    and a start must lie strictly inside, tkujax.studies.tune.reparam); as it is without."""
+    if bounds is None:
+        return float(value)
+    lo, hi = bounds
+    margin = 1e-6 * (hi - lo)
+    return float(min(max(value, lo + margin), hi - margin))
 
 
 def heldout_spec(robot_file: str, robot, pushes: dict, n: int) -> dict:
@@ -120,19 +149,46 @@ def _stage_structure(out: Path, robot, pushes: dict, log) -> dict:
     return record
 
 
-def _stage_tune(out: Path, robot_file: str, robot, pushes: dict, structure: str,
-                budget_s: float, log) -> dict:
+def _stage_tune(folder: Path, robot_file: str, robot, pushes: dict, structure: str,
+                budget_s: float, log, retry_from: dict | None = None) -> dict:
     from tkujax.studies.tune import run_tune
 
-    record_path = out / "tune" / "params_after.json"
+    # The retry takes the search's result, not the tune's recommendation: that keeps the start
+    # unless the held-out falls drop, while the retry may trade falls for harm, which the
+    # verdict judges (results/robots/op3_command/: kept 15.6 % over 12.7 %, 0.5 -> 0.1 % harmed).
+    name = "params_tuned.json" if retry_from is not None else "params_after.json"
+    record_path = folder / "tune" / name
     if record_path.is_file():
         return json.loads(record_path.read_text())
-    spec = tune_spec(robot_file, robot, pushes, structure, iterations=10_000)
-    (out / "tune_spec.json").write_text(json.dumps(spec, indent=1) + "\n")
-    log(f"tune: CMA-ES over {len(spec['tune']['params'])} parameters ({structure}), "
-        f"{budget_s:.0f} s of generations")
-    run_tune(spec, out / "tune", quiet=True, compare=False, budget_s=budget_s, robot=robot)
+    folder.mkdir(parents=True, exist_ok=True)
+    spec = tune_spec(robot_file, robot, pushes, structure, iterations=10_000,
+                     retry_from=retry_from)
+    (folder / "tune_spec.json").write_text(json.dumps(spec, indent=1) + "\n")
+    weight = spec["tune"]["loss"]["w_harm"]
+    log(f"{'retry' if retry_from else 'tune'}: CMA-ES over {len(spec['tune']['params'])} "
+        f"parameters ({structure}, harm weight {weight:g}), {budget_s:.0f} s of generations")
+    run_tune(spec, folder / "tune", quiet=True, compare=False, budget_s=budget_s, robot=robot)
     return json.loads(record_path.read_text())
+
+
+def should_retry(first: dict) -> bool:
+    """Step 5 runs when the first controller failed on pushes control off falls on (a verdict
+    with no cell to judge, or nothing to judge, is not helped by a search)."""
+    return (not first["passed"] and first["ratio"] is not None
+            and first["cells_checked"] > 0)
+
+
+def better_verdict(a: dict, b: dict) -> dict:
+    """The verdict to report of two: a passing one, else fewer harmed cells, then fewer falls
+    (`a` on a tie)."""
+    def key(v):
+        return (not v["passed"], len(v["harmed_cells"]), v["on_fall"])
+    return b if key(b) < key(a) else a
+
+
+def _summary(v: dict) -> dict:
+    keys = ("on_fall", "ratio", "harmed_cells", "cells_checked", "passed", "why", "wall_s")
+    return {k: v[k] for k in keys}
 
 
 def check_stages(robot_file: str, robot, heldout_n: int) -> None:
@@ -145,7 +201,9 @@ def check_stages(robot_file: str, robot, heldout_n: int) -> None:
                    "PROBE_HORIZON_S", PROBE_HORIZON_S)
     widest = widest_pushes(robot).as_dict()
     for structure in STRUCTURES:
-        parse_tune_spec(tune_spec(robot_file, robot, widest, structure, iterations=10_000))
+        for retry_from in (None, structure_start(robot, structure)):
+            parse_tune_spec(tune_spec(robot_file, robot, widest, structure, iterations=10_000,
+                                      retry_from=retry_from))
     parse_spec(heldout_spec(robot_file, robot, widest, heldout_n))
 
 
@@ -168,9 +226,10 @@ def claim_out(out: Path, robot) -> None:
 
 
 def tune_robot_controller(robot_file: str | Path, out: str | Path, budget_s: float = 480.0,
-                          heldout_n: int = 8192, write: bool = True,
+                          heldout_n: int = 8192, write: bool = True, retry: bool = True,
                           log=None) -> dict:
-    """Run the stages (module doc) for the robot file; returns the verdict's record."""
+    """Run the stages (module doc) for the robot file; returns the verdict's record.
+    retry False: step 5 never runs."""
     if not (isinstance(budget_s, (int, float)) and math.isfinite(budget_s)
             and 30.0 <= budget_s <= 86_400.0):
         raise ValueError(f"budget_s must be in [30, 86400] s, got {budget_s!r}")
@@ -188,14 +247,32 @@ def tune_robot_controller(robot_file: str | Path, out: str | Path, budget_s: flo
     pushes = _stage_pushes(out, robot, log)
     structure = _stage_structure(out, robot, pushes, log)
     name = structure["chosen"]
+    n_params = len(STRUCTURES[name]["tuned"])
     tuned = _stage_tune(out, robot_file, robot, pushes, name, TUNE_SHARE * budget_s, log)
+    held = heldout_spec(robot_file, robot, pushes, heldout_n)
     log("verdict: held-out pushes, control off and with the tuned controller")
-    record = heldout_verdict(out, robot, heldout_spec(robot_file, robot, pushes, heldout_n),
-                             tuned, method="cma", n_params=len(STRUCTURES[name]["tuned"]))
+    first = heldout_verdict(out, robot, held, tuned, method="cma", n_params=n_params)
+    (out / "first_verdict.json").write_text(json.dumps(first, indent=1) + "\n")
+    record, params = first, tuned
+    record["stages"] = {"tune": _summary(first)}
+    if retry and should_retry(first):
+        if hasattr(log, "add_budget"):
+            log.add_budget(budget_s)
+        log(f"retry: {first['why']}; the search again from it, harm weight "
+            f"{RETRY_HARM_WEIGHT:g} (the budget grows by {budget_s:.0f} s)")
+        again = _stage_tune(out / "retry", robot_file, robot, pushes, name,
+                            TUNE_SHARE * budget_s, log, retry_from=tuned)
+        log("verdict: the retry's controller on the same held-out pushes")
+        second = heldout_verdict(out / "retry", robot, held, again, method="cma",
+                                 n_params=n_params, reference=out / "heldout")
+        stages = {"tune": _summary(first), "retry": _summary(second)}
+        record = better_verdict(first, second)
+        params = again if record is second else tuned
+        record["stages"] = stages
+        record["chosen_stage"] = "retry" if record is second else "tune"
     record["structure"] = dict(chosen=name, why=structure["why"])
     record["wall_s"] = round(time.perf_counter() - t0, 1)     # this run of the command
     if record["passed"] and write:
-        record["controller_file"] = str(name_controller(robot_file, tuned))
+        record["controller_file"] = str(name_controller(robot_file, params))
     (out / "verdict.json").write_text(json.dumps(record, indent=1) + "\n")
     return record
-

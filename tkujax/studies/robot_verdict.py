@@ -67,10 +67,14 @@ def verdict_reason(v: dict) -> str:
 
 
 def heldout_verdict(out: Path, robot, spec: dict, params: dict, method: str,
-                    n_params: int) -> dict:
+                    n_params: int, reference: Path | None = None) -> dict:
     """Sweep `spec` (a sweep spec's TOML dict) into out/heldout with `params` (a parameter
-    file's dict) and judge it (module doc). Resumable: the sweep resumes, the rest reruns."""
+    file's dict) and judge it (module doc). `reference`: a held-out sweep folder of the same
+    spec whose control-off run is compared with (the sweep then runs control on only).
+    Resumable: the sweep resumes, the rest reruns."""
     t0 = time.perf_counter()
+    if reference is not None:
+        spec = spec | {"sweep": spec["sweep"] | {"control": ["on"]}}
     path = out / "heldout_spec.json"
     path.write_text(json.dumps(spec_record(spec, out), indent=1) + "\n")
     controller = controller_params(params)
@@ -79,14 +83,15 @@ def heldout_verdict(out: Path, robot, spec: dict, params: dict, method: str,
     if not manifest["complete"]:
         raise RuntimeError(f"{out / 'heldout'}: the held-out sweep is incomplete; rerun to "
                            "resume")
-    res = compare_runs([f"{out / 'heldout'}:off", f"{out / 'heldout'}:on"], out / "compare",
+    off = Path(reference if reference is not None else out / "heldout")
+    res = compare_runs([f"{off}:off", f"{out / 'heldout'}:on"], out / "compare",
                        labels=["control off", "tuned"], bands=Bands(sectors=4),
                        min_pushes=MIN_CELL_PUSHES, harm_pp=HARM_PP, robot=robot)
     v = res["verdict"]["runs"]["tuned"]
     ratio = v["ratio_to_reference"]
     passed = bool(ratio is not None and ratio < 1.0 and v["no_harm"]
                   and v["cells_checked"] > 0)
-    return dict(robot=robot.name, n_pushes=int(manifest["n_pushes"]) // 2,
+    return dict(robot=robot.name, n_pushes=int(v["n"]),
                 off_fall=round(float(v["reference_fall_rate"]), 5),
                 on_fall=round(float(v["fall_rate"]), 5),
                 ratio=None if ratio is None else round(float(ratio), 4),

@@ -165,6 +165,14 @@ class StatusLog:
             self.bar.n = t
         self.bar.refresh()
 
+    def add_budget(self, seconds: float) -> None:
+        """A stage the budget did not foresee (a retry): the bar's budget grows by `seconds`."""
+        if self.budget_s:
+            self.budget_s += seconds
+            if self.bar is not None:
+                self.bar.total = self.budget_s
+        self.tick()
+
     def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
