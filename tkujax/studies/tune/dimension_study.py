@@ -298,11 +298,12 @@ class StudyRunner:
     def _setup(self, policy: str, method: str):
         """(problem, reparam, z0, cma variant, search method, SearchConfig)."""
         from tkujax.studies.tune.search import SearchConfig
+        from tkujax.studies.tune.start_policy import start_latent
 
         spec, st = self.spec, self.spec.study
         problem = self.problem(policy)
         rep = problem.reparam
-        z0 = rep.latent_of(self.base)
+        z0 = start_latent(spec, rep)
         variant, m = None, method
         if method == "cma":
             variant = "sep-CMA" if rep.size >= st["sep_cma_from"] else "CMA"
@@ -356,6 +357,7 @@ class StudyRunner:
         charged compile seconds ("charge") and the held-out curve before the end ("curve")."""
         import jax
 
+        from tkujax.studies.tune.start_policy import start_record
         from tkujax.studies.tune.tune_spec import ensembles_record
 
         st = self.spec.study
@@ -386,7 +388,7 @@ class StudyRunner:
                     selection_curve=r.get("selection_curve"),
                     policy_layout=rep.describe(r["z_best"]),
                     ensembles=ensembles_record(self.spec), model=dict(self.spec.model),
-                    devices=[str(d) for d in jax.devices()])
+                    start_policy=start_record(self.spec), devices=[str(d) for d in jax.devices()])
 
     def __call__(self, policy: str, method: str, seed: int) -> dict:
         """One seed alone: `run_group` of one seed without the lockstep functions."""

@@ -62,8 +62,8 @@ def study_markdown(rows: list[dict], spec=None) -> str:
         firsts = {(r["policy"], r["seed"]): r for r in rows}
         start = aggregate([dict(r, method="start", **{key: r.get("start_" + key)})
                            for r in firsts.values()], key)
-        lines += [f"## {title}", "", "mean ± sd over seeds (n); start = the hand-designed "
-                  "controller on the same pushes.", "",
+        lines += [f"## {title}", "", "mean ± sd over seeds (n); start = the search's start "
+                  "(the spec's controller, or its tune.start_policy) on the same pushes.", "",
                   "| policy | n_params | start | " + " | ".join(methods) + " |",
                   "|---|---|---|" + "---|" * len(methods)]
         for (n, pol), ms in agg.items():

@@ -24,6 +24,7 @@ import numpy as np
 
 from tkujax.studies.tune.problem import TuneProblem
 from tkujax.studies.tune.search import SearchConfig, run_search
+from tkujax.studies.tune.start_policy import start_latent
 from tkujax.studies.tune.tune_spec import TuneSpec, ensembles_record, sample_pushes, shifted
 
 
@@ -53,8 +54,8 @@ def paired(a: np.ndarray, b: np.ndarray) -> tuple[float, float, int]:
 def run_compare(spec: TuneSpec, out: Path, problem: TuneProblem,
                 log: Callable[[str], None] = print) -> dict:
     c = spec.compare
-    reparam, base = spec.policy_reparam(), spec.base_params()
-    z0 = reparam.latent_of(base)
+    reparam = spec.policy_reparam()
+    z0 = start_latent(spec, reparam)
     cfg = SearchConfig(budget_s=c["budget_s"], popsize=c["popsize"], sigma0=c["sigma0"],
                        zo_sigma=c["zo_sigma"], groups=c["groups"],
                        learning_rate=c["learning_rate"], temperature_deg=c["temperature_deg"],

@@ -4,8 +4,8 @@
 loads it) becomes the problem's model, and the start is the robot's scaled controller defaults
 (`controller_params_for`) with the spec's [controller] applied. Refused, each a SpecError
 naming the key: a --robot other than the spec's [robot] file, [model] overrides, robot
-ensembles, float64, and a start outside tune.ranges (the ranges are the spec's, in SI units:
-give ranges that fit the robot).
+ensembles, float64, tune.start_policy, and a start outside tune.ranges (the ranges are the
+spec's, in SI units: give ranges that fit the robot).
 """
 
 from __future__ import annotations
@@ -40,6 +40,9 @@ def on_robot(spec, robot=None) -> object:
                         "ensemble to tune on a robot file")
     if spec.float64:
         raise SpecError("tune.float64: a robot file's model runs in float32; set it false")
+    if spec.start_policy is not None:
+        raise SpecError("tune.start_policy: a policy file is TKU-X's controller; remove it to "
+                        "tune on a robot file (the start is the robot's scaled defaults)")
     # The scaled defaults, not the robot file's controller: a tune starts from the robot.
     base = robot.defaults if robot.defaults is not None else robot.params
     start = controller_params_from(base, spec.controller).validate()

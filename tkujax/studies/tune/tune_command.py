@@ -31,6 +31,7 @@ from tkujax.studies.tune.tune_outputs import plot_outputs, summary_markdown
 from tkujax.studies.tune.search import GradientOptions, SearchConfig, calls_used, run_search
 from tkujax.dialects.validation import SpecError, integer, number
 from tkujax.studies.tune.robot_table import on_robot, robot_record
+from tkujax.studies.tune.start_policy import start_latent, start_record
 from tkujax.studies.tune.tune_spec import (TuneSpec, ensembles_record, grid_pushes,
                                            load_tune_spec, make_problem, parse_tune_spec,
                                            sample_pushes, shifted)
@@ -106,7 +107,7 @@ def resolve_run(spec: TuneSpec, budget_s: float | None = None) -> TuneRun:
                        groups=c.get("groups", 4 if spec.batch % 4 == 0 else 1),
                        ray_radius=c.get("ray_radius", 2.0),
                        ray_ratio=c.get("ray_ratio", 0.5))
-    return TuneRun(spec, reparam, base, reparam.latent_of(base),
+    return TuneRun(spec, reparam, base, start_latent(spec, reparam),
                    advised if spec.method == "auto" else spec.method, advised, cfg)
 
 
@@ -176,6 +177,7 @@ def _run_tune(spec: TuneSpec, out: Path, quiet: bool, compiler_options: dict | N
         latents={n: np.asarray(z).tolist() for n, z in cands.items()}, evaluation=evals,
         evaluation_shifted=evals_shifted,
         recommendation=decision, ensembles=ensembles_record(spec), model=dict(spec.model),
+        start_policy=start_record(spec),
         robot=robot_record(spec),
         compare=None if comparison is None else dict(winner=comparison["winner"],
                                                      pooled=comparison["pooled"]),

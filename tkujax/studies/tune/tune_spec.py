@@ -42,6 +42,7 @@ from tkujax.studies.tune.problem import RECORD_KEYS, TuneProblem
 from tkujax.studies.tune.reparam import DEFAULT_TUNED, TUNABLE, Reparam, check_start
 from tkujax.studies.tune.search import parse_gradient_options
 from tkujax.studies.tune.searchers import METHODS
+from tkujax.studies.tune.start_policy import check_start_policy, policy_start
 from tkujax.studies.tune.tune_spec_tables import parse_compare, parse_study, policy_name
 from tkujax.dialects.validation import (SpecError, boolean, integer, number, read_toml,
                                         robot_file_of, table, uniform, values)
@@ -104,6 +105,8 @@ class TuneSpec:
     # starting ControllerParams (the paper's with [controller] applied, validated).
     robot: ModelParams | None = dataclasses.field(default=None, compare=False, repr=False)
     start: ControllerParams | None = dataclasses.field(default=None, compare=False, repr=False)
+    start_policy: str | None = None                  # tune.start_policy: the file, its Schedule
+    start_schedule: Any = dataclasses.field(default=None, compare=False, repr=False)
 
     def model_params(self) -> ModelParams | None:
         """The [model] robot (None: the embedded default, ModelParams())."""
@@ -136,7 +139,8 @@ TUNE_FIELDS = {"name": str, "description": str, "seed": int, "iterations": int, 
                "anneal": dict, "loss": dict, "ranges": dict, "method": str,
                "popsize": int, "policy": str, "schedule": list, "sharpness": (int, float),
                "gradient_window_ticks": int, "timing_gradient": bool,
-               "bundle_sigma": (int, float), "bundle_antithetic": bool, "diagnose_every": int}
+               "bundle_sigma": (int, float), "bundle_antithetic": bool, "diagnose_every": int,
+               "start_policy": str}
 TUNE_PUSH_FIELDS = set(PUSH_FIELDS) | {"azimuth_jitter_deg"}
 
 
@@ -301,13 +305,15 @@ def parse_tune_spec(data: dict) -> TuneSpec:
         raise SpecError("tune.float64: an ensemble ([randomize] or [evaluate.shift] ensemble) "
                         "runs in float32; set tune.float64 = false")
     model, robot = _parse_model(data.get("model", {}))
+    given = data.get("tune", {}).get("start_policy")
+    start, schedule = policy_start(given, controller)
     if model and robots:
         raise SpecError("[model]: an ensemble ([randomize] or [evaluate.shift] ensemble) gives "
                         "the robots; remove [model] or the ensemble")
     spec = TuneSpec(**tune, push=push, azimuth_jitter_deg=jitter, controller=controller,
                     randomize=randomize, **baseline, **evaluate, raw=data, compare=compare,
                     shift=shift, study=study, ensemble=ensemble, robot_table=robots, model=model,
-                    robot=robot, start=start_params(controller))
+                    robot=robot, start=start, start_policy=given, start_schedule=schedule)
     for key, policy in [("tune.policy", spec.policy)] + [
             (f"study.policies[{i}]", p) for i, p in enumerate((study or {}).get("policies", []))]:
         if policy != "scalars" and not spec.schedule:
@@ -315,9 +321,8 @@ def parse_tune_spec(data: dict) -> TuneSpec:
                             f"tune.params is scheduled (set tune.schedule)")
     if robot_file_of(data) is None:     # a robot's start is checked once it is resolved
         check_start(spec)
+    check_start_policy(spec)
     return spec
-
-
 
 
 def _parse_model(given) -> tuple[dict[str, float], ModelParams | None]:
