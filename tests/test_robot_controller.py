@@ -1,3 +1,4 @@
+import dataclasses
 """The controller belongs to the robot (tkujax.robot.own_controller): a robot file names its
 controller, sweeps use it (the spec's [robot] file through `run_sweep` as on the command line),
 and a robot without one gets a conservative default that harms none of TKU-X, OP3 and Booster
@@ -78,6 +79,41 @@ def test_a_robot_file_names_its_controller(tmp_path):
     assert setup.params == load_controller_params_json(tmp_path / "mine.json")
     path.write_text(text.replace("mine.json", "missing.json"))
     with pytest.raises(RobotFileError, match=r"controller: file not found: .*missing\.json"):
+        load_description(path)
+
+
+def test_a_robot_file_names_its_walking_controller(tmp_path):
+    """`walk_controller` is the controller walking runs (the walker and a [walk] sweep's
+    parameters); standing keeps `controller`; neither line changes the robot's identity."""
+    from tkujax.control.params_files import save_controller_params_json
+    from tkujax.robot.robot_setup import file_digest
+    from tkujax.dialects.sweep_spec import parse_spec
+    from tkujax.sweeps.sweep import run_sweep
+    from tkujax.walking.walk import walker
+
+    path = write_generated_robot(tmp_path, name="walks")
+    before = file_digest(path)
+    standing = dataclasses.replace(robot_setup(path).defaults, stance_ankle_kp=0.5)
+    walking = dataclasses.replace(standing, stance_ankle_kp=0.1)
+    save_controller_params_json(standing, tmp_path / "stand.json")
+    save_controller_params_json(walking, tmp_path / "walk.json")
+    text = path.read_text().replace(
+        'imu = "imu"', 'imu = "imu"\ncontroller = "stand.json"\nwalk_controller = "walk.json"')
+    path.write_text(text)
+    robot = robot_setup(path)
+    assert file_digest(path) == before
+    assert robot.params.stance_ankle_kp == pytest.approx(0.5)
+    assert robot.walking_params.stance_ankle_kp == pytest.approx(0.1)
+    assert robot.walk_controller == "file walk.json"
+    assert walker(str(path)).params.stance_ankle_kp == pytest.approx(0.1)
+    push = {"grid": {"impulse_ns": [0.2], "gait_phase": [0.25]}}
+    walking = {"robot": {"file": str(path)}, "sweep": {"name": "w", "duration_s": 2.0},
+               "walk": {"speed_mps": 0.1, "push_cycle": 1}, "push": push}
+    manifest = run_sweep(parse_spec(walking), tmp_path / "walking", backend="mujoco",
+                         quiet=True)
+    assert manifest["controller_params"]["stance_ankle_kp"] == pytest.approx(0.1)
+    path.write_text(text.replace("walk.json", "gone.json"))
+    with pytest.raises(RobotFileError, match=r"walk_controller: file not found: .*gone\.json"):
         load_description(path)
 
 

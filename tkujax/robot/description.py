@@ -15,6 +15,7 @@ roles given twice, the MJCF's existence); the names are checked against the comp
     [collision]                   # optional: mode = "primitives" (default) or "model";
                                   # floor = "all" (default) or "feet" (tkujax.robot.collision)
     controller = "robot.json"     # optional: the robot's tuned controller, relative to this file
+    walk_controller = "walk.json" # optional: the controller while walking (default: controller)
     [servo]                       # optional: PD servos on the leg joints (tkujax.robot.servos)
     [solver]                      # optional: iterations = 1, ls_iterations = 4 (the constraint
                                   # solver's caps; default: the model's own)
@@ -42,8 +43,8 @@ OPTIONAL_ROLES = ("ankle_roll",)     # a five-joint leg (hip x 3, knee, ankle pi
 HIP_ROLES = LEG_ROLES[:3]
 ANKLE_ROLES = LEG_ROLES[4:]
 SIDES = ("left", "right")
-TOP_KEYS = ("mjcf", "imu", "legs", "stand", "name", "collision", "controller", "servo",
-            "solver")
+TOP_KEYS = ("mjcf", "imu", "legs", "stand", "name", "collision", "controller",
+            "walk_controller", "servo", "solver")
 REQUIRED_TOP = ("mjcf", "imu", "legs")
 STAND_KEYS = ("keyframe", "joints", "hip_height_frac")
 COLLISION_KEYS = ("mode", "floor")
@@ -89,6 +90,7 @@ class RobotDescription:
     collision_mode: str = DEFAULT_COLLISION_MODE   # tkujax.robot.collision.COLLISION_MODES
     floor_contacts: str = DEFAULT_FLOOR_CONTACTS   # tkujax.robot.collision.FLOOR_CONTACTS
     controller_path: Path | None = None            # the robot's tuned controller (absolute)
+    walk_controller_path: Path | None = None       # its controller while walking (absolute)
     servo: ServoTable | None = None                # [servo]: PD servos replacing the legs'
     solver_iterations: int | None = None           # [solver] iterations (None: the model's)
     ls_iterations: int | None = None               # [solver] ls_iterations (None: the model's)
@@ -230,14 +232,16 @@ def parse_description(data: dict, base: Path, source: str = "<robot file>") -> R
     return RobotDescription(name=name, mjcf_path=mjcf, imu=string(data, "imu", ""),
                             left=left, right=right, stand=_stand(data.get("stand")),
                             source=source, collision_mode=mode, floor_contacts=floor,
-                            controller_path=_controller_path(data, base), servo=servo,
+                            controller_path=_controller_path(data, base),
+                            walk_controller_path=_controller_path(data, base, "walk_controller"),
+                            servo=servo,
                             **_solver(data.get("solver")))
 
 
-def _controller_path(data: dict, base: Path) -> Path | None:
-    if "controller" not in data:
+def _controller_path(data: dict, base: Path, key: str = "controller") -> Path | None:
+    if key not in data:
         return None
-    path = expand_path(string(data, "controller", ""), base)
+    path = expand_path(string(data, key, ""), base)
     if not path.is_file():
-        raise RobotFileError(f"controller: file not found: {path} (relative to {base})")
+        raise RobotFileError(f"{key}: file not found: {path} (relative to {base})")
     return path

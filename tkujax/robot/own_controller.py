@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from pathlib import Path
 
 from tkujax.control.params_files import is_policy, load_controller_params_json
 from tkujax.control.controller_params import RECOMMENDED, ControllerParams
@@ -52,17 +53,35 @@ def robot_controller(desc: RobotDescription,
     conservative default."""
     if desc.controller_path is None:
         return conservative_controller(scaled), CONSERVATIVE_SOURCE
+    return controller_file(desc.controller_path, "controller"), \
+        f"file {desc.controller_path.name}"
+
+
+def walking_controller(desc: RobotDescription, standing: ControllerParams,
+                       source: str) -> tuple[ControllerParams, str]:
+    """(the controller while walking, where it came from): the file `walk_controller` names,
+    else the standing one (`standing`, from `source`). A standing controller tuned for pushes
+    can be wrong for a gait: OP3's tuned stance gains (ankle kp 2.5) fell walking at 0.2 m/s
+    and backward, where its earlier controller's (0.34) walk (docs/robots.md)."""
+    if desc.walk_controller_path is None:
+        return standing, source
+    return controller_file(desc.walk_controller_path, "walk_controller"), \
+        f"file {desc.walk_controller_path.name}"
+
+
+def controller_file(path: Path, key: str) -> ControllerParams:
+    """The parameter file a robot file's `key` names; RobotFileError naming the key when it
+    is not a readable parameter file (a scheduled policy included)."""
     import json
     try:
-        data = json.loads(desc.controller_path.read_text())
+        data = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise RobotFileError(f"controller: {desc.controller_path} is not a readable JSON "
+        raise RobotFileError(f"{key}: {path} is not a readable JSON "
                              f"parameter file: {err}") from err
     if is_policy(data):
-        raise RobotFileError(f"controller: {desc.controller_path} is a scheduled policy; a "
+        raise RobotFileError(f"{key}: {path} is a scheduled policy; a "
                              "robot file names a parameter file (pass a policy with --params)")
     try:
-        params = load_controller_params_json(desc.controller_path)
+        return load_controller_params_json(path)
     except ValueError as err:
-        raise RobotFileError(f"controller: {err}") from err
-    return params, f"file {desc.controller_path.name}"
+        raise RobotFileError(f"{key}: {err}") from err

@@ -42,7 +42,7 @@ from tkujax.robot.geometry import base_pitch_roll, controller_params_for, measur
 from tkujax.robot.leg_map import leg_chain, sign_map
 from tkujax.robot.loader import RobotModel, load_robot
 from tkujax.robot.model_files import model_files, model_files_digest
-from tkujax.robot.own_controller import robot_controller
+from tkujax.robot.own_controller import robot_controller, walking_controller
 from tkujax.robot.simsetup import floor_geoms, robot_index, settled_data
 from tkujax.robot.stand import stand_pose
 from tkujax.sim.mjx_import import mjx
@@ -51,9 +51,10 @@ from tkujax.sim.setup import SETTLE_S, ModelIndex, SimSetup
 
 
 def _without_controller(text: bytes) -> bytes:
-    """The robot file without its `controller = ...` line: naming a controller is not another
+    """The robot file without its `controller = ...` and `walk_controller = ...` lines: naming a
+    controller is not another
     robot (the controller's values enter a sweep's hash as its parameters)."""
-    return re.sub(rb"(?m)^[ \t]*controller[ \t]*=.*\n?", b"", text)
+    return re.sub(rb"(?m)^[ \t]*(?:walk_)?controller[ \t]*=.*\n?", b"", text)
 
 
 def file_digest(path: str | Path) -> str:
@@ -127,12 +128,14 @@ def _robot_from_file(path: str, digest: str, controller: str) -> Robot:
     data = settled_data(robot, pose, SETTLE_S)
     scaled = _params(robot, pose, data)
     params, controller = robot_controller(robot.description, scaled)
+    walk_params, walk_source = walking_controller(robot.description, params, controller)
     device = jax.local_devices()[0]
     setup = SimSetup(robot.model, mjx.put_model(robot.model, device=device),
                      closed_loop_index(robot, pose, scaled),
                      mjx.put_data(robot.model, data, device=device))
     return Robot(setup=setup, settled=data, params=params, name=robot.name, digest=digest,
-                      source=path, controller=controller, defaults=scaled)
+                      source=path, controller=controller, defaults=scaled,
+                      walk_params=walk_params, walk_controller=walk_source)
 
 
 def robot_from_file(path: str | Path) -> Robot:
@@ -145,11 +148,13 @@ robot_setup = robot_from_file   # the older name
 
 
 def controller_digest(path: str | Path) -> str:
-    """sha256 of the robot file's controller line and of the file it names ("" without one):
-    with file_digest, what a loaded Robot depends on."""
+    """sha256 of the robot file's controller lines and of the files they name ("" without
+    any): with file_digest, what a loaded Robot depends on."""
     desc = load_description(path)
-    if desc.controller_path is None:
+    named = [p for p in (desc.controller_path, desc.walk_controller_path) if p is not None]
+    if not named:
         return ""
-    h = hashlib.sha256(str(desc.controller_path).encode())
-    h.update(desc.controller_path.read_bytes())
+    h = hashlib.sha256()
+    for p in (desc.controller_path, desc.walk_controller_path):
+        h.update(b"-" if p is None else str(p).encode() + p.read_bytes())
     return h.hexdigest()

@@ -47,6 +47,8 @@ class Robot:
     name, digest (sha256, hex: of the robot file and its model files, or of the ModelParams),
     source (the robot file's path; BUILTIN_SOURCE for TKU-X), controller (where `params`
     came from). model_params: TKU-X's generator parameters; None for a robot file.
+    walk_params, walk_controller: the controller while walking and where it came from (None,
+    "": `params`; `walking_params` gives the one in use).
     """
 
     setup: SimSetup
@@ -58,9 +60,16 @@ class Robot:
     controller: str = ""
     defaults: ControllerParams | None = None
     model_params: ModelParams | None = None
+    walk_params: ControllerParams | None = None
+    walk_controller: str = ""
 
     def __repr__(self) -> str:
         return f"Robot({self.name!r}, source={self.source!r}, digest={self.digest[:12]!r})"
+
+    @property
+    def walking_params(self) -> ControllerParams:
+        """The controller while walking: the robot file's `walk_controller`, else `params`."""
+        return self.params if self.walk_params is None else self.walk_params
 
     @property
     def builtin(self) -> bool:

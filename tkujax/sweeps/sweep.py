@@ -267,7 +267,8 @@ def _checked_inputs(spec: SweepSpec | str | Path, params: ControllerParams | Non
     spec = walk_for_robot(spec, robot)
     check_push_window(spec)
     check_robot_sweep(spec, robot)
-    return spec, params or robot.params, robot
+    own = robot.params if spec.walk is None else robot.walking_params
+    return spec, params or own, robot
 
 
 TKUX_HEIGHT_M = (0.25, 0.46)   # TKU-X's trunk, from the hips to the shoulders

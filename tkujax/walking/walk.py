@@ -51,10 +51,12 @@ class Walker:
 
 
 def walker(robot_file: str | None = None) -> Walker:
-    """TKU-X (None) or a robot file's robot: the controller the file names (its scaled
-    defaults otherwise), the gait from the scaled defaults (`Robot.defaults`)."""
+    """TKU-X (None) or a robot file's robot: the controller the file names for walking
+    (`Robot.walking_params`; its scaled defaults otherwise), the gait from the scaled defaults
+    (`Robot.defaults`)."""
     robot = builtin_robot() if robot_file is None else robot_from_file(robot_file)
-    return Walker(robot=robot, params=robot.params, gait_params=robot.defaults or robot.params,
+    return Walker(robot=robot, params=robot.walking_params,
+                  gait_params=robot.defaults or robot.params,
                   name="tkux" if robot.builtin else robot.name)
 
 
