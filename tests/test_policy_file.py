@@ -148,9 +148,9 @@ def test_mjx_sweep_runs_the_schedule(tmp_path):
 
 
 def test_recommended_policy_is_the_study_best_and_runs_by_name(tmp_path):
-    """`recommended_policy()` / `--params recommended`: the shipped file is the dimension
-    study's best policy (results/tune_dimension/best_policy.json, whose held-out evaluation
-    promoted it), an 8-sector schedule of 8 fields that really moves them; a sweep runs it by
+    """`recommended_policy()` / `--params recommended`: the shipped file is the re-tune's best
+    policy (results/tune_policy_current/best_policy.json, whose held-out evaluation promoted
+    it), an 8-sector schedule of 8 fields that really moves them; a sweep runs it by
     name (MuJoCo C) and records the schedule, and it steps differently from the scalar set."""
     from pathlib import Path
 
@@ -160,7 +160,7 @@ def test_recommended_policy_is_the_study_best_and_runs_by_name(tmp_path):
 
     params, sched = recommended_policy()
     study_params, study_sched = load_policy_json(
-        Path(__file__).parents[1] / "results/tune_dimension/best_policy.json")
+        Path(__file__).parents[1] / "results/tune_policy_current/best_policy.json")
     assert dataclasses.asdict(params) == dataclasses.asdict(study_params)
     assert schedule_to_dict(sched) == schedule_to_dict(study_sched)
     assert sched.kind == "sectors" and np.shape(sched.table) == (8, 8)
