@@ -1,9 +1,9 @@
-import dataclasses
 """The controller belongs to the robot (tkujax.robot.own_controller): a robot file names its
 controller, sweeps use it (the spec's [robot] file through `run_sweep` as on the command line),
 and a robot without one gets a conservative default that harms none of TKU-X, OP3 and Booster
 T1 on push sets where control off falls (MuJoCo C)."""
 
+import dataclasses
 import json
 import os
 from pathlib import Path

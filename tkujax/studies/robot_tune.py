@@ -191,6 +191,24 @@ def _summary(v: dict) -> dict:
     return {k: v[k] for k in keys}
 
 
+def _stage_retry(out: Path, robot_file: str, robot, pushes: dict, structure: str,
+                 budget_s: float, log, first: dict, tuned: dict, held: dict):
+    """Step 5 (module doc): (the verdict to report, its controller's parameter dict)."""
+    if hasattr(log, "add_budget"):
+        log.add_budget(budget_s)
+    log(f"retry: {first['why']}; the search again from it, harm weight "
+        f"{RETRY_HARM_WEIGHT:g} (the budget grows by {budget_s:.0f} s)")
+    again = _stage_tune(out / "retry", robot_file, robot, pushes, structure,
+                        TUNE_SHARE * budget_s, log, retry_from=tuned)
+    log("verdict: the retry's controller on the same held-out pushes")
+    second = heldout_verdict(out / "retry", robot, held, again, method="cma",
+                             n_params=first["n_params"], reference=out / "heldout")
+    record = better_verdict(first, second)
+    record["stages"] = {"tune": _summary(first), "retry": _summary(second)}
+    record["chosen_stage"] = "retry" if record is second else "tune"
+    return record, (again if record is second else tuned)
+
+
 def check_stages(robot_file: str, robot, heldout_n: int) -> None:
     """The stages' pushes checked before anything is simulated, by the checks of sweeps and
     tunes (`tkujax.dialects.push_limits`, `tkujax.studies.tune.limits`): the probe's pushes
@@ -256,20 +274,8 @@ def tune_robot_controller(robot_file: str | Path, out: str | Path, budget_s: flo
     record, params = first, tuned
     record["stages"] = {"tune": _summary(first)}
     if retry and should_retry(first):
-        if hasattr(log, "add_budget"):
-            log.add_budget(budget_s)
-        log(f"retry: {first['why']}; the search again from it, harm weight "
-            f"{RETRY_HARM_WEIGHT:g} (the budget grows by {budget_s:.0f} s)")
-        again = _stage_tune(out / "retry", robot_file, robot, pushes, name,
-                            TUNE_SHARE * budget_s, log, retry_from=tuned)
-        log("verdict: the retry's controller on the same held-out pushes")
-        second = heldout_verdict(out / "retry", robot, held, again, method="cma",
-                                 n_params=n_params, reference=out / "heldout")
-        stages = {"tune": _summary(first), "retry": _summary(second)}
-        record = better_verdict(first, second)
-        params = again if record is second else tuned
-        record["stages"] = stages
-        record["chosen_stage"] = "retry" if record is second else "tune"
+        record, params = _stage_retry(out, robot_file, robot, pushes, name, budget_s, log,
+                                      first, tuned, held)
     record["structure"] = dict(chosen=name, why=structure["why"])
     record["wall_s"] = round(time.perf_counter() - t0, 1)     # this run of the command
     if record["passed"] and write:
