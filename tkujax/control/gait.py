@@ -64,7 +64,11 @@ class WalkCommand:
     recovery: 1 = the capture point moves the next footstep (`walk_recovery`), 0 = the nominal
     gait; recovery_band_m: how far the capture point must leave the undisturbed gait's for
     that; recovery_forward_gain: multiplies the footstep's forward move (a push from behind; 1:
-    as far as backward, 0: forward moves off, for a robot that they harm: docs/walking.md).
+    as far as backward, 0: forward moves off, for a robot that they harm: docs/walking.md);
+    recovery_late_swing_gain: multiplies the swing foot's half of the sideways offset in the
+    steps of a push first seen sideways while the foot that must step outward was not the one
+    to step (`walk_recovery`: a late push; 1: centred like any step, 0: the support foot alone
+    moves, for a robot that the late swing harms: docs/walking.md).
     heading_gain: each step turns by -heading_gain x the heading error (the yaw the
     controller integrates from the gyro since the start; at most MAX_TURN_RAD), with the hip
     yaws (`advance`'s turn); 0: the hip yaws stay 0. The defaults are TKU-X's
@@ -81,6 +85,7 @@ class WalkCommand:
     recovery: jax.Array = 0.0
     recovery_band_m: jax.Array = 0.0154
     recovery_forward_gain: jax.Array = 1.0
+    recovery_late_swing_gain: jax.Array = 1.0
     heading_gain: jax.Array = HEADING_GAIN
 
     @classmethod
@@ -104,7 +109,7 @@ class WalkCommand:
                       sway_m=(-0.05, 0.05), start_s=(0.0, 100.0),
                       ramp_steps=(0.0, 20.0), recovery=(0.0, 1.0),
                       recovery_band_m=(0.0, 0.5), recovery_forward_gain=(0.0, 2.0),
-                      heading_gain=(0.0, 2.0))
+                      recovery_late_swing_gain=(0.0, 1.0), heading_gain=(0.0, 2.0))
         for name, (lo, hi) in limits.items():
             v = float(getattr(self, name))
             if not lo <= v <= hi:       # also refuses NaN
@@ -219,15 +224,19 @@ def swing_in_reach(state: GaitState, time_s, command: WalkCommand, margin_s) -> 
     return (state.count > -0.5) & (time_s < touchdown_time(state, command) - margin_s)
 
 
-def move_footstep(state: GaitState, offset) -> GaitState:
+def move_footstep(state: GaitState, offset, swing_y=1.0) -> GaitState:
     """The current step lengthened by `offset` (2,): its swing foot lands offset / 2 further
     and its support foot ends offset / 2 further back, relative to the waist (the feet end
     offset further apart, centred on the waist: the body travels d + offset / 2 in this step
     and in the next, not d now and d + offset next). In the air the rest of the swing goes
-    there (`gait_feet` interpolates from feet_from by the CPG's quarter sine)."""
-    half = 0.5 * jnp.asarray(offset, state.feet_to.dtype)
-    add = jnp.where(state.swing_left > 0.5, jnp.concatenate([-half, half], -1),
-                    jnp.concatenate([half, -half], -1))
+    there (`gait_feet` interpolates from feet_from by the CPG's quarter sine). swing_y scales
+    the swing foot's sideways half (1: centred; 0: the support foot alone moves, the feet end
+    offset_y / 2 further apart and the body shifts offset_y / 2 sideways over the step)."""
+    dtype = state.feet_to.dtype
+    half = 0.5 * jnp.asarray(offset, dtype)
+    swing = half * jnp.stack([jnp.ones((), dtype), jnp.asarray(swing_y, dtype)])
+    add = jnp.where(state.swing_left > 0.5, jnp.concatenate([-half, swing], -1),
+                    jnp.concatenate([swing, -half], -1))
     return dataclasses.replace(state, feet_to=state.feet_to + add)
 
 

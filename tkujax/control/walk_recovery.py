@@ -27,10 +27,19 @@ earlier cycles:
               (before its lift, or in the air), else by the next: the step grows by it,
               centred (`gait.move_footstep`), sideways only outward for that swing foot (the
               legs never cross). While the trigger holds the step's offset follows the
-              deviation, once per period (`move_footsteps`).
+              deviation, once per period (`move_footsteps`);
+  late push   a push whose sideways deviation, when it first passes its band, points inward
+              for the swing foot of the step that would take the offset (pushed left while
+              the right foot swings): that step takes no sideways offset and the other
+              foot's next one does, late. Until the recovery is quiet again (no trigger for
+              QUIET_CYCLES) the swing foot's half of every sideways offset of the push is x
+              command.recovery_late_swing_gain (1: centred; 0: the support foot alone moves,
+              for a robot whose late centred steps overshoot to the other side, as OP3's:
+              docs/walking.md).
 
 tests/test_walk.py checks that an undisturbed walk never triggers it (-0.2 to 0.3 m/s, 20 s, in
-docs/walking.md) and that a push from behind moves the footstep forward.
+docs/walking.md) and that a push from behind moves the footstep forward;
+tests/test_walk_late_push.py the late push's rule and its steps' feet.
 """
 
 from __future__ import annotations
@@ -64,7 +73,10 @@ class RecoveryState:
     next step takes (m); armed: 1 while a push is being handled (set by the trigger, cleared
     when a step takes the offset); applied: (2,) the offset the current step has taken (m);
     quiet_until_s: the baseline does not learn before this
-    time (QUIET_CYCLES gait cycles after the last trigger)."""
+    time (QUIET_CYCLES gait cycles after the last trigger); side_open: 1 from a push's first
+    trigger (at or after quiet_until_s) until its sideways deviation first passes its band;
+    side_now: 1 in a period whose trigger has the sideways deviation beyond its band; late: 1
+    for the rest of a late push (module doc), set when side_open meets side_now."""
 
     baseline: jax.Array
     spread: jax.Array
@@ -73,6 +85,9 @@ class RecoveryState:
     armed: jax.Array
     applied: jax.Array
     quiet_until_s: jax.Array
+    side_open: jax.Array
+    side_now: jax.Array
+    late: jax.Array
 
     @staticmethod
     def init(dtype=jnp.float32) -> RecoveryState:
@@ -81,7 +96,9 @@ class RecoveryState:
                              seen=jnp.zeros((PHASE_BINS,), dtype),
                              pending=jnp.zeros((2,), dtype), armed=jnp.zeros((), dtype),
                              applied=jnp.zeros((2,), dtype),
-                             quiet_until_s=jnp.zeros((), dtype))
+                             quiet_until_s=jnp.zeros((), dtype),
+                             side_open=jnp.zeros((), dtype), side_now=jnp.zeros((), dtype),
+                             late=jnp.zeros((), dtype))
 
 
 def walking_capture_point(phi, psi, pitch_rate, psi_rate, params: ControllerParams):
@@ -107,8 +124,8 @@ def recovery_update(state: RecoveryState, xi, time_s, command: WalkCommand,
     # from a few cycles can be far below what the gait does there now and then).
     spread = jnp.maximum(weights @ state.spread, jnp.mean(state.spread, 0))
     band = jnp.asarray(command.recovery_band_m, dtype) + SPREAD_SIGMAS * jnp.sqrt(spread)
-    beyond = (jnp.abs(deviation[0]) > band[0]) | ((params.lateral_steps > 0.5)
-                                                   & (jnp.abs(deviation[1]) > band[1]))
+    sideways = (params.lateral_steps > 0.5) & (jnp.abs(deviation[1]) > band[1])
+    beyond = (jnp.abs(deviation[0]) > band[0]) | sideways
     trigger = (on > 0.5) & warm & beyond
     reach = MAX_OFFSET_FRAC * (params.thigh_length + params.calf_length)
     forward = jnp.where(deviation[0] > 0.0, jnp.asarray(command.recovery_forward_gain, dtype),
@@ -118,6 +135,7 @@ def recovery_update(state: RecoveryState, xi, time_s, command: WalkCommand,
     armed = jnp.where(trigger, 1.0, state.armed).astype(dtype)
     pending = jnp.where(trigger, offset, state.pending).astype(dtype)
     cycle = 2.0 * jnp.asarray(command.step_period_s, dtype)
+    first = trigger & (time_s >= state.quiet_until_s)      # a new push, not one being handled
     quiet = jnp.where(trigger, time_s + QUIET_CYCLES * cycle, state.quiet_until_s).astype(dtype)
     # The baseline learns only away from pushes (the disturbed cycles are not the gait's).
     share = (steady & (time_s >= quiet)) * weights
@@ -128,7 +146,10 @@ def recovery_update(state: RecoveryState, xi, time_s, command: WalkCommand,
     return dataclasses.replace(state, baseline=baseline.astype(dtype),
                                spread=spread.astype(dtype),
                                seen=(state.seen + share).astype(dtype), pending=pending,
-                               armed=armed, quiet_until_s=quiet), deviation
+                               armed=armed, quiet_until_s=quiet,
+                               side_open=jnp.where(first, 1.0, state.side_open).astype(dtype),
+                               side_now=(trigger & sideways).astype(dtype),
+                               late=jnp.where(first, 0.0, state.late).astype(dtype)), deviation
 
 
 def phase_weights(phase, dtype=jnp.float32) -> jax.Array:
@@ -152,18 +173,37 @@ def step_offset(state: RecoveryState, swing_left) -> jax.Array:
     return jnp.stack([state.pending[0], y]).astype(state.pending.dtype)
 
 
+def late_push(pending_y, swing_left, in_reach) -> jax.Array:
+    """1 where a sideways offset pending_y (m, + = left) points inward for the swing foot of the
+    step that would take it (the current step's while in reach, else the next one's, the other
+    foot), so that step takes none and it waits for the other foot's step; 0 where it points
+    outward for it."""
+    taker_left = jnp.where(in_reach, swing_left > 0.5, swing_left < 0.5)
+    return jnp.where(taker_left, pending_y < 0.0, pending_y > 0.0).astype(
+        jnp.asarray(pending_y).dtype)
+
+
 def move_footsteps(state: RecoveryState, gait: GaitState, started, time_s,
                    command: WalkCommand, margin_s) -> tuple[RecoveryState, GaitState, jax.Array]:
     """The pending offset into the gait: while armed, the current step (about to lift, or in the
     air and landing more than margin_s from now) takes it in place of what it had taken, so
     while the trigger holds the footstep follows the capture point's deviation, once per
-    period; a step that started takes nothing yet. Returns (state, gait, whether the footstep
-    moved)."""
+    period; a step that started takes nothing yet. A push's sideways side, when first seen,
+    decides whether it is late (`late_push`); a late push's sideways offsets move the swing
+    foot by command.recovery_late_swing_gain of its half. Returns (state, gait, whether the
+    footstep moved)."""
+    dtype = state.applied.dtype
     applied = jnp.where(started, 0.0, state.applied)
-    take = (state.armed > 0.5) & swing_in_reach(gait, time_s, command, margin_s)
+    in_reach = swing_in_reach(gait, time_s, command, margin_s)
+    decide = (state.side_open > 0.5) & (state.side_now > 0.5)
+    late = jnp.where(decide, late_push(state.pending[1], gait.swing_left, in_reach), state.late)
+    take = (state.armed > 0.5) & in_reach
     target = jnp.where(take, step_offset(state, gait.swing_left), applied)
-    gait = move_footstep(gait, target - applied)
+    swing_y = jnp.where(late > 0.5, jnp.asarray(command.recovery_late_swing_gain, dtype), 1.0)
+    gait = move_footstep(gait, target - applied, swing_y)
     state = dataclasses.replace(
-        state, applied=target.astype(applied.dtype),
-        armed=jnp.where(take, 0.0, state.armed).astype(state.armed.dtype))
+        state, applied=target.astype(dtype),
+        armed=jnp.where(take, 0.0, state.armed).astype(state.armed.dtype),
+        side_open=jnp.where(decide, 0.0, state.side_open).astype(dtype),
+        late=jnp.asarray(late, dtype))
     return state, gait, take & jnp.any(target != applied)

@@ -7,6 +7,8 @@
     recovery = ["off", "on"]   # the walking recovery (WalkCommand.recovery), crossed like control
     push_cycle = 9             # the gait cycle that push.*.gait_phase onsets fall in
     recovery_forward_gain = 1  # the recovery's forward footstep moves x this (0: none)
+    recovery_late_swing_gain = 1   # a late sideways push's swing foot moves x this (0: the
+                                   # support foot alone moves)
 
     [push.grid]
     gait_phase = {start = 0, stop = 1, num = 8, endpoint = false}   # instead of onset_s
@@ -39,6 +41,7 @@ WALK_FIELDS = {
     "lateral_mps": (-0.5, 0.5, "m/s"),
     "step_period_s": (0.1, 2.0, "s"),
     "recovery_forward_gain": (0.0, 2.0, "(a gain)"),
+    "recovery_late_swing_gain": (0.0, 1.0, "(a gain)"),
 }
 PUSH_CYCLE_RANGE = (0, 100)
 DEFAULT_PUSH_CYCLE = 9      # as tkujax.walking.walk_push.PUSH_CYCLE: the recovery is armed
@@ -56,6 +59,7 @@ class WalkSpec:
     lateral_mps: float = 0.0
     step_period_s: float | None = None     # None: the robot's
     recovery_forward_gain: float = 1.0     # WalkCommand.recovery_forward_gain
+    recovery_late_swing_gain: float = 1.0  # WalkCommand.recovery_late_swing_gain
     recovery: tuple[str, ...] = ("off",)
     push_cycle: int = DEFAULT_PUSH_CYCLE
     base: WalkCommand | None = None
@@ -100,6 +104,7 @@ def resolve_walk(walk: WalkSpec, gait_params: ControllerParams) -> WalkSpec:
     (the step period the spec gives, or the robot's); SpecError from WalkCommand.validate."""
     fields = {} if walk.step_period_s is None else dict(step_period_s=walk.step_period_s)
     fields["recovery_forward_gain"] = walk.recovery_forward_gain
+    fields["recovery_late_swing_gain"] = walk.recovery_late_swing_gain
     base = WalkCommand.for_params(gait_params, walk.speed_mps, walk.lateral_mps, **fields)
     try:
         base.validate()
