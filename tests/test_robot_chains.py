@@ -111,8 +111,9 @@ def _rot_y(a: float) -> np.ndarray:
 
 
 def _without_controller(text: str) -> str:
-    """A robot file's text without its controller line (a copy elsewhere has no such file)."""
-    return "\n".join(line for line in text.splitlines() if not line.startswith("controller"))
+    """A robot file's text without its controller lines (a copy elsewhere has no such files)."""
+    return "\n".join(line for line in text.splitlines()
+                     if not line.startswith(("controller", "walk_controller")))
 
 
 def _t1_moved(moves, exact: bool):
@@ -272,8 +273,7 @@ def _op3_variant(folder: Path, edit, servo: str = "") -> Path:
     (folder / "scene.xml").write_text((src / "scene.xml").read_text())
     text = (REPO / "specs" / "robots" / "op3.toml").read_text()
     text = text.replace("${TKUJAX_MENAGERIE:-../../../shared/models}/robotis_op3/", "")
-    text = "\n".join(line for line in text.splitlines() if not line.startswith("controller"))
-    (folder / "op3.toml").write_text(text + "\n" + servo)
+    (folder / "op3.toml").write_text(_without_controller(text) + "\n" + servo)
     return folder / "op3.toml"
 
 

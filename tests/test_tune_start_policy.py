@@ -74,7 +74,8 @@ def test_the_start_is_the_recommended_policy():
     z32 = jnp.asarray(z0, jnp.float32)
     tuned = _targets(rep.apply(spec.base_params(), z32), rep.schedule(z32))
     shipped = _targets(params, schedule)
-    assert np.abs(tuned - shipped).max() < 1e-6          # measured 2.4e-7 rad: float32 rounding
+    # float32 rounding: measured 1.07e-6 rad (2.4e-7 with the policy before its re-tune)
+    assert np.abs(tuned - shipped).max() < 2e-6
     # A correction of one sector entry moves the targets: the table is live.
     z1 = z0.copy()
     z1[rep.k] += 1.0
