@@ -52,8 +52,8 @@ from tkujax.sim.setup import SETTLE_S, ModelIndex, SimSetup
 
 def _without_controller(text: bytes) -> bytes:
     """The robot file without its `controller = ...` and `walk_controller = ...` lines: naming a
-    controller is not another
-    robot (the controller's values enter a sweep's hash as its parameters)."""
+    controller is not another robot (the controller's values enter a sweep's hash as its
+    parameters)."""
     return re.sub(rb"(?m)^[ \t]*(?:walk_)?controller[ \t]*=.*\n?", b"", text)
 
 
@@ -151,10 +151,10 @@ def controller_digest(path: str | Path) -> str:
     """sha256 of the robot file's controller lines and of the files they name ("" without
     any): with file_digest, what a loaded Robot depends on."""
     desc = load_description(path)
-    named = [p for p in (desc.controller_path, desc.walk_controller_path) if p is not None]
-    if not named:
+    paths = (desc.controller_path, desc.walk_controller_path)
+    if paths == (None, None):
         return ""
     h = hashlib.sha256()
-    for p in (desc.controller_path, desc.walk_controller_path):
+    for p in paths:
         h.update(b"-" if p is None else str(p).encode() + p.read_bytes())
     return h.hexdigest()

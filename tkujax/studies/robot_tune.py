@@ -17,8 +17,8 @@ Stages, each kept in DIR and skipped when done (rerun the command to resume):
    the tuned controller, a harmed push weighing RETRY_HARM_WEIGHT (not 2) and twice the
    tuning pushes, for the same share of the budget; then the search's result (`tune/`'s
    params_tuned.json) is judged on the same held-out pushes (control on only, compared with
-   step 3's control off). On OP3 this turned 0.678x
-   with 4 harmed cells into 0.666x with none (results/robots/op3_command/).
+   step 3's control off). On OP3 this turned 0.678x with 4 harmed cells into 0.733x with
+   none (results/robots/op3_command/).
 6. `verdict.json`: the passing controller (else the one with fewer harmed cells, then fewer
    falls), with each stage's verdict under `stages`. A passing controller is written next to
    the robot file (`<stem>_controller.json`) and named in it (`controller = ...`); otherwise
