@@ -127,6 +127,12 @@ def _names_recommended(path: str | Path) -> bool:
     return str(path) == RECOMMENDED_POLICY_NAME and not Path(path).exists()
 
 
+def policy_file_path(path: str | Path) -> Path:
+    """The file `load_policy_json(path)` reads: RECOMMENDED_POLICY_PATH for the name
+    "recommended" (no file of that name here), else `path`."""
+    return RECOMMENDED_POLICY_PATH if _names_recommended(path) else Path(path)
+
+
 def load_controller_params_json(path: str | Path) -> ControllerParams:
     """ControllerParams from a JSON file {field: value} (SI units, radians), as `tkujax tune`
     and `tkujax calibrate` write it (`--params FILE.json`); string notes of PARAMS_NOTE_KEYS
@@ -152,9 +158,7 @@ def load_policy_json(path: str | Path):
     key."""
     from tkujax.control.policy import schedule_from_dict
 
-    if _names_recommended(path):
-        path = RECOMMENDED_POLICY_PATH
-    path = Path(path)
+    path = policy_file_path(path)
     data = _read_json(path)
     if not is_policy(data):
         return controller_params_from_dict(data, f"--params {path}"), None

@@ -109,13 +109,10 @@ def start_record(spec) -> dict | None:
     if spec.start_policy is None:
         return None
     import hashlib
-    from pathlib import Path
 
-    from tkujax.control.params_files import RECOMMENDED_POLICY_NAME, RECOMMENDED_POLICY_PATH
+    from tkujax.control.params_files import policy_file_path
 
-    path = Path(spec.start_policy)
-    if spec.start_policy == RECOMMENDED_POLICY_NAME and not path.exists():   # as load_policy_json
-        path = RECOMMENDED_POLICY_PATH
+    path = policy_file_path(spec.start_policy)
     return dict(value=spec.start_policy, resolved=str(path.resolve()),
                 sha256=hashlib.sha256(path.read_bytes()).hexdigest())
 
