@@ -3,7 +3,7 @@ is the one toward the capture point, unchanged; negative, the foot on the push's
 outward (the widening step) and the other foot's later step is sagittal only.
 
 No physics: a synthetic IMU reading a steady sideways fall toward +y drives `controller_step`
-(the closed loop on OP3: scripts/op3_study.py and results/op3/README.md)."""
+(the closed loop on OP3: results/op3/README.md)."""
 
 from __future__ import annotations
 
