@@ -19,7 +19,12 @@ Stages, each kept in DIR and skipped when done (rerun the command to resume):
    params_tuned.json) is judged on the same held-out pushes (control on only, compared with
    step 3's control off). On OP3 this turned 0.678x with 4 harmed cells into 0.733x with
    none (results/robots/op3_command/).
-6. `verdict.json`: the passing controller (else the one with fewer harmed cells, then fewer
+6. `fallback/` (only when the retry's controller fails too, while control off falls): the
+   conservative default (`structure_start(robot, "stance")`: half the recommended stance
+   gains and the accelerometer gate, no step; untuned) judged on the same held-out pushes,
+   so that a robot the search could not help still gets the controller that harms least
+   when it passes.
+7. `verdict.json`: the passing controller (else the one with fewer harmed cells, then fewer
    falls), with each stage's verdict under `stages`. A passing controller is written next to
    the robot file (`<stem>_controller.json`) and named in it (`controller = ...`); otherwise
    the verdict says why it failed and the robot file is left as it was.
@@ -27,11 +32,13 @@ Stages, each kept in DIR and skipped when done (rerun the command to resume):
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import time
 from pathlib import Path
 
+from tkujax.control.params_files import controller_params_from
 from tkujax.robot import robot_from_file
 from tkujax.sweeps.progress import StatusLog
 from tkujax.studies.robot_pushes import (PROBE_DURATION_S, PROBE_HORIZON_S, PROBE_ONSET_S,
@@ -209,6 +216,22 @@ def _stage_retry(out: Path, robot_file: str, robot, pushes: dict, structure: str
     return record, (again if record is second else tuned)
 
 
+def _stage_fallback(out: Path, robot, held: dict, log, record: dict, params: dict):
+    """Step 6 (module doc): (the verdict to report, its controller's parameter dict)."""
+    log(f"fallback: {record['why']}; the conservative default (stance feedback, no step) on "
+        "the same held-out pushes")
+    start = dataclasses.asdict(controller_params_from(robot.defaults,
+                                                      structure_start(robot, "stance")))
+    (out / "fallback").mkdir(exist_ok=True)
+    third = heldout_verdict(out / "fallback", robot, held, start,
+                            method="none (the conservative default)", n_params=0,
+                            reference=out / "heldout")
+    best = better_verdict(record, third)
+    best["stages"] = dict(record["stages"], fallback=_summary(third))
+    best["chosen_stage"] = "fallback" if best is third else record.get("chosen_stage", "tune")
+    return best, (start if best is third else params)
+
+
 def check_stages(robot_file: str, robot, heldout_n: int) -> None:
     """The stages' pushes checked before anything is simulated, by the checks of sweeps and
     tunes (`tkujax.dialects.push_limits`, `tkujax.studies.tune.limits`): the probe's pushes
@@ -247,7 +270,7 @@ def tune_robot_controller(robot_file: str | Path, out: str | Path, budget_s: flo
                           heldout_n: int = 8192, write: bool = True, retry: bool = True,
                           log=None) -> dict:
     """Run the stages (module doc) for the robot file; returns the verdict's record.
-    retry False: step 5 never runs."""
+    retry False: steps 5 and 6 never run."""
     if not (isinstance(budget_s, (int, float)) and math.isfinite(budget_s)
             and 30.0 <= budget_s <= 86_400.0):
         raise ValueError(f"budget_s must be in [30, 86400] s, got {budget_s!r}")
@@ -276,6 +299,8 @@ def tune_robot_controller(robot_file: str | Path, out: str | Path, budget_s: flo
     if retry and should_retry(first):
         record, params = _stage_retry(out, robot_file, robot, pushes, name, budget_s, log,
                                       first, tuned, held)
+        if should_retry(record):
+            record, params = _stage_fallback(out, robot, held, log, record, params)
     record["structure"] = dict(chosen=name, why=structure["why"])
     record["wall_s"] = round(time.perf_counter() - t0, 1)     # this run of the command
     if record["passed"] and write:
