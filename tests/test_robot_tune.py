@@ -5,6 +5,7 @@ output file, as a resumed run finds it."""
 
 import dataclasses
 import json
+import re
 
 import numpy as np
 import pytest
@@ -170,6 +171,24 @@ def test_name_controller_replaces_an_existing_line(tmp_path):
 def test_tune_without_spec_or_robot_is_refused(capsys):
     assert main(["tune", "--out", "unused"]) == 2
     assert "--robot FILE" in capsys.readouterr().err
+
+
+def test_a_given_structure_replaces_the_probe_and_must_match_a_kept_run(tmp_path, robot_file,
+                                                                       pushes, capsys):
+    """--structure: one of STRUCTURES (the command line offers exactly those); a folder whose
+    kept structure is another is refused before anything is simulated."""
+    from tkujax.dialects.sweep_spec import SpecError
+
+    with pytest.raises(ValueError, match="structure must be one of"):
+        tune_robot_controller(robot_file, tmp_path / "a", budget_s=30, structure="hop")
+    with pytest.raises(SystemExit):
+        main(["tune", "--robot", str(robot_file), "--out", str(tmp_path / "b"),
+              "--structure", "hop"])
+    offered = re.search(r"choose from ([^)]*)\)", capsys.readouterr().err).group(1)
+    assert sorted(n.strip(" '") for n in offered.split(",")) == sorted(STRUCTURES)
+    _resumable_run(tmp_path / "run", pushes, {})
+    with pytest.raises(SpecError, match="holds a run of structure 'stance'"):
+        tune_robot_controller(robot_file, tmp_path / "run", budget_s=30, structure="step")
 
 
 class _Swept(Exception):

@@ -46,7 +46,7 @@ def _cmd_tune_robot(args) -> int:
 
     record = tune_robot_controller(args.robot, args.out, budget_s=args.budget_s or 480.0,
                                    heldout_n=args.heldout_n, write=not args.no_write,
-                                   retry=not args.no_retry)
+                                   retry=not args.no_retry, structure=args.structure)
     ratio = "-" if record["ratio"] is None else f"{record['ratio']:.3f}"
     print(f"{record['robot']}: {100 * record['on_fall']:.1f} % of {record['n_pushes']} held-out "
           f"pushes fall with the tuned controller, {100 * record['off_fall']:.1f} % with control "
@@ -54,6 +54,8 @@ def _cmd_tune_robot(args) -> int:
     if "retry" in record["stages"]:
         print(f"the first controller: {record['stages']['tune']['why']}; the retry's: "
               f"{record['stages']['retry']['why']}; reported: the {record['chosen_stage']}'s")
+    if "fallback" in record["stages"]:
+        print(f"the conservative default: {record['stages']['fallback']['why']}")
     if record.get("controller_file"):
         print(f"controller written to {record['controller_file']} and named in {args.robot}")
     print(f"verdict: {Path(args.out, 'verdict.json')}")
@@ -172,6 +174,9 @@ def _add_tune(sub) -> None:
     p.add_argument("--no-retry", action="store_true",
                    help="without a spec: no second search with the harm weight when the first "
                         "controller fails its verdict")
+    p.add_argument("--structure", choices=("step", "shift_step", "stance"), default=None,
+                   help="without a spec: tune this recovery structure instead of the one the "
+                        "probe chooses (docs/robots.md)")
     p.set_defaults(func=_cmd_tune, rerun=tune_rerun)
 
 

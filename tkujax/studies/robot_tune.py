@@ -146,12 +146,21 @@ def _stage_pushes(out: Path, robot, log) -> dict:
     return pushes
 
 
-def _stage_structure(out: Path, robot, pushes: dict, log) -> dict:
+def _stage_structure(out: Path, robot, pushes: dict, log, given: str | None = None) -> dict:
+    """structure.json: the probe's choice, or `given` (--structure) without a probe; a kept
+    record of another structure than `given` is refused (SpecError)."""
     path = out / "structure.json"
     if path.is_file():
-        return json.loads(path.read_text())
-    log("structure: a step or stance feedback alone, on the robot's pushes (MuJoCo C)")
-    record = choose_structure(robot, pushes)
+        record = json.loads(path.read_text())
+        if given is not None and record["chosen"] != given:
+            raise SpecError(f"--structure {given}: {out} holds a run of structure "
+                            f"{record['chosen']!r}; choose another --out")
+        return record
+    if given is not None:
+        record = dict(chosen=given, why=f"{given}: given (--structure), no probe")
+    else:
+        log("structure: a step or stance feedback alone, on the robot's pushes (MuJoCo C)")
+        record = choose_structure(robot, pushes)
     path.write_text(json.dumps(record, indent=1) + "\n")
     return record
 
@@ -268,9 +277,12 @@ def claim_out(out: Path, robot) -> None:
 
 def tune_robot_controller(robot_file: str | Path, out: str | Path, budget_s: float = 480.0,
                           heldout_n: int = 8192, write: bool = True, retry: bool = True,
-                          log=None) -> dict:
+                          log=None, structure: str | None = None) -> dict:
     """Run the stages (module doc) for the robot file; returns the verdict's record.
-    retry False: steps 5 and 6 never run."""
+    retry False: steps 5 and 6 never run. structure: one of STRUCTURES instead of the probe's
+    choice (None: the probe chooses)."""
+    if structure is not None and structure not in STRUCTURES:
+        raise ValueError(f"structure must be one of {sorted(STRUCTURES)}, got {structure!r}")
     if not (isinstance(budget_s, (int, float)) and math.isfinite(budget_s)
             and 30.0 <= budget_s <= 86_400.0):
         raise ValueError(f"budget_s must be in [30, 86400] s, got {budget_s!r}")
@@ -286,7 +298,7 @@ def tune_robot_controller(robot_file: str | Path, out: str | Path, budget_s: flo
     out.mkdir(parents=True, exist_ok=True)
     claim_out(out, robot)
     pushes = _stage_pushes(out, robot, log)
-    structure = _stage_structure(out, robot, pushes, log)
+    structure = _stage_structure(out, robot, pushes, log, given=structure)
     name = structure["chosen"]
     n_params = len(STRUCTURES[name]["tuned"])
     tuned = _stage_tune(out, robot_file, robot, pushes, name, TUNE_SHARE * budget_s, log)
