@@ -141,6 +141,22 @@ def test_the_retry_starts_at_the_tuned_controller_with_the_harm_weight(robot_fil
     parse_tune_spec(again)                       # a start strictly inside its ranges
 
 
+def test_every_structure_starts_inside_its_ranges(robot_file):
+    """Every structure's start (and a retry from it) lies strictly inside its search ranges,
+    as the stage checks ask before anything runs; the sideways gain keeps its sign."""
+    from tkujax.studies.robot_tune import check_stages, ranges_for
+
+    robot = robot_setup(robot_file)
+    check_stages(str(robot_file), robot, 8192)
+    for name in STRUCTURES:
+        start = structure_start(robot, name)
+        for key, (lo, hi) in ranges_for(robot, start, STRUCTURES[name]["tuned"]).items():
+            assert lo < start[key] < hi, (name, key)
+    step, shift = (ranges_for(robot, structure_start(robot, n), STRUCTURES[n]["tuned"])
+                   for n in ("step", "shift_step"))
+    assert step["cp_gain_lateral"][1] <= 0.5 and shift["cp_gain_lateral"][0] > 0.0
+
+
 def test_which_verdict_is_retried_and_reported():
     from tkujax.studies.robot_tune import better_verdict, should_retry
 

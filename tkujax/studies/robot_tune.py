@@ -47,6 +47,7 @@ from tkujax.studies.robot_structure import STRUCTURES, choose_structure, structu
 from tkujax.studies.robot_verdict import heldout_verdict, name_controller
 from tkujax.dialects.sweep_spec import SpecError, parse_spec
 from tkujax.dialects.push_limits import check_push_end
+from tkujax.studies.tune.reparam import check_start
 from tkujax.studies.tune.tune_spec import parse_tune_spec
 
 TUNE_SEED, HELDOUT_SEED = 0, 11
@@ -64,7 +65,10 @@ def ranges_for(robot, start: dict, tuned: tuple[str, ...]) -> dict:
     inside (the stance gains keep the tune's default ranges)."""
     d = robot.defaults
     reach = float(d.thigh_length + d.calf_length)
-    ranges = dict(cp_gain=[0.3, 4.0], cp_gain_lateral=[-2.0, 0.5], accel_gate=[0.01, 1.0],
+    # The sideways step's gain keeps its sign: widening (step) or toward the capture point
+    # (shift_step); tests/test_robot_tune.py checks every start lies inside its ranges.
+    lateral = [-2.0, 0.5] if start.get("cp_gain_lateral", -1.0) < 0 else [0.25, 2.0]
+    ranges = dict(cp_gain=[0.3, 4.0], cp_gain_lateral=lateral, accel_gate=[0.01, 1.0],
                   cp_trigger_forward_m=[0.0, round(min(0.5, 0.6 * reach), 4)],
                   cp_trigger_backward_m=[0.0, round(min(0.5, 0.6 * reach), 4)],
                   cp_trigger_lateral_m=[0.0, round(min(0.5, 0.6 * reach), 4)])
@@ -245,15 +249,16 @@ def check_stages(robot_file: str, robot, heldout_n: int) -> None:
     """The stages' pushes checked before anything is simulated, by the checks of sweeps and
     tunes (`tkujax.dialects.push_limits`, `tkujax.studies.tune.limits`): the probe's pushes
     within its horizon, and the tune and held-out specs of every structure, built with the
-    widest pushes the probe can give, parsed (SpecError names the stage's key)."""
+    widest pushes the probe can give, parsed, each start strictly inside its ranges (SpecError
+    names the stage's key)."""
     check_push_end("the probe's onset + pulse (tkujax.studies.robot_pushes.PROBE_ONSET_S + "
                    "PROBE_DURATION_S)", PROBE_ONSET_S + PROBE_DURATION_S,
                    "PROBE_HORIZON_S", PROBE_HORIZON_S)
     widest = widest_pushes(robot).as_dict()
     for structure in STRUCTURES:
         for retry_from in (None, structure_start(robot, structure)):
-            parse_tune_spec(tune_spec(robot_file, robot, widest, structure, iterations=10_000,
-                                      retry_from=retry_from))
+            check_start(parse_tune_spec(tune_spec(robot_file, robot, widest, structure,
+                                                  iterations=10_000, retry_from=retry_from)))
     parse_spec(heldout_spec(robot_file, robot, widest, heldout_n))
 
 
