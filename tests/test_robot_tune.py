@@ -157,6 +157,25 @@ def test_every_structure_starts_inside_its_ranges(robot_file):
     assert step["cp_gain_lateral"][1] <= 0.5 and shift["cp_gain_lateral"][0] > 0.0
 
 
+def test_a_default_clamped_onto_its_cap_starts_inside_the_search(robot_file):
+    """A robot whose scaled default is clamped onto its allowed range's edge (a tall robot's
+    lift height at the 0.1 m cap) still passes the stage checks, and the first search starts
+    inside its ranges by at least START_MARGIN of their width."""
+    from tkujax.studies.robot_tune import START_MARGIN, check_stages, tune_spec
+
+    robot = robot_setup(robot_file)
+    tall = dataclasses.replace(robot, defaults=dataclasses.replace(robot.defaults,
+                                                                   lift_height=0.1))
+    check_stages(str(robot_file), tall, 8192)
+    widest = {"impulse_ns": (1.0, 10.0), "height_m": (0.2, 0.3), "duration_s": (0.01, 0.08)}
+    for name in ("step", "shift_step"):
+        spec = tune_spec(str(robot_file), tall, widest, name, iterations=10)
+        lo, hi = spec["tune"]["ranges"]["lift_height"]
+        assert hi == pytest.approx(0.1)
+        lift = spec["controller"]["lift_height"]
+        assert lo + START_MARGIN * (hi - lo) - 1e-12 <= lift <= hi - START_MARGIN * (hi - lo) + 1e-12
+
+
 def test_which_verdict_is_retried_and_reported():
     from tkujax.studies.robot_tune import better_verdict, should_retry
 

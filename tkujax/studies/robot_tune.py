@@ -58,6 +58,10 @@ TUNE_HARM_WEIGHT = 2.0               # OP3's loss: a harmed push costs twice a s
 RETRY_HARM_WEIGHT = 8.0              # the retry's (module doc, step 5)
 RETRY_BATCH = 2 * TUNE_BATCH
 DEGREE_KEYS = ("eps_forward", "eps_backward")
+# A first search starts at least this share of each range's width inside it: a default clamped
+# onto its allowed range's edge (Unitree H1's lift height, 0.1 m) is a range's edge too, where
+# the search's bounded reparametrisation cannot move (tests/test_robot_tune.py).
+START_MARGIN = 0.05
 
 
 def ranges_for(robot, start: dict, tuned: tuple[str, ...]) -> dict:
@@ -93,7 +97,9 @@ def tune_spec(robot_file: str, robot, pushes: dict, structure: str, iterations: 
     start = structure_start(robot, structure)
     tuned = STRUCTURES[structure]["tuned"]
     ranges = ranges_for(robot, start, tuned)
-    if retry_from is not None:
+    if retry_from is None:
+        start = {k: _inside(v, ranges.get(k), START_MARGIN) for k, v in start.items()}
+    else:
         start = {k: _inside(retry_from[k], ranges.get(k)) for k in start}
     # The spec dialect gives the lean thresholds in degrees.
     controller = {(f"{k}_deg" if k in DEGREE_KEYS else k): (math.degrees(v) if k in DEGREE_KEYS
@@ -117,13 +123,14 @@ def tune_spec(robot_file: str, robot, pushes: dict, structure: str, iterations: 
     }
 
 
-def _inside(value: float, bounds) -> float:
-    """`value` nudged strictly inside `bounds` (a tuned value can round onto its range's edge,
-    and a start must lie strictly inside, tkujax.studies.tune.reparam); as it is without."""
+def _inside(value: float, bounds, margin_frac: float = 1e-6) -> float:
+    """`value` nudged strictly inside `bounds`, at least `margin_frac` of their width from each
+    edge (a tuned value can round onto its range's edge, and a start must lie strictly inside,
+    tkujax.studies.tune.reparam); as it is without."""
     if bounds is None:
         return float(value)
     lo, hi = bounds
-    margin = 1e-6 * (hi - lo)
+    margin = margin_frac * (hi - lo)
     return float(min(max(value, lo + margin), hi - margin))
 
 
