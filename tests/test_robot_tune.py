@@ -52,13 +52,14 @@ def test_structure_is_chosen_by_the_harm_weighted_loss(robot_file, pushes):
     assert set(STRUCTURES["stance"]["tuned"]) < set(STRUCTURES["step"]["tuned"])
 
 
-def _resumable_run(out, pushes, params: dict, retry: dict | None = None):
+def _resumable_run(out, pushes, params: dict, retry: dict | None = None,
+                   recommended_from: str = "tuned"):
     """An output folder as a run that has finished its search (and its retry's) leaves it."""
     (out / "tune").mkdir(parents=True)
     (out / "pushes.json").write_text(json.dumps(pushes.as_dict()))
     (out / "structure.json").write_text(json.dumps(dict(chosen="stance", why="given")))
     (out / "tune" / "params_after.json").write_text(json.dumps(
-        dict(params, recommended_from="start")))
+        dict(params, recommended_from=recommended_from)))
     if retry is not None:
         (out / "retry" / "tune").mkdir(parents=True)
         (out / "retry" / "tune" / "params_tuned.json").write_text(json.dumps(retry))
@@ -113,6 +114,20 @@ def test_a_failed_controller_is_retried_then_falls_back_and_a_passing_one_writte
         assert load_description(copy).controller_path is None
     saved = json.loads((tmp_path / "run" / "verdict.json").read_text())
     assert saved["ratio"] == record["ratio"]
+    held = json.loads((tmp_path / "run" / "heldout" / "manifest.json").read_text())
+    assert record["device"] == held["runs"][-1]["device_kind"]
+
+
+def test_the_verdict_names_the_devices_that_computed_the_heldout_sweep():
+    """A held-out sweep resumed elsewhere (computed on a GPU, judged on a CPU) is reported with
+    the device its chunks came from, not the judging process's."""
+    from tkujax.sweeps.sweep_folder import computed_on
+
+    manifest = {"runs": [{"device_kind": "NVIDIA H100 80GB HBM3", "chunks_computed": 1},
+                         {"device_kind": "NVIDIA H200", "chunks_computed": 1},
+                         {"device_kind": "cpu (MuJoCo C)", "chunks_computed": 0}]}
+    assert computed_on(manifest) == "NVIDIA H100 80GB HBM3, NVIDIA H200"
+    assert computed_on({"runs": [{"run_id": "before-run-history"}]}) == ""
 
 
 def test_the_retry_starts_at_the_tuned_controller_with_the_harm_weight(robot_file, pushes):
@@ -172,8 +187,19 @@ def test_a_default_clamped_onto_its_cap_starts_inside_the_search(robot_file):
         spec = tune_spec(str(robot_file), tall, widest, name, iterations=10)
         lo, hi = spec["tune"]["ranges"]["lift_height"]
         assert hi == pytest.approx(0.1)
+        assert spec["evaluate"]["impulse_ns"]["stop"] == pytest.approx(10.0)   # the robot's
         lift = spec["controller"]["lift_height"]
         assert lo + START_MARGIN * (hi - lo) - 1e-12 <= lift <= hi - START_MARGIN * (hi - lo) + 1e-12
+
+
+def test_a_search_that_kept_its_start_is_reported_as_no_tuning():
+    """When the search's result fell more on the tune's own held-out pushes, the tune keeps
+    its start: the verdict then names no method and no tuned parameter."""
+    from tkujax.studies.robot_tune import tuned_method
+
+    method, n = tuned_method({"recommended_from": "start", "stance_ankle_kp": 0.1}, 7)
+    assert n == 0 and method.startswith("none")
+    assert tuned_method({"recommended_from": "tuned"}, 7) == ("cma", 7)
 
 
 def test_which_verdict_is_retried_and_reported():

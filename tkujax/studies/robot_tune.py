@@ -120,6 +120,9 @@ def tune_spec(robot_file: str, robot, pushes: dict, structure: str, iterations: 
                  "height_m": _uniform(pushes["height_m"]), "onset_s": _uniform((0.25, 0.4)),
                  "duration_s": _uniform(pushes["duration_s"])},
         "baseline": {"sigma": 0.5},
+        # The tune's grid evaluation over the robot's impulses (its default grid is TKU-X's).
+        "evaluate": {"impulse_ns": {"start": float(pushes["impulse_ns"][0]),
+                                    "stop": float(pushes["impulse_ns"][1]), "num": 12}},
     }
 
 
@@ -198,6 +201,16 @@ def _stage_tune(folder: Path, robot_file: str, robot, pushes: dict, structure: s
     return json.loads(record_path.read_text())
 
 
+def tuned_method(params: dict, n_params: int) -> tuple[str, int]:
+    """(method, number of tuned parameters) of the search's recommendation: the tune keeps its
+    start when the search's result falls more on its own held-out pushes (`recommended_from`
+    "start"), and then no parameter was tuned (Unitree G1 and H1: results/robots/)."""
+    if params.get("recommended_from") == "start":
+        return ("none (the structure's start: the search's result fell more on the tune's "
+                "held-out pushes)", 0)
+    return "cma", n_params
+
+
 def should_retry(first: dict) -> bool:
     """Step 5 runs when the first controller failed on pushes control off falls on (a verdict
     with no cell to judge, or nothing to judge, is not helped by a search)."""
@@ -229,7 +242,8 @@ def _stage_retry(out: Path, robot_file: str, robot, pushes: dict, structure: str
                         TUNE_SHARE * budget_s, log, retry_from=tuned)
     log("verdict: the retry's controller on the same held-out pushes")
     second = heldout_verdict(out / "retry", robot, held, again, method="cma",
-                             n_params=first["n_params"], reference=out / "heldout")
+                             n_params=len(STRUCTURES[structure]["tuned"]),
+                             reference=out / "heldout")
     record = better_verdict(first, second)
     record["stages"] = {"tune": _summary(first), "retry": _summary(second)}
     record["chosen_stage"] = "retry" if record is second else "tune"
@@ -316,7 +330,8 @@ def tune_robot_controller(robot_file: str | Path, out: str | Path, budget_s: flo
     tuned = _stage_tune(out, robot_file, robot, pushes, name, TUNE_SHARE * budget_s, log)
     held = heldout_spec(robot_file, robot, pushes, heldout_n)
     log("verdict: held-out pushes, control off and with the tuned controller")
-    first = heldout_verdict(out, robot, held, tuned, method="cma", n_params=n_params)
+    method, n_params = tuned_method(tuned, n_params)
+    first = heldout_verdict(out, robot, held, tuned, method=method, n_params=n_params)
     (out / "first_verdict.json").write_text(json.dumps(first, indent=1) + "\n")
     record, params = first, tuned
     record["stages"] = {"tune": _summary(first)}

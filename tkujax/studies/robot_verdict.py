@@ -29,6 +29,7 @@ from tkujax.control.controller_params import ControllerParams
 from tkujax.analysis.compare import Bands, compare_runs
 from tkujax.dialects.sweep_spec import parse_spec
 from tkujax.sweeps.sweep import run_sweep
+from tkujax.sweeps.sweep_folder import computed_on
 
 MIN_CELL_PUSHES, HARM_PP = 100, 2.0
 _CONTROLLER_LINE = re.compile(r"^\s*controller\s*=.*$", re.MULTILINE)
@@ -97,7 +98,8 @@ def heldout_verdict(out: Path, robot, spec: dict, params: dict, method: str,
                 ratio=None if ratio is None else round(float(ratio), 4),
                 harmed_cells=v["harmed_cells"], cells_checked=int(v["cells_checked"]),
                 method=method, n_params=n_params,
-                wall_s=round(time.perf_counter() - t0, 1), device=device_name(),
+                wall_s=round(time.perf_counter() - t0, 1),
+                device=computed_on(manifest) or device_name(),
                 passed=passed, why=verdict_reason(v))
 
 

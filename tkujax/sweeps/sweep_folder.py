@@ -122,8 +122,26 @@ def run_record(backend: str, process_id: int, num_processes: int) -> dict:
     devices = ["cpu (MuJoCo C)"] if backend == "mujoco" else [str(d) for d in jax.local_devices()]
     return dict(run_id=f"{stamp}-{host}-{os.getpid()}-{secrets.token_hex(3)}", started=stamp,
                 host=host, pid=os.getpid(), backend=backend, devices=devices,
+                device_kind=device_kind(backend),
                 git_commit=git_commit(), versions=versions(), process_id=process_id,
                 num_processes=num_processes)
+
+
+def device_kind(backend: str) -> str:
+    """The device a run computes on, in words (e.g. "NVIDIA H200", "cpu (MuJoCo C)")."""
+    if backend == "mujoco":
+        return "cpu (MuJoCo C)"
+    d = jax.local_devices()[0]
+    return getattr(d, "device_kind", "") or d.platform
+
+
+def computed_on(manifest: dict) -> str:
+    """The devices, in words, of the runs that computed a sweep folder's chunks (a resumed
+    sweep's chunks may come from another machine than the process reading it); "" when its
+    runs predate the record."""
+    kinds = [r["device_kind"] for r in manifest.get("runs", [])
+             if r.get("chunks_computed", 1) and r.get("device_kind")]
+    return ", ".join(dict.fromkeys(kinds))
 
 
 def chunk_provenance(run: dict) -> dict:
