@@ -189,7 +189,8 @@ def test_a_default_clamped_onto_its_cap_starts_inside_the_search(robot_file):
         assert hi == pytest.approx(0.1)
         assert spec["evaluate"]["impulse_ns"]["stop"] == pytest.approx(10.0)   # the robot's
         lift = spec["controller"]["lift_height"]
-        assert lo + START_MARGIN * (hi - lo) - 1e-12 <= lift <= hi - START_MARGIN * (hi - lo) + 1e-12
+        margin = START_MARGIN * (hi - lo)
+        assert lo + margin - 1e-12 <= lift <= hi - margin + 1e-12
 
 
 def test_a_search_that_kept_its_start_is_reported_as_no_tuning():

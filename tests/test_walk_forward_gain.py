@@ -50,7 +50,7 @@ def test_gain_one_is_the_default_bit_for_bit():
 
 def test_the_walk_table_key_is_checked_and_reaches_the_spec():
     assert parse_walk({"walk": {"recovery_forward_gain": 0}}).recovery_forward_gain == 0.0
-    assert parse_walk({"walk": {}}).recovery_forward_gain == 1.0
+    assert parse_walk({"walk": {}}).recovery_forward_gain is None   # the robot's, else 1
     with pytest.raises(SpecError, match=r"walk\.recovery_forward_gain: 2\.5 is out of range "
                                         r"\[0\.0, 2\.0\]"):
         parse_walk({"walk": {"recovery_forward_gain": 2.5}})

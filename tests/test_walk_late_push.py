@@ -146,7 +146,7 @@ def test_without_sideways_steps_no_push_is_late():
 
 def test_the_walk_table_key_is_checked_and_reaches_the_command():
     assert parse_walk({"walk": {"recovery_late_swing_gain": 0}}).recovery_late_swing_gain == 0.0
-    assert parse_walk({"walk": {}}).recovery_late_swing_gain == 1.0
+    assert parse_walk({"walk": {}}).recovery_late_swing_gain is None   # the robot's, else 1
     with pytest.raises(SpecError, match=r"walk\.recovery_late_swing_gain: 1\.5 is out of "
                                         r"range \[0\.0, 1\.0\]"):
         parse_walk({"walk": {"recovery_late_swing_gain": 1.5}})

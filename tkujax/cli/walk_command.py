@@ -12,7 +12,8 @@ def _cmd_walk(args) -> int:
 
     result = simulate_walk(args.robot, speed_mps=args.speed_mps, lateral_mps=args.lateral_mps,
                            seconds=args.seconds, engine=args.engine,
-                           step_period_s=args.step_period_s, enabled=args.control == "on")
+                           step_period_s=args.step_period_s, enabled=args.control == "on",
+                           lift_m=args.lift_m, sway_m=args.sway_m)
     print(json.dumps(result, indent=2))
     return 1 if result["fell"] else 0
 
@@ -28,7 +29,14 @@ def add_walk_command(sub) -> None:
     p.add_argument("--lateral-mps", type=bounded_float(-0.5, 0.5), default=0.0,
                    help="sideways speed (positive: to the left)")
     p.add_argument("--step-period-s", type=bounded_float(0.1, 2.0), default=None,
-                   help="the step period T (default: the robot's controller's T)")
+                   help="the step period T (default: the robot file's [walk], else the "
+                        "robot's controller's T)")
+    p.add_argument("--lift-m", type=bounded_float(0.0, 0.1), default=None,
+                   help="the swing foot's lift (default: the robot file's [walk], else the "
+                        "controller's H_Sup)")
+    p.add_argument("--sway-m", type=bounded_float(-0.25, 0.25), default=None,
+                   help="the waist's sway toward the support foot (default: the robot file's "
+                        "[walk], else a third of the hip offset d_y)")
     p.add_argument("--seconds", type=bounded_float(0.1, 600.0), default=20.0)
     p.add_argument("--engine", choices=["mujoco", "mjx"], default="mujoco")
     p.add_argument("--control", choices=["on", "off"], default="on",

@@ -106,7 +106,7 @@ class WalkCommand:
         """Check ranges on concrete values (outside jit); raises ValueError naming the field."""
         limits = dict(speed_mps=(-1.0, 1.0), lateral_mps=(-0.5, 0.5), step_period_s=(0.1, 2.0),
                       lift_m=(0.0, 0.1), double_support_ratio=(0.0, 0.8),
-                      sway_m=(-0.05, 0.05), start_s=(0.0, 100.0),
+                      sway_m=(-0.25, 0.25), start_s=(0.0, 100.0),
                       ramp_steps=(0.0, 20.0), recovery=(0.0, 1.0),
                       recovery_band_m=(0.0, 0.5), recovery_forward_gain=(0.0, 2.0),
                       recovery_late_swing_gain=(0.0, 1.0), heading_gain=(0.0, 2.0))

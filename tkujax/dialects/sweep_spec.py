@@ -94,7 +94,7 @@ from tkujax.dialects.sequence_table import (SequenceSpec, check_sequence, draw_s
                                             parse_sequence)
 from tkujax.dialects.walk_table import (GAIT_PHASE_KEY, GAIT_PHASE_UNIT, WalkSpec,
                                         check_gait_phase_keys, check_walk_sweep, cross_walk,
-                                        gait_params_of, gait_phase_values, onsets_at_phase,
+                                        gait_of, gait_phase_values, onsets_at_phase,
                                         parse_walk, resolve_walk)
 from tkujax.dialects.floor_table import FLOOR_FIELDS, floor_columns, parse_floor
 from tkujax.dialects.fpga_table import (ARITHMETIC, FPGA_COLUMN, FPGA_FIELDS,
@@ -319,7 +319,7 @@ def parse_spec(data: dict) -> SweepSpec:
     robot_file = _robot_file(data)
     walk = parse_walk(data)
     if walk is not None:
-        walk = resolve_walk(walk, gait_params_of(robot_file))
+        walk = resolve_walk(walk, *gait_of(robot_file))
     chunk, duration, control = sweep["chunk_size"], sweep["duration_s"], tuple(sweep["control"])
     tree_passes = tree_passes_of(sweep)
 

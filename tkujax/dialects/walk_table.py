@@ -58,8 +58,8 @@ class WalkSpec:
     speed_mps: float = 0.0
     lateral_mps: float = 0.0
     step_period_s: float | None = None     # None: the robot's
-    recovery_forward_gain: float = 1.0     # WalkCommand.recovery_forward_gain
-    recovery_late_swing_gain: float = 1.0  # WalkCommand.recovery_late_swing_gain
+    recovery_forward_gain: float | None = None     # WalkCommand's; None: the robot's, else 1
+    recovery_late_swing_gain: float | None = None  # WalkCommand's; None: the robot's, else 1
     recovery: tuple[str, ...] = ("off",)
     push_cycle: int = DEFAULT_PUSH_CYCLE
     base: WalkCommand | None = None
@@ -90,21 +90,28 @@ def parse_walk(data: dict) -> WalkSpec | None:
     return WalkSpec(recovery=tuple(recovery), push_cycle=cycle, **vals)
 
 
-def gait_params_of(robot_file: str | None) -> ControllerParams:
-    """The controller parameters the gait's defaults come from: TKU-X's paper parameters, or a
-    robot file's scaled defaults (`tkujax.walking.walk.walker`)."""
+def gait_of(robot_file: str | None) -> tuple[ControllerParams, dict]:
+    """The controller parameters the gait's defaults come from (TKU-X's paper parameters, or a
+    robot file's scaled defaults: `tkujax.walking.walk.walker`) and the robot file's [walk]
+    table over them ({} for TKU-X)."""
     if robot_file is None:
-        return ControllerParams.paper()
+        return ControllerParams.paper(), {}
     from tkujax.walking.walk import walker
-    return walker(robot_file).gait_params
+    who = walker(robot_file)
+    return who.gait_params, who.gait
 
 
-def resolve_walk(walk: WalkSpec, gait_params: ControllerParams) -> WalkSpec:
-    """`walk` with its base command for the robot whose gait defaults are `gait_params`
-    (the step period the spec gives, or the robot's); SpecError from WalkCommand.validate."""
-    fields = {} if walk.step_period_s is None else dict(step_period_s=walk.step_period_s)
-    fields["recovery_forward_gain"] = walk.recovery_forward_gain
-    fields["recovery_late_swing_gain"] = walk.recovery_late_swing_gain
+def resolve_walk(walk: WalkSpec, gait_params: ControllerParams,
+                 robot_gait: dict | None = None) -> WalkSpec:
+    """`walk` with its base command for the robot whose gait defaults are `gait_params` and
+    whose robot file's [walk] table is `robot_gait` (the spec's keys win over it);
+    SpecError from WalkCommand.validate."""
+    fields = dict(robot_gait or {})
+    if walk.step_period_s is not None:
+        fields["step_period_s"] = walk.step_period_s
+    for key in ("recovery_forward_gain", "recovery_late_swing_gain"):
+        if getattr(walk, key) is not None:
+            fields[key] = getattr(walk, key)
     base = WalkCommand.for_params(gait_params, walk.speed_mps, walk.lateral_mps, **fields)
     try:
         base.validate()
@@ -212,4 +219,4 @@ def walk_for_robot(spec, robot):
     if spec.walk is None or spec.robot_file == robot.source:
         return spec
     gait = robot.defaults if robot.defaults is not None else robot.params
-    return dataclasses.replace(spec, walk=resolve_walk(spec.walk, gait))
+    return dataclasses.replace(spec, walk=resolve_walk(spec.walk, gait, dict(robot.gait)))

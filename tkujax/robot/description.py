@@ -19,6 +19,9 @@ roles given twice, the MJCF's existence); the names are checked against the comp
     [servo]                       # optional: PD servos on the leg joints (tkujax.robot.servos)
     [solver]                      # optional: iterations = 1, ls_iterations = 4 (the constraint
                                   # solver's caps; default: the model's own)
+    [walk]                        # optional: the robot's gait (tkujax walk, [walk] sweeps):
+                                  # lift_m, sway_m, step_period_s, double_support_ratio,
+                                  # recovery_forward_gain, recovery_late_swing_gain
 
 Each leg names hip_yaw, hip_roll, hip_pitch (in whatever order the chain has them), knee,
 ankle_pitch and, optionally, ankle_roll (a five-joint leg has none).
@@ -44,13 +47,18 @@ HIP_ROLES = LEG_ROLES[:3]
 ANKLE_ROLES = LEG_ROLES[4:]
 SIDES = ("left", "right")
 TOP_KEYS = ("mjcf", "imu", "legs", "stand", "name", "collision", "controller",
-            "walk_controller", "servo", "solver")
+            "walk_controller", "servo", "solver", "walk")
 REQUIRED_TOP = ("mjcf", "imu", "legs")
 STAND_KEYS = ("keyframe", "joints", "hip_height_frac")
 COLLISION_KEYS = ("mode", "floor")
 # [solver]: each key's allowed range; MuJoCo's defaults are 100 and 50 (the caps MJX's batched
 # solver runs to: tests/test_robot_solver.py)
 SOLVER_RANGES = {"iterations": (1, 1000), "ls_iterations": (1, 1000)}
+# [walk]: the gait's keys (tkujax.control.gait.WalkCommand fields) and their allowed ranges,
+# WalkCommand.validate's
+WALK_RANGES = {"lift_m": (0.0, 0.1, "m"), "sway_m": (-0.25, 0.25, "m"),
+               "step_period_s": (0.1, 2.0, "s"), "double_support_ratio": (0.0, 0.8, ""),
+               "recovery_forward_gain": (0.0, 2.0, ""), "recovery_late_swing_gain": (0.0, 1.0, "")}
 HIP_HEIGHT_FRAC = 0.93        # computed stand: hip-to-ankle = this x (thigh + calf)
 _VAR = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)(?::-([^}]*))?\}")
 
@@ -94,6 +102,7 @@ class RobotDescription:
     servo: ServoTable | None = None                # [servo]: PD servos replacing the legs'
     solver_iterations: int | None = None           # [solver] iterations (None: the model's)
     ls_iterations: int | None = None               # [solver] ls_iterations (None: the model's)
+    walk: tuple[tuple[str, float], ...] = ()       # [walk]: (WalkCommand field, value) pairs
 
     @property
     def roles(self) -> tuple[str, ...]:
@@ -206,6 +215,24 @@ def _solver(data) -> dict:
     return out
 
 
+def _walk(data) -> tuple[tuple[str, float], ...]:
+    """[walk]'s keys as (WalkCommand field, value) pairs, each a number in its WALK_RANGES."""
+    if data is None:
+        return ()
+    if not isinstance(data, dict):
+        raise RobotFileError(f"walk: expected a table, got {data!r}")
+    check_keys(data, tuple(WALK_RANGES), (), "walk")
+    out = []
+    for key, value in data.items():
+        lo, hi, unit = WALK_RANGES[key]
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+        if not ok or not lo <= value <= hi:      # also refuses NaN
+            raise RobotFileError(f"walk.{key}: expected a number in [{lo:g}, {hi:g}]"
+                                 f"{' ' + unit if unit else ''}, got {value!r}")
+        out.append((key, float(value)))
+    return tuple(out)
+
+
 def parse_description(data: dict, base: Path, source: str = "<robot file>") -> RobotDescription:
     """A RobotDescription from the TOML's dict; relative paths are relative to `base`."""
     check_keys(data, TOP_KEYS, REQUIRED_TOP, "")
@@ -234,7 +261,7 @@ def parse_description(data: dict, base: Path, source: str = "<robot file>") -> R
                             source=source, collision_mode=mode, floor_contacts=floor,
                             controller_path=_controller_path(data, base),
                             walk_controller_path=_controller_path(data, base, "walk_controller"),
-                            servo=servo,
+                            servo=servo, walk=_walk(data.get("walk")),
                             **_solver(data.get("solver")))
 
 

@@ -135,7 +135,8 @@ def _robot_from_file(path: str, digest: str, controller: str) -> Robot:
                      mjx.put_data(robot.model, data, device=device))
     return Robot(setup=setup, settled=data, params=params, name=robot.name, digest=digest,
                       source=path, controller=controller, defaults=scaled,
-                      walk_params=walk_params, walk_controller=walk_source)
+                      walk_params=walk_params, walk_controller=walk_source,
+                      gait=robot.description.walk)
 
 
 def robot_from_file(path: str | Path) -> Robot:

@@ -49,6 +49,8 @@ class Robot:
     came from). model_params: TKU-X's generator parameters; None for a robot file.
     walk_params, walk_controller: the controller while walking and where it came from (None,
     "": `params`; `walking_params` gives the one in use).
+    gait: the robot file's [walk] table, (WalkCommand field, value) pairs overriding the gait's
+    defaults (`WalkCommand.for_params`); () for TKU-X and a file without one.
     """
 
     setup: SimSetup
@@ -62,6 +64,7 @@ class Robot:
     model_params: ModelParams | None = None
     walk_params: ControllerParams | None = None
     walk_controller: str = ""
+    gait: tuple[tuple[str, float], ...] = ()
 
     def __repr__(self) -> str:
         return f"Robot({self.name!r}, source={self.source!r}, digest={self.digest[:12]!r})"

@@ -49,6 +49,11 @@ class Walker:
     gait_params: ControllerParams
     name: str
 
+    @property
+    def gait(self) -> dict:
+        """The robot file's [walk] table: WalkCommand fields over `gait_params`' defaults."""
+        return dict(self.robot.gait)
+
 
 def walker(robot_file: str | None = None) -> Walker:
     """TKU-X (None) or a robot file's robot: the controller the file names for walking
@@ -170,13 +175,16 @@ def _one(series, i: int):
 
 def simulate_walk(robot_file: str | None = None, speed_mps: float = 0.0,
                   lateral_mps: float = 0.0, seconds: float = 20.0, engine: str = "mujoco",
-                  step_period_s: float | None = None, enabled: bool = True) -> dict:
+                  step_period_s: float | None = None, enabled: bool = True,
+                  lift_m: float | None = None, sway_m: float | None = None) -> dict:
     """`tkujax walk`: one walk of TKU-X (None) or a robot file's robot at the commanded speeds;
-    the commanded gait and `walk_metrics`, with the wall time."""
+    the commanded gait and `walk_metrics`, with the wall time. step_period_s, lift_m, sway_m:
+    None takes the robot file's [walk] table, else the robot's scaled defaults."""
     if not 0.0 < seconds <= 600.0:
         raise ValueError(f"seconds must be in (0, 600], got {seconds!r}")
     who = walker(robot_file)
-    fields = {} if step_period_s is None else dict(step_period_s=float(step_period_s))
+    given = dict(step_period_s=step_period_s, lift_m=lift_m, sway_m=sway_m)
+    fields = who.gait | {k: float(v) for k, v in given.items() if v is not None}
     command = WalkCommand.for_params(who.gait_params, speed_mps, lateral_mps, **fields).validate()
     t0 = time.perf_counter()
     series, _ = run_walk(who, [command], seconds, engine, float(enabled))

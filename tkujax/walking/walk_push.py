@@ -87,7 +87,7 @@ def run_walk_pushes(push_set: WalkPushSet, robot_file: str | None = None,
     runs = {"recovery_off": dict(recovery=0.0)}
     runs.update({name: dict(fields, recovery=1.0) for name, fields in settings.items()})
     for label, fields in runs.items():
-        cmd = WalkCommand.for_params(who.gait_params, push_set.speed_mps, **fields)
+        cmd = WalkCommand.for_params(who.gait_params, push_set.speed_mps, **(who.gait | fields))
         pushes = stack_pushes([push_at_gait_phase(cmd, ph, imp, az, push_set.height_m,
                                                   push_set.duration_s)
                                for az, imp, ph in grid])
