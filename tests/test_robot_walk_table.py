@@ -66,3 +66,8 @@ def test_tkujax_walk_takes_the_robot_gait_and_the_command_line_over_it(robot_fil
     assert command["lift_m"] == pytest.approx(GAIT["lift_m"])
     assert command["step_period_s"] == pytest.approx(GAIT["step_period_s"])
     assert command["sway_m"] == pytest.approx(0.01)
+
+
+def test_tkujax_stand_prints_the_robot_gait(robot_file, capsys):
+    main(["stand", "--robot", str(robot_file), "--seconds", "0.2"])
+    assert json.loads(capsys.readouterr().out)["walk_gait"] == pytest.approx(GAIT)

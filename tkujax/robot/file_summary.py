@@ -40,6 +40,7 @@ def robot_stand_summary(path: str | Path, seconds: float = 5.0) -> dict:
                     if robot.description.controller_path else CONSERVATIVE_SOURCE),
         walk_controller=(f"file {robot.description.walk_controller_path.name}"
                          if robot.description.walk_controller_path else "the controller"),
+        walk_gait=dict(robot.description.walk) or "the scaled defaults (no [walk] table)",
         servos=servo_summary(robot),
         ik="analytic" if analytic else "numeric", ik_reason=why,
         stand={k: rounded(v) for k, v in result.as_dict().items()},
