@@ -97,6 +97,19 @@ def _rot_error(target, current):
     return 0.5 * jnp.stack([m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1]])
 
 
+def spd_solve(h, b):
+    """x with h x = b for a small symmetric positive definite h (n, n), n static: Gaussian
+    elimination without pivoting (stable for SPD), unrolled in plain jnp ops. jnp.linalg.solve
+    calls LAPACK, and on jaxlib's CPU runtime two batched LAPACK solves in one program can
+    deadlock (4,096 lanes, 2 cores: tests/test_leg_chain_solve.py)."""
+    n = h.shape[0]
+    a = jnp.concatenate([h, b[:, None]], axis=1)
+    for i in range(n):
+        a = a.at[i].set(a[i] / a[i, i])
+        a = a - jnp.outer(a[:, i].at[i].set(0.0), a[i])
+    return a[:, n]
+
+
 def _solve_leg(chain: LegChain, side: int, q_ctrl, guess):
     """The robot leg's angles for the controller leg's angles q_ctrl (6,), from `guess`."""
     dtype = q_ctrl.dtype
@@ -119,7 +132,7 @@ def _solve_leg(chain: LegChain, side: int, q_ctrl, guess):
         jac = -jax.jacfwd(residual)(q)
         h = jac.T @ jac
         h = h + DAMPING * (jnp.trace(h) + 1e-12) * jnp.eye(h.shape[0], dtype=dtype)
-        q = q + jnp.linalg.solve(h, jac.T @ e)
+        q = q + spd_solve(h, jac.T @ e)
     q = jnp.clip(q, jnp.asarray(chain.lo[side], dtype), jnp.asarray(chain.hi[side], dtype))
     return jnp.where(jnp.all(jnp.isfinite(q)), q, guess)
 
