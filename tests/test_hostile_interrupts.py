@@ -23,10 +23,24 @@ ROOT = Path(__file__).resolve().parents[1]
 SAID = "tkujax test: interrupted; rerun the same command to resume"
 
 
+def _default_sigint() -> None:
+    """Ctrl-C's default in the child, as at a terminal: a suite started in the background by a
+    non-interactive shell inherits SIGINT ignored, and the Ctrl-C tests would send nothing."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+@pytest.fixture
+def python_sigint():
+    """Python's own Ctrl-C handler in this process for the test (see _default_sigint)."""
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, before)
+
+
 def _python(code: str) -> subprocess.CompletedProcess:
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], env=env, text=True,
-                          capture_output=True, timeout=120)
+                          capture_output=True, timeout=120, preexec_fn=_default_sigint)
 
 
 def test_an_interrupt_dropped_in_a_finaliser_is_delivered_again():
@@ -69,7 +83,7 @@ def test_other_errors_are_still_errors(capsys):
         run_command("tkujax test", bad)
 
 
-def test_an_interrupt_while_deferred_takes_effect_at_the_end():
+def test_an_interrupt_while_deferred_takes_effect_at_the_end(python_sigint):
     reached = []
     with pytest.raises(KeyboardInterrupt):
         with interrupts_deferred():
