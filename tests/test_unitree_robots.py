@@ -1,7 +1,7 @@
 """Humanoids from unitreerobotics/unitree_mujoco, read as a new user would, from the robot files in
 specs/robots/: G1 (hips pitch-roll-yaw, a waist), H1 (five-joint legs), H1-2 (hips yaw-pitch-roll)
 and R1 (a tilted hip-pitch axis), all with <motor> legs replaced by [servo]. Each stands on
-MuJoCo C, and G1's and H1's files name the controllers `tkujax tune --robot` wrote for them.
+MuJoCo C, and each file names the controller `tkujax tune --robot` wrote for it.
 
 The models come from a checkout of unitree_mujoco (TKUJAX_UNITREE, or ../unitree_mujoco beside
 the repository); the tests skip without one.
@@ -42,7 +42,7 @@ def test_the_robot_stands_on_its_servos(name, capsys):
     assert out["ik"] == "numeric"                          # none of them is TKU-X's chain
 
 
-@pytest.mark.parametrize("name", ["g1", "h1"])
+@pytest.mark.parametrize("name", sorted(MODELS))
 def test_the_tuned_controller_is_the_robots(name):
     robot = robot_setup(_robot_file(name))
     assert robot.controller == f"file {name}_controller.json"
