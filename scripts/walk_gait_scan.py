@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import re
 from pathlib import Path
 
 from tkujax.control.gait import WalkCommand
@@ -46,6 +47,13 @@ def scan(robot_file: str, speed_mps: float, seconds: float, sway_frac, dsr, lift
             "rows": rows, "stood": sum(not r[4] for r in rows), "of": len(rows)}
 
 
+def _dumps(record: dict) -> str:
+    """The record as JSON with one walk (row) per line."""
+    text = json.dumps(record, indent=1)
+    return re.sub(r"\[\s+([^\[\]{}]*?)\s+\]",
+                  lambda m: "[" + " ".join(m.group(1).split()) + "]", text)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--robot", required=True, metavar="FILE.toml")
@@ -62,7 +70,7 @@ def main(argv=None) -> int:
     record = (json.loads(args.out.read_text()) if args.out.is_file()
               else {"device": "cpu (MuJoCo C)", "runs": []})
     record["runs"].append(run)
-    args.out.write_text(json.dumps(record, indent=1) + "\n")
+    args.out.write_text(_dumps(record) + "\n")
     print(f"{run['robot']} at {run['speed_mps']} m/s: {run['stood']} of {run['of']} stood")
     return 0
 
