@@ -50,6 +50,15 @@ HEADING_GAIN = 0.5     # the default heading hold: the share of the heading erro
 MAX_TURN_RAD = 0.1     # the most a step turns (5.7 deg)
 
 
+# Each WalkCommand field's allowed range (`WalkCommand.validate`; the sweep spec's and the robot
+# file's [walk] tables check theirs against these).
+WALK_LIMITS = dict(speed_mps=(-1.0, 1.0), lateral_mps=(-0.5, 0.5), step_period_s=(0.1, 2.0),
+                   lift_m=(0.0, 0.1), double_support_ratio=(0.0, 0.8), sway_m=(-0.25, 0.25),
+                   start_s=(0.0, 100.0), ramp_steps=(0.0, 20.0), recovery=(0.0, 1.0),
+                   recovery_band_m=(0.0, 0.5), recovery_forward_gain=(0.0, 2.0),
+                   recovery_late_swing_gain=(0.0, 1.0), heading_gain=(0.0, 2.0))
+
+
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class WalkCommand:
@@ -104,13 +113,7 @@ class WalkCommand:
 
     def validate(self) -> WalkCommand:
         """Check ranges on concrete values (outside jit); raises ValueError naming the field."""
-        limits = dict(speed_mps=(-1.0, 1.0), lateral_mps=(-0.5, 0.5), step_period_s=(0.1, 2.0),
-                      lift_m=(0.0, 0.1), double_support_ratio=(0.0, 0.8),
-                      sway_m=(-0.25, 0.25), start_s=(0.0, 100.0),
-                      ramp_steps=(0.0, 20.0), recovery=(0.0, 1.0),
-                      recovery_band_m=(0.0, 0.5), recovery_forward_gain=(0.0, 2.0),
-                      recovery_late_swing_gain=(0.0, 1.0), heading_gain=(0.0, 2.0))
-        for name, (lo, hi) in limits.items():
+        for name, (lo, hi) in WALK_LIMITS.items():
             v = float(getattr(self, name))
             if not lo <= v <= hi:       # also refuses NaN
                 raise ValueError(f"WalkCommand.{name} must be in [{lo:g}, {hi:g}], got {v!r}")

@@ -27,7 +27,7 @@ import dataclasses
 
 import numpy as np
 
-from tkujax.control.gait import WalkCommand, gait_phase, time_at_phase
+from tkujax.control.gait import WALK_LIMITS, WalkCommand, gait_phase, time_at_phase
 from tkujax.control.controller_params import ControllerParams
 from tkujax.dialects.floor_table import check_floor_decisions
 from tkujax.dialects.validation import SpecError, integer, number, table
@@ -36,13 +36,9 @@ GAIT_PHASE_KEY = "gait_phase"
 GAIT_PHASE_UNIT = "(fraction of the gait cycle, 0 = left touchdown; 1 excluded)"
 RECOVERY_SETTINGS = ("off", "on")
 # [walk] keys: (lo, hi, unit); the limits of WalkCommand.validate.
-WALK_FIELDS = {
-    "speed_mps": (-1.0, 1.0, "m/s"),
-    "lateral_mps": (-0.5, 0.5, "m/s"),
-    "step_period_s": (0.1, 2.0, "s"),
-    "recovery_forward_gain": (0.0, 2.0, "(a gain)"),
-    "recovery_late_swing_gain": (0.0, 1.0, "(a gain)"),
-}
+WALK_FIELDS = {k: (*WALK_LIMITS[k], unit) for k, unit in (
+    ("speed_mps", "m/s"), ("lateral_mps", "m/s"), ("step_period_s", "s"),
+    ("recovery_forward_gain", "(a gain)"), ("recovery_late_swing_gain", "(a gain)"))}
 PUSH_CYCLE_RANGE = (0, 100)
 DEFAULT_PUSH_CYCLE = 9      # as tkujax.walking.walk_push.PUSH_CYCLE: the recovery is armed
 # The record columns of the commanded walk, and the WalkCommand field each one sets.

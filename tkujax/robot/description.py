@@ -35,6 +35,7 @@ import os
 import re
 from pathlib import Path
 
+from tkujax.control.gait import WALK_LIMITS
 from tkujax.model.files import SpecError, read_toml
 from tkujax.robot.collision import (COLLISION_MODES, DEFAULT_COLLISION_MODE,
                                    DEFAULT_FLOOR_CONTACTS, FLOOR_CONTACTS)
@@ -54,11 +55,11 @@ COLLISION_KEYS = ("mode", "floor")
 # [solver]: each key's allowed range; MuJoCo's defaults are 100 and 50 (the caps MJX's batched
 # solver runs to: tests/test_robot_solver.py)
 SOLVER_RANGES = {"iterations": (1, 1000), "ls_iterations": (1, 1000)}
-# [walk]: the gait's keys (tkujax.control.gait.WalkCommand fields) and their allowed ranges,
-# WalkCommand.validate's
-WALK_RANGES = {"lift_m": (0.0, 0.1, "m"), "sway_m": (-0.25, 0.25, "m"),
-               "step_period_s": (0.1, 2.0, "s"), "double_support_ratio": (0.0, 0.8, ""),
-               "recovery_forward_gain": (0.0, 2.0, ""), "recovery_late_swing_gain": (0.0, 1.0, "")}
+# [walk]: the gait's keys (tkujax.control.gait.WalkCommand fields), each with its allowed
+# range, WalkCommand.validate's, and unit
+WALK_RANGES = {k: (*WALK_LIMITS[k], unit) for k, unit in (
+    ("lift_m", "m"), ("sway_m", "m"), ("step_period_s", "s"), ("double_support_ratio", ""),
+    ("recovery_forward_gain", ""), ("recovery_late_swing_gain", ""))}
 HIP_HEIGHT_FRAC = 0.93        # computed stand: hip-to-ankle = this x (thigh + calf)
 _VAR = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)(?::-([^}]*))?\}")
 

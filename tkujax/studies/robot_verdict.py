@@ -21,15 +21,13 @@ import re
 import time
 from pathlib import Path
 
-import jax
-
 from tkujax.control.params_files import (controller_params_from_dict, save_controller_params_json,
                                          without_notes)
 from tkujax.control.controller_params import ControllerParams
 from tkujax.analysis.compare import Bands, compare_runs
 from tkujax.dialects.sweep_spec import parse_spec
 from tkujax.sweeps.sweep import run_sweep
-from tkujax.sweeps.sweep_folder import computed_on
+from tkujax.sweeps.sweep_folder import computed_on, device_kind
 
 MIN_CELL_PUSHES, HARM_PP = 100, 2.0
 _CONTROLLER_LINE = re.compile(r"^\s*controller\s*=.*$", re.MULTILINE)
@@ -39,12 +37,6 @@ def controller_params(params: dict) -> ControllerParams:
     """A parameter file's dict (its notes, such as recommended_from, left out) as
     ControllerParams."""
     return controller_params_from_dict(without_notes(params), "the tuned controller")
-
-
-def device_name() -> str:
-    """The first device JAX computes on, in words (e.g. "NVIDIA H200" or "cpu")."""
-    d = jax.devices()[0]
-    return getattr(d, "device_kind", d.platform) or d.platform
 
 
 def verdict_reason(v: dict) -> str:
@@ -99,7 +91,7 @@ def heldout_verdict(out: Path, robot, spec: dict, params: dict, method: str,
                 harmed_cells=v["harmed_cells"], cells_checked=int(v["cells_checked"]),
                 method=method, n_params=n_params,
                 wall_s=round(time.perf_counter() - t0, 1),
-                device=computed_on(manifest) or device_name(),
+                device=computed_on(manifest) or device_kind(),
                 passed=passed, why=verdict_reason(v))
 
 

@@ -127,8 +127,9 @@ def run_record(backend: str, process_id: int, num_processes: int) -> dict:
                 num_processes=num_processes)
 
 
-def device_kind(backend: str) -> str:
-    """The device a run computes on, in words (e.g. "NVIDIA H200", "cpu (MuJoCo C)")."""
+def device_kind(backend: str = "mjx") -> str:
+    """The device a run computes on, in words (e.g. "NVIDIA H200", "cpu (MuJoCo C)"): the first
+    device JAX computes on, or MuJoCo C's CPU."""
     if backend == "mujoco":
         return "cpu (MuJoCo C)"
     d = jax.local_devices()[0]
