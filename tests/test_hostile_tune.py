@@ -90,7 +90,7 @@ def test_tune_robot_checks_its_stages_before_the_probe(capsys, monkeypatch, tmp_
     out = tmp_path / "out"
     line = refused(capsys, "tune.duration_s = 0.42", "tune", "--robot", robot_file, "--out", out)
     assert "push.onset_s" in line and not (out / "pushes.json").exists()
-    monkeypatch.setattr(robot_tune, "TUNE_HORIZON_S", 1.5)
+    monkeypatch.setattr(robot_tune, "TUNE_HORIZON_S", robot_tune.HELDOUT_HORIZON_S)
     robot = robot_tune.robot_from_file(str(robot_file))
     robot_tune.check_stages(str(robot_file), robot, 64)           # the shipped stages pass
 

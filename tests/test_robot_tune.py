@@ -70,11 +70,15 @@ def test_a_failed_controller_is_retried_then_falls_back_and_a_passing_one_writte
     """A first controller that harms (stance feedback with its signs reversed) fails its
     verdict; the retry's search found nothing better (the same controller) and fails on the
     same held-out pushes, against the same control-off run; then the conservative default is
-    judged there too, the better reported, and written when it passes. (512 held-out pushes
+    judged there too, and its stance gains halved when it fails, the best reported, and written
+    when it passes. (512 held-out pushes
     fill no cell of 100: cells of 4 pushes are judged here.)"""
     from tkujax.studies import robot_verdict
 
+    from tkujax.studies import robot_tune
+
     monkeypatch.setattr(robot_verdict, "MIN_CELL_PUSHES", 4)
+    monkeypatch.setattr(robot_tune, "FALLBACK_SCALES", (1.0, 0.5))    # the ladder's first two
     folder = tmp_path / "robot"
     folder.mkdir()
     copy = write_generated_robot(folder, name="gen")
@@ -99,9 +103,12 @@ def test_a_failed_controller_is_retried_then_falls_back_and_a_passing_one_writte
     third = json.loads((tmp_path / "run" / "fallback" / "compare" / "verdict.json").read_text())
     assert third["reference"]["path"] == str(tmp_path / "run" / "heldout")
     assert record["off_fall"] == first["off_fall"]
-    assert record["chosen_stage"] == "fallback"              # far fewer harmed cells
+    chosen = record["chosen_stage"]
+    assert chosen in ("fallback", "fallback_0.5")            # far fewer harmed cells
+    # The ladder goes on past a failing conservative default, and stops at a passing one.
+    assert ("fallback_0.5" in record["stages"]) == (not record["stages"]["fallback"]["passed"])
     assert record["n_params"] == 0 and "conservative" in record["method"]
-    assert record["on_fall"] == record["stages"]["fallback"]["on_fall"] < first["on_fall"]
+    assert record["on_fall"] == record["stages"][chosen]["on_fall"] < first["on_fall"]
     assert record["passed"] == (record["on_fall"] < record["off_fall"]
                                 and not record["harmed_cells"] and record["cells_checked"] > 0)
     if record["passed"]:
@@ -109,7 +116,8 @@ def test_a_failed_controller_is_retried_then_falls_back_and_a_passing_one_writte
         assert robot_setup(copy).controller == "file gen_controller.json"
         assert file_digest(copy) == before          # naming a controller is the same robot
         written = json.loads((folder / "gen_controller.json").read_text())
-        assert written["stance_ankle_kp"] == pytest.approx(good["stance_ankle_kp"])
+        scale = 0.5 if chosen == "fallback_0.5" else 1.0
+        assert written["stance_ankle_kp"] == pytest.approx(scale * good["stance_ankle_kp"])
     else:
         assert load_description(copy).controller_path is None
     saved = json.loads((tmp_path / "run" / "verdict.json").read_text())
@@ -313,3 +321,78 @@ def test_a_harmed_verdict_names_the_cell_that_lost_the_most():
     assert verdict_reason(v) == ("2 harmed cell(s), the worst behind at 0.74-1.25 N s, "
                                  "phase 0.67-1.00: +9.0 points")
     assert verdict_reason(dict(v, harmed_cells=[])).startswith("passed")
+
+
+def test_the_fallback_ladder_stops_at_the_first_gentler_controller_that_passes(
+        robot_file, monkeypatch, tmp_path):
+    """When the conservative default harms a cell, its stance gains halved, then quartered,
+    are judged on the same held-out pushes (FALLBACK_SCALES), and the first that passes is
+    reported with its parameters. The held-out verdicts are stand-ins here: one that harms
+    while the ankle gain exceeds a limit between the half and the full default."""
+    from tkujax.studies import robot_tune
+
+    robot = robot_setup(robot_file)
+    full = robot_tune.fallback_params(robot, 1.0)["stance_ankle_kp"]
+    judged = []
+
+    def verdict(folder, robot, held, params, method, n_params, reference):
+        judged.append((folder.name, params["stance_ankle_kp"], method))
+        harms = params["stance_ankle_kp"] > 0.75 * full
+        return dict(passed=not harms, harmed_cells=[{"cell": 1}] if harms else [],
+                    on_fall=0.40 if harms else 0.45, off_fall=0.5, ratio=0.9,
+                    cells_checked=64, why="harm" if harms else "passed", wall_s=1.0,
+                    method=method)
+
+    monkeypatch.setattr(robot_tune, "heldout_verdict", verdict)
+    first = dict(passed=False, harmed_cells=[{"cell": 1}] * 3, on_fall=0.3, off_fall=0.5,
+                 ratio=0.6, cells_checked=64, why="first", wall_s=1.0,
+                 stages={"tune": {}}, chosen_stage="tune")
+    record, params = robot_tune._stage_fallback(tmp_path, robot, {}, lambda msg: None, first,
+                                                {"from": "tune"})
+    assert [j[0] for j in judged] == ["fallback", "fallback_0.5"]          # stopped there
+    assert judged[1][1] == pytest.approx(0.5 * full)
+    assert record["passed"] and record["chosen_stage"] == "fallback_0.5"
+    assert "x 0.5" in record["method"] and params["stance_ankle_kp"] == pytest.approx(0.5 * full)
+    assert set(record["stages"]) == {"tune", "fallback", "fallback_0.5"}
+    # Scale 1 is the conservative default itself, as the robot without a controller gets it.
+    assert robot_tune.fallback_params(robot, 1.0) == dataclasses.asdict(dataclasses.replace(
+        robot.defaults, **structure_start(robot, "stance")))
+
+
+def test_a_verdict_runs_on_the_engine_of_its_reference(robot_file, monkeypatch, tmp_path):
+    """A held-out sweep judged against a reference folder runs on the engine that computed the
+    reference (MJX here), whatever this machine would choose: the pairs then differ by the
+    controller only. Two engines in one folder pin nothing."""
+    from tkujax.studies import robot_verdict
+    from tkujax.sweeps.sweep_folder import computed_with
+
+    reference = tmp_path / "heldout"
+    reference.mkdir()
+    runs = [{"backend": "mjx", "chunks_computed": 1}, {"backend": "mujoco", "chunks_computed": 0}]
+    (reference / "manifest.json").write_text(json.dumps({"backend": "mujoco", "runs": runs}))
+    assert computed_with(reference) == "mjx"
+    assert computed_with(tmp_path / "nothing") is None
+    chosen = []
+
+    class Stop(Exception):
+        pass
+
+    def run_sweep(*args, backend="auto", **kwargs):
+        chosen.append(backend)
+        raise Stop
+
+    monkeypatch.setattr(robot_verdict, "run_sweep", run_sweep)
+    robot = robot_setup(robot_file)
+    spec = {"robot": {"file": str(robot_file)}, "sweep": {"name": "h", "control": ["off", "on"]},
+            "push": {"grid": {"impulse_ns": [0.5]}}}
+    params = dataclasses.asdict(robot.defaults)
+    (tmp_path / "stage").mkdir()
+    with pytest.raises(Stop):
+        robot_verdict.heldout_verdict(tmp_path / "stage", robot, spec, params, "m", 0,
+                                      reference=reference)
+    (reference / "manifest.json").write_text(json.dumps({"runs": [
+        {"backend": "mjx", "chunks_computed": 1}, {"backend": "mujoco", "chunks_computed": 1}]}))
+    with pytest.raises(Stop):
+        robot_verdict.heldout_verdict(tmp_path / "stage", robot, spec, params, "m", 0,
+                                      reference=reference)
+    assert chosen == ["mjx", "auto"]

@@ -42,7 +42,7 @@ def _cmd_refine(args) -> int:
 
 
 def _cmd_tune_robot(args) -> int:
-    from tkujax.studies.robot_tune import tune_robot_controller
+    from tkujax.studies.robot_tune import FALLBACK_SCALES, fallback_stage, tune_robot_controller
 
     record = tune_robot_controller(args.robot, args.out, budget_s=args.budget_s or 480.0,
                                    heldout_n=args.heldout_n, write=not args.no_write,
@@ -54,8 +54,10 @@ def _cmd_tune_robot(args) -> int:
     if "retry" in record["stages"]:
         print(f"the first controller: {record['stages']['tune']['why']}; the retry's: "
               f"{record['stages']['retry']['why']}; reported: the {record['chosen_stage']}'s")
-    if "fallback" in record["stages"]:
-        print(f"the conservative default: {record['stages']['fallback']['why']}")
+    for scale in FALLBACK_SCALES:
+        stage, what = fallback_stage(scale)
+        if stage in record["stages"]:
+            print(f"{what}: {record['stages'][stage]['why']}")
     if record.get("controller_file"):
         print(f"controller written to {record['controller_file']} and named in {args.robot}")
     print(f"verdict: {Path(args.out, 'verdict.json')}")

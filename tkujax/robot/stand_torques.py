@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import math
 
 import mujoco
 import numpy as np
@@ -102,16 +103,17 @@ def _joint_message(key: str, need: float, kp: float, limit: float | None,
     """(short, message): the servo falls short when kp x HOLD_ERROR_RAD is below the need (a
     servo that needs a larger error has let the stand sag by then) or the force limit is."""
     gives = kp * HOLD_ERROR_RAD
-    role = key.rsplit(".", 1)[-1]
     if limit is not None and need > limit:
-        return True, (f"{role}: the stand needs {need:.1f} N m; the force limit is "
+        return True, (f"{key}: the stand needs {need:.1f} N m; the force limit is "
                       f"{limit:.1f} N m; raise [servo] force_limit or choose a stand nearer "
                       "the straight leg")
     if gives < need:
-        return True, (f"{role}: the stand needs {need:.1f} N m; kp {kp:g} gives {gives:.2f} N m "
+        # Rounded up, and above kp: a need just over what kp gives asks for more than kp.
+        least = max(math.ceil(need / HOLD_ERROR_RAD), math.floor(kp) + 1)
+        return True, (f"{key}: the stand needs {need:.1f} N m; kp {kp:g} gives {gives:.2f} N m "
                       f"at {HOLD_ERROR_RAD:g} rad of error (the joint sagged {err:.2f} rad); "
-                      f"raise [servo] kp to at least {need / HOLD_ERROR_RAD:.0f}")
-    return False, f"{role}: the stand needs {need:.1f} N m; kp {kp:g} gives {gives:.2f} N m"
+                      f"raise [servo] kp to at least {least}")
+    return False, f"{key}: the stand needs {need:.1f} N m; kp {kp:g} gives {gives:.2f} N m"
 
 
 def servo_shortfalls(robot: RobotModel, qpos: np.ndarray, ctrl: np.ndarray,

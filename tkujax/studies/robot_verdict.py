@@ -27,7 +27,7 @@ from tkujax.control.controller_params import ControllerParams
 from tkujax.analysis.compare import Bands, compare_runs
 from tkujax.dialects.sweep_spec import parse_spec
 from tkujax.sweeps.sweep import run_sweep
-from tkujax.sweeps.sweep_folder import computed_on, device_kind
+from tkujax.sweeps.sweep_folder import computed_on, computed_with, device_kind
 
 MIN_CELL_PUSHES, HARM_PP = 100, 2.0
 _CONTROLLER_LINE = re.compile(r"^\s*controller\s*=.*$", re.MULTILINE)
@@ -71,8 +71,13 @@ def heldout_verdict(out: Path, robot, spec: dict, params: dict, method: str,
     path = out / "heldout_spec.json"
     path.write_text(json.dumps(spec_record(spec, out), indent=1) + "\n")
     controller = controller_params(params)
+    # One engine for both sides of the comparison: the pairs of pushes differ by the controller
+    # only (a held-out sweep resumed on a CPU would otherwise run MuJoCo C against a GPU's MJX
+    # reference; tests/test_robot_tune.py).
+    engine = computed_with(Path(reference)) if reference is not None else None
+    engine = engine or computed_with(out / "heldout") or "auto"
     manifest = run_sweep(parse_spec(read_spec_record(path)), out / "heldout", params=controller,
-                         model_params=robot, quiet=True)
+                         model_params=robot, quiet=True, backend=engine)
     if not manifest["complete"]:
         raise RuntimeError(f"{out / 'heldout'}: the held-out sweep is incomplete; rerun to "
                            "resume")

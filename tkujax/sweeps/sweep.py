@@ -43,8 +43,8 @@ from tkujax.sweeps.progress import Progress
 from tkujax.sim.push import CONTROL_PERIOD_S
 from tkujax.dialects.sweep_spec import SpecError, SweepSpec, load_spec
 from tkujax.dialects.program_keys import with_decisions
-from tkujax.sweeps.sweep_folder import (chunk_provenance, claim_folder, describe, prepare_out,
-                                        processes, run_record)
+from tkujax.sweeps.sweep_folder import (chunk_provenance, claim_folder, describe,
+                                        params_as_held, prepare_out, processes, run_record)
 from tkujax.sweeps.sweep_hash import input_digests, spec_hash
 from tkujax.dialects.push_limits import check_push_window
 from tkujax.dialects.floor_table import spec_floor
@@ -374,6 +374,7 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
     check_walk_sweep(spec)
     backend = choose_backend(backend, spec)
     out = prepare_out(Path(out))
+    params = params_as_held(out, params, lambda p: spec_hash(spec, p, robot, schedule))
     digest = spec_hash(spec, params, robot, schedule)
     recs = record_inputs(spec)
     n = len(recs["push_id"])

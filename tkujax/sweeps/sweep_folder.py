@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import errno
+import math
 import os
 import secrets
 import socket
@@ -145,10 +146,48 @@ def computed_on(manifest: dict) -> str:
     return ", ".join(dict.fromkeys(kinds))
 
 
+def computed_with(out: Path) -> str | None:
+    """The engine ("mjx" or "mujoco") that computed the chunks of the sweep folder `out`: the
+    backend of its runs that computed chunks (else its manifest's); None for no sweep there,
+    or for one whose chunks came from both engines."""
+    manifest = chunks.read_manifest(out)
+    engines = {r["backend"] for r in manifest.get("runs", [])
+               if r.get("chunks_computed", 1) and r.get("backend")}
+    if not engines and manifest.get("backend"):
+        engines = {manifest["backend"]}
+    return engines.pop() if len(engines) == 1 else None
+
+
 def chunk_provenance(run: dict) -> dict:
     """What a chunk's manifest entry records of the run that wrote it."""
     return dict(run_id=run["run_id"], backend=run["backend"], device=", ".join(run["devices"]),
                 git_commit=run["git_commit"])
+
+
+# How far a kept sweep's controller parameters may differ from a resuming run's and still be
+# that sweep's: the last bits of a robot file's geometry, which its stand's kinematics give
+# machine by machine (the Berkeley Humanoid's hip offset, 0.06713400932671565 m on one
+# H200's host, 0.0671340093267157 m on this project's CPU). tests/test_sweep_resume_machine.py
+PARAMS_REL_TOL = 1e-12
+
+
+def params_as_held(out: Path, params: ControllerParams, digest_of) -> ControllerParams:
+    """The controller parameters a sweep in `out` ran with, when they differ from `params` by
+    rounding only (every field within PARAMS_REL_TOL) and make its spec hash
+    (`digest_of(params) -> hash`): a run resumed on another machine goes on with them. Else
+    `params` (and a changed sweep is refused as before, `claim_folder`)."""
+    held = chunks.read_manifest(out)
+    stored = held.get("controller_params")
+    mine = dataclasses.asdict(params)
+    if not stored or set(stored) != set(mine) or digest_of(params) == held.get("spec_hash"):
+        return params
+    for k, v in mine.items():
+        w = stored[k]
+        if not (isinstance(w, (int, float)) and not isinstance(w, bool)
+                and math.isclose(float(v), float(w), rel_tol=PARAMS_REL_TOL, abs_tol=1e-15)):
+            return params
+    candidate = ControllerParams(**{k: float(w) for k, w in stored.items()})
+    return candidate if digest_of(candidate) == held.get("spec_hash") else params
 
 
 def refusal(out: Path, held: dict, description: dict, inputs: dict) -> str:
