@@ -35,7 +35,9 @@ def test_it_stands_on_the_files_servos(capsys):
     code = main(["stand", "--robot", str(ROBOT_FILE), "--seconds", "2"])
     out = json.loads(capsys.readouterr().out)
     assert code == 0 and out["stand"]["stood"] and out["ik"] == "numeric"
-    assert robot_setup(ROBOT_FILE).controller == "file berkeley_humanoid_controller.json"
+    robot = robot_setup(ROBOT_FILE)
+    assert robot.controller == "file berkeley_humanoid_controller.json"
+    assert robot.leg_chain is not None        # its tilted hip axes: its own IK, not signs
 
 
 def test_its_own_servos_are_explained_per_leg_joint(tmp_path, capsys):

@@ -357,3 +357,22 @@ def test_five_joint_leg_mjx_agrees_with_mujoco_c(tmp_path):
     assert out.fell.tolist() == mjx_out.fell.tolist() == [False, False, True]
     np.testing.assert_allclose(mjx_series.pitch[:2], series.pitch[:2], atol=2e-3)
     np.testing.assert_allclose(mjx_series.l_ankle[:2], series.l_ankle[:2], atol=2e-3)
+
+
+@needs_op3
+def test_a_tilted_axis_in_tkux_order_gets_the_robots_own_ik(tmp_path):
+    """TKU-X's joint order is not enough for the joint-for-joint sign map: with OP3's hip-yaw
+    axes tilted 30 degrees (as the Berkeley Humanoid's are 45), the loop solves the robot's
+    own IK (whose round trip the tests above measure) instead of mapping joint for joint."""
+    def tilt(text: str) -> str:
+        for side in "lr":
+            text = text.replace(f'<joint name="{side}_hip_yaw" axis="0 0 -1"/>',
+                                f'<joint name="{side}_hip_yaw" axis="0.5 0 -0.866"/>')
+        return text
+
+    plain, tilted = load_robot(_op3_variant(tmp_path / "plain", lambda t: t)), \
+        load_robot(_op3_variant(tmp_path / "tilted", tilt))
+    assert plain.tkux_chain and plain.joint_for_joint
+    assert tilted.tkux_chain and not tilted.joint_for_joint
+    assert robot_setup(tmp_path / "plain" / "op3.toml").leg_chain is None
+    assert robot_setup(tmp_path / "tilted" / "op3.toml").leg_chain is not None

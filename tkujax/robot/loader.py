@@ -35,6 +35,7 @@ from tkujax.robot.servos import apply_servo, is_position_servo
 LEG_ORDER = ("right", "left")
 # The axis of each role in the base frame at the zero pose, up to sign (x forward, z up).
 ROLE_AXES = np.array([[0, 0, 1], [1, 0, 0], [0, 1, 0], [0, 1, 0], [0, 1, 0], [1, 0, 0]], float)
+AXIS_ALIGNED_TOL = 1e-6        # 1 - |cos| of an axis along its role's (0.08 deg)
 GYRO, ACCEL, IMU_SITE = "tkujax_gyro", "tkujax_accel", "tkujax_imu"
 HELD_JOINT_TYPES = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
 TOUCH_MARGIN_M = 0.01          # the touch sites reach this far below and above the sole
@@ -52,6 +53,7 @@ class RobotModel:
     leg_dofs: np.ndarray           # (2, n) dof addresses
     leg_actuators: np.ndarray      # (2, n) actuator ids
     axis_signs: np.ndarray         # (2, n) +1/-1: the joint axis against ROLE_AXES at zero
+    axis_alignment: np.ndarray     # (2, n) |cos| of the angle between them (1: along it)
     foot_bodies: np.ndarray        # (2,)
     foot_geoms: tuple[frozenset, frozenset]   # collision geoms of each foot body
     floor_geom: int
@@ -84,6 +86,14 @@ class RobotModel:
         """Whether both legs are TKU-X's chain: six joints, hip yaw, roll, pitch, knee, ankle
         pitch, roll from the base (the controller's own joint conventions)."""
         return all(order == LEG_ROLES for order in self.chain_order)
+
+    @property
+    def joint_for_joint(self) -> bool:
+        """Whether the controller's joint angles map onto the robot's one for one (sign and
+        offset, `tkujax.robot.leg_map.sign_map`): TKU-X's chain with every axis along its
+        role's, either way. The Berkeley Humanoid's order is TKU-X's, but its hip joints turn
+        about axes tilted 45 degrees (tests/test_robot_chains.py)."""
+        return self.tkux_chain and bool(np.all(self.axis_alignment > 1.0 - AXIS_ALIGNED_TOL))
 
 
 def _compile(spec: mujoco.MjSpec, where: str) -> mujoco.MjModel:
@@ -368,12 +378,13 @@ def _complete(spec: mujoco.MjSpec, raw: mujoco.MjModel, desc: RobotDescription, 
     return imu, ankles, touch
 
 
-def _axis_signs(model, root: int, joints: np.ndarray, roles: tuple[str, ...]) -> np.ndarray:
+def _axis_dots(model, root: int, joints: np.ndarray, roles: tuple[str, ...]) -> np.ndarray:
+    """(2, n) each leg joint's unit axis dotted with its role's axis (ROLE_AXES), in the base
+    frame at the zero pose."""
     data = zero_pose_data(model, root)
     rot = data.xmat[root].reshape(3, 3)
     axes = data.xaxis[joints] @ rot                     # (2, n, 3) in the base frame
-    dots = np.einsum("sjk,jk->sj", axes, ROLE_AXES[[LEG_ROLES.index(r) for r in roles]])
-    return np.where(dots >= 0, 1, -1).astype(int)
+    return np.einsum("sjk,jk->sj", axes, ROLE_AXES[[LEG_ROLES.index(r) for r in roles]])
 
 
 def _use_tkujax_integrator(model: mujoco.MjModel) -> None:
@@ -418,6 +429,7 @@ def load_robot(robot: RobotDescription | str | Path) -> RobotModel:
     _use_tkujax_integrator(model)
     _cap_solver(model, desc)
     joints = np.array([legs[s][0] for s in LEG_ORDER])
+    dots = _axis_dots(model, root, joints, desc.roles)
     feet = np.array([legs[s][1] for s in LEG_ORDER])
     geoms = tuple(frozenset(_foot_geoms(model, int(f))) for f in feet)
     actuators = np.array([[_position_actuator(model, int(j), f"legs.{side}.{role}")
@@ -426,7 +438,8 @@ def load_robot(robot: RobotDescription | str | Path) -> RobotModel:
     return RobotModel(
         description=desc, model=model, root_body=root, leg_joints=joints,
         leg_qpos=model.jnt_qposadr[joints], leg_dofs=model.jnt_dofadr[joints],
-        leg_actuators=actuators, axis_signs=_axis_signs(model, root, joints, desc.roles),
+        leg_actuators=actuators, axis_signs=np.where(dots >= 0, 1, -1).astype(int),
+        axis_alignment=np.abs(dots),
         foot_bodies=feet, foot_geoms=geoms, floor_geom=_has_floor(model),
         imu_site=model.site(imu).id,
         ankle_sites=(model.site(ankles[0]).id, model.site(ankles[1]).id),

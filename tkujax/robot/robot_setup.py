@@ -77,7 +77,7 @@ def leg_map(robot: RobotModel, pose, params: ControllerParams) -> dict:
     left, roles in order) to the robot's leg actuators, the controller's stand to the pose's
     (tkujax.robot.leg_map: signs for TKU-X's chain, the robot's IK for any other)."""
     q_stand = np.asarray(stand_leg_targets(params), np.float64)
-    if robot.tkux_chain:
+    if robot.joint_for_joint:
         signs, offsets = sign_map(robot, pose.ctrl, q_stand)
         return dict(leg_signs=signs, leg_offsets=offsets)
     chain = leg_chain(robot, pose.qpos, pose.ctrl, q_stand, float(params.thigh_length),
