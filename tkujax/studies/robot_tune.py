@@ -57,8 +57,8 @@ TUNE_SEED, HELDOUT_SEED = 0, 11
 TUNE_BATCH, POPSIZE = 256, 13
 HELDOUT_HORIZON_S = 2.0
 # The search watches each push as long as the verdict does: with 1.5 s, stance gains that only
-# delay a fall past the search's horizon looked better than the start there and harmed 11
-# cells of the Berkeley Humanoid's verdict at 2.0 s (falls 0 -> 7 % from behind at 4-7 N s;
+# delay a fall past the search's horizon looked better than the start there and harmed 8
+# cells from behind in the Berkeley Humanoid's verdict at 2.0 s (falls 0 -> 7 % at 4-7 N s;
 # results/robots/berkeley_humanoid/README.md).
 TUNE_HORIZON_S = HELDOUT_HORIZON_S
 TUNE_SHARE = 0.6                     # of --budget-s for the search's generations
@@ -66,8 +66,9 @@ TUNE_HARM_WEIGHT = 2.0               # OP3's loss: a harmed push costs twice a s
 RETRY_HARM_WEIGHT = 8.0              # the retry's (module doc, step 5)
 RETRY_BATCH = 2 * TUNE_BATCH
 # The fallback's ladder (step 6): the conservative default, then its stance gains halved and
-# quartered. The Berkeley Humanoid's conservative default harmed one cell of 64 by 2.2 points
-# (results/robots/berkeley_humanoid/); tests/test_robot_tune.py runs the ladder.
+# quartered. A conservative default can harm a cell at the 2-point rule's edge (the Berkeley
+# Humanoid's, +2.2 points in one run: results/robots/berkeley_humanoid/README.md);
+# tests/test_robot_tune.py runs the ladder.
 FALLBACK_SCALES = (1.0, 0.5, 0.25)
 DEGREE_KEYS = ("eps_forward", "eps_backward")
 # A first search starts at least this share of each range's width inside it: a default clamped
