@@ -6,11 +6,14 @@ import dataclasses
 import math
 from pathlib import Path
 
-from tkujax.robot.geometry import scaled_defaults, measure_geometry
+from tkujax.robot.geometry import scaled_defaults
 from tkujax.robot.ik_numeric import analytic_ik_applies
 from tkujax.robot.loader import LEG_ORDER, RobotModel, load_robot
 from tkujax.robot.own_controller import CONSERVATIVE_SOURCE
+from tkujax.robot.robot_setup import settled_geometry
+from tkujax.robot.simsetup import settled_data
 from tkujax.robot.stand import check_stand, stand_pose
+from tkujax.sim.setup import SETTLE_S
 
 SCALED_FIELDS = ("step_period", "lift_height", "standing_lean", "eps_forward", "eps_backward",
                  "cp_trigger_forward_m", "cp_trigger_backward_m", "cp_trigger_lateral_m")
@@ -23,7 +26,8 @@ def robot_stand_summary(path: str | Path, seconds: float = 5.0) -> dict:
         raise ValueError(f"seconds must be in (0, 60], got {seconds!r}")
     robot = load_robot(path)
     pose = stand_pose(robot)
-    geo = measure_geometry(robot, pose.qpos)
+    # The lean the sweeps' controller takes: the settled stand's, not the pose's.
+    geo = settled_geometry(robot, pose, settled_data(robot, pose, SETTLE_S))
     params, clamped = scaled_defaults(geo)
     analytic, why = analytic_ik_applies(robot)
     result = check_stand(robot, pose, seconds)

@@ -38,7 +38,8 @@ import numpy as np
 from tkujax.control.controller import stand_leg_targets
 from tkujax.control.controller_params import ControllerParams
 from tkujax.robot.description import RobotFileError, load_description
-from tkujax.robot.geometry import base_pitch_roll, controller_params_for, measure_geometry
+from tkujax.robot.geometry import (RobotGeometry, base_pitch_roll, controller_params_for,
+                                   measure_geometry)
 from tkujax.robot.leg_map import leg_chain, sign_map
 from tkujax.robot.loader import RobotModel, load_robot
 from tkujax.robot.model_files import model_files, model_files_digest
@@ -112,12 +113,18 @@ def closed_loop_index(robot: RobotModel, pose, params: ControllerParams) -> Mode
                                mesh_geoms=meshes, mesh_points=points)
 
 
-def _params(robot: RobotModel, pose, data: mujoco.MjData) -> ControllerParams:
-    """controller_params_for the stand's geometry, its lean read from the settled stand."""
+def settled_geometry(robot: RobotModel, pose, data: mujoco.MjData) -> RobotGeometry:
+    """The stand's geometry, its lean read from the settled stand `data` (what the robot's
+    controller defaults are scaled from)."""
     geo = measure_geometry(robot, pose.qpos)
     adr = int(robot.model.jnt_qposadr[robot.model.body_jntadr[robot.root_body]])
     lean = base_pitch_roll(np.asarray(data.qpos[adr + 3:adr + 7]))[0]
-    return controller_params_for(dataclasses.replace(geo, stand_lean_rad=lean))
+    return dataclasses.replace(geo, stand_lean_rad=lean)
+
+
+def _params(robot: RobotModel, pose, data: mujoco.MjData) -> ControllerParams:
+    """controller_params_for the settled stand's geometry."""
+    return controller_params_for(settled_geometry(robot, pose, data))
 
 
 @functools.lru_cache(maxsize=8)
