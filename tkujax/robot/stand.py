@@ -21,6 +21,7 @@ from tkujax.robot.geometry import base_pitch_roll, floor_height_m, link_lengths
 from tkujax.robot.ik_numeric import base_data, foot_pose, solve_leg_ik
 from tkujax.robot.loader import LEG_ORDER, RobotModel, geom_points
 from tkujax.robot.stand_torques import explain_failed_stand
+from tkujax.robot.support import com_margins
 
 COM_DRIFT_LIMIT_FRAC = 0.25     # of thigh + calf: the CoM may wander this far and still stand
 TILT_LIMIT_DEG = 20.0
@@ -56,6 +57,8 @@ class StandResult:
     floor_contact_body: str | None    # the first body other than a foot to touch the floor
     floor_contact_time_s: float | None
     servo_shortfalls: tuple[str, ...] = ()   # when it fell: the servos that fall short of it
+    # The settled CoM's room in the support polygon (tkujax.robot.support.com_margins), m.
+    com_margin_m: dict | None = None
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -224,7 +227,8 @@ def check_stand(robot: RobotModel, pose: StandPose, seconds: float = 5.0) -> Sta
         base_height_end_m=float(data.qpos[adr + 2]), pitch_end_deg=float(pitch),
         roll_end_deg=float(roll), max_tilt_change_deg=max_tilt, com_drift_m=drift,
         sole_force_fraction=sole / weight if weight > 0 else 0.0,
-        floor_contact_body=touched, floor_contact_time_s=touched_at, servo_shortfalls=short)
+        floor_contact_body=touched, floor_contact_time_s=touched_at, servo_shortfalls=short,
+        com_margin_m=None if why else com_margins(robot, data))
 
 
 def _reach(robot: RobotModel) -> float:
