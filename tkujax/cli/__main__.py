@@ -1,8 +1,13 @@
 """`python -m tkujax.cli`: the `tkujax` command (`tkujax.console`: a Ctrl-C while it loads
 exits as one later does, one line, exit 130, no traceback)."""
 
+import signal
 import sys
 
 from tkujax.console import main
 
-sys.exit(main())
+code = main()
+# The command has ended and said so: a Ctrl-C landing while Python exits no longer changes its
+# exit code (`tkujax.cli.errors.cancel_redeliveries`).
+signal.signal(signal.SIGINT, signal.SIG_IGN)
+sys.exit(code)

@@ -65,6 +65,10 @@ def os_error_text(err: OSError) -> str:
 
 # A Ctrl-C that lands where Python drops exceptions is delivered again this much later.
 REDELIVER_S = 0.05
+# The re-deliveries not yet made: a command that has ended as interrupted cancels them, else
+# one landing while Python exits would end the process by SIGINT instead of exit 130
+# (tests/test_hostile_interrupts.py).
+PENDING_REDELIVERIES: list[threading.Timer] = []
 
 
 def keep_interrupts() -> None:
@@ -81,6 +85,7 @@ def keep_interrupts() -> None:
         if info.exc_type is not None and issubclass(info.exc_type, KeyboardInterrupt):
             timer = threading.Timer(REDELIVER_S, os.kill, (os.getpid(), signal.SIGINT))
             timer.daemon = True
+            PENDING_REDELIVERIES.append(timer)
             timer.start()
             return
         previous(info)
@@ -129,7 +134,14 @@ def run_command(name: str, command, rerun=None) -> int:
         raise
 
 
+def cancel_redeliveries() -> None:
+    """Cancel the Ctrl-C re-deliveries not yet made (`keep_interrupts`)."""
+    while PENDING_REDELIVERIES:
+        PENDING_REDELIVERIES.pop().cancel()
+
+
 def _interrupted(name: str, rerun=None) -> int:
+    cancel_redeliveries()
     try:
         said = RESUMES if rerun is None else rerun()
     except (OSError, ValueError):     # the line comes out whatever the command left behind
