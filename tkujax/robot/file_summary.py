@@ -31,7 +31,10 @@ def robot_stand_summary(path: str | Path, seconds: float = 5.0) -> dict:
     params, clamped = scaled_defaults(geo)
     analytic, why = analytic_ik_applies(robot)
     result = check_stand(robot, pose, seconds)
-    rounded = lambda v: round(v, 6) if isinstance(v, float) else v  # noqa: E731
+    def rounded(v):
+        if isinstance(v, dict):          # the stand's CoM margins
+            return {k: rounded(x) for k, x in v.items()}
+        return round(v, 6) if isinstance(v, float) else v
     return dict(
         robot=robot.name, mjcf=str(robot.description.mjcf_path), engine="mujoco",
         stand_source=pose.source,
