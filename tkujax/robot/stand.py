@@ -21,7 +21,7 @@ from tkujax.robot.geometry import base_pitch_roll, floor_height_m, link_lengths
 from tkujax.robot.ik_numeric import base_data, foot_pose, solve_leg_ik
 from tkujax.robot.loader import LEG_ORDER, RobotModel, geom_points
 from tkujax.robot.stand_torques import explain_failed_stand
-from tkujax.robot.support import com_margins
+from tkujax.robot.support import com_margins, floor_contacts
 
 COM_DRIFT_LIMIT_FRAC = 0.25     # of thigh + calf: the CoM may wander this far and still stand
 TILT_LIMIT_DEG = 20.0
@@ -177,14 +177,10 @@ def stand_pose(robot: RobotModel) -> StandPose:
 
 def _floor_contact(robot: RobotModel, data: mujoco.MjData) -> str | None:
     """The first body other than a foot touching the floor, or None."""
-    model, feet = robot.model, set(robot.foot_bodies.tolist())
-    for c in data.contact[:data.ncon]:
-        if robot.floor_geom not in (c.geom1, c.geom2):
-            continue
-        other = c.geom2 if c.geom1 == robot.floor_geom else c.geom1
-        body = int(model.geom_bodyid[other])
+    feet = set(robot.foot_bodies.tolist())
+    for body, _ in floor_contacts(robot, data):
         if body not in feet:
-            return model.body(body).name
+            return robot.model.body(body).name
     return None
 
 

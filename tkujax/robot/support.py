@@ -19,16 +19,19 @@ from scipy.spatial import ConvexHull, QhullError
 from tkujax.robot.loader import RobotModel
 
 
-def foot_contact_points(robot: RobotModel, data: mujoco.MjData) -> np.ndarray:
-    """(k, 2) world (x, y) of the contacts between the floor and the feet's geoms."""
-    feet = set(robot.foot_bodies.tolist())
-    points = []
+def floor_contacts(robot: RobotModel, data: mujoco.MjData):
+    """(body id, contact) of each contact between the floor and another geom."""
     for c in data.contact[:data.ncon]:
         if robot.floor_geom not in (c.geom1, c.geom2):
             continue
         other = c.geom2 if c.geom1 == robot.floor_geom else c.geom1
-        if int(robot.model.geom_bodyid[other]) in feet:
-            points.append(np.array(c.pos[:2]))
+        yield int(robot.model.geom_bodyid[other]), c
+
+
+def foot_contact_points(robot: RobotModel, data: mujoco.MjData) -> np.ndarray:
+    """(k, 2) world (x, y) of the contacts between the floor and the feet's geoms."""
+    feet = set(robot.foot_bodies.tolist())
+    points = [np.array(c.pos[:2]) for body, c in floor_contacts(robot, data) if body in feet]
     return np.array(points).reshape(-1, 2)
 
 

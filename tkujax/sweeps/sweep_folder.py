@@ -141,9 +141,14 @@ def computed_on(manifest: dict) -> str:
     """The devices, in words, of the runs that computed a sweep folder's chunks (a resumed
     sweep's chunks may come from another machine than the process reading it); "" when its
     runs predate the record."""
-    kinds = [r["device_kind"] for r in manifest.get("runs", [])
-             if r.get("chunks_computed", 1) and r.get("device_kind")]
+    kinds = [r["device_kind"] for r in computing_runs(manifest) if r.get("device_kind")]
     return ", ".join(dict.fromkeys(kinds))
+
+
+def computing_runs(manifest: dict) -> list[dict]:
+    """A sweep manifest's runs that computed chunks (a run recorded before `chunks_computed`
+    counts as one that did)."""
+    return [r for r in manifest.get("runs", []) if r.get("chunks_computed", 1)]
 
 
 def computed_with(out: Path) -> str | None:
@@ -151,8 +156,7 @@ def computed_with(out: Path) -> str | None:
     backend of its runs that computed chunks (else its manifest's); None for no sweep there,
     or for one whose chunks came from both engines."""
     manifest = chunks.read_manifest(out)
-    engines = {r["backend"] for r in manifest.get("runs", [])
-               if r.get("chunks_computed", 1) and r.get("backend")}
+    engines = {r["backend"] for r in computing_runs(manifest) if r.get("backend")}
     if not engines and manifest.get("backend"):
         engines = {manifest["backend"]}
     return engines.pop() if len(engines) == 1 else None
