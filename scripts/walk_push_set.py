@@ -13,8 +13,9 @@ and the pushes that fall in one run only; the machine (--machine) and wall times
 file.
 
 --azimuths, --impulses, --phases, --height-m and --duration-s set other pushes;
---forward-gain sets WalkCommand.recovery_forward_gain and --late-swing-gains one recovery-on
-run per value of WalkCommand.recovery_late_swing_gain (all against the one recovery-off run),
+--forward-gain sets WalkCommand.recovery_forward_gain, --late-swing-gains and --hurries one
+recovery-on run per value of WalkCommand.recovery_late_swing_gain and recovery_hurry (all
+against the one recovery-off run),
 e.g. OP3's sideways set (docs/walking.md):
 
     python scripts/walk_push_set.py --robot specs/robots/op3_fast.toml --out OUT.json \
@@ -67,6 +68,10 @@ def main(argv=None) -> None:
     ap.add_argument("--late-swing-gains", type=_floats, default=(1.0,),
                     help="comma-separated WalkCommand.recovery_late_swing_gain values, one "
                          "recovery-on run each")
+    ap.add_argument("--hurries", type=_floats, default=(0.0,),
+                    help="comma-separated WalkCommand.recovery_hurry values (the share of a "
+                         "step's remaining time cut once it takes an offset), one recovery-on "
+                         "run each with every late-swing gain")
     args = ap.parse_args(argv)
     if args.phases < 1:
         ap.error("--phases must be at least 1")
@@ -79,13 +84,17 @@ def main(argv=None) -> None:
             who, params=dataclasses.replace(who.params, lateral_steps=1.0))
     settings = {}
     for gain in args.late_swing_gains:
-        fields = {}
-        if args.forward_gain != 1.0:
-            fields["recovery_forward_gain"] = args.forward_gain
-        if gain != 1.0:
-            fields["recovery_late_swing_gain"] = gain
-        settings["recovery_on" if gain == 1.0 else f"recovery_on_late_swing_gain_{gain:g}"] = \
-            fields
+        for share in args.hurries:
+            fields, name = {}, "recovery_on"
+            if args.forward_gain != 1.0:
+                fields["recovery_forward_gain"] = args.forward_gain
+            if gain != 1.0:
+                fields["recovery_late_swing_gain"] = gain
+                name += f"_late_swing_gain_{gain:g}"
+            if share != 0.0:
+                fields["recovery_hurry"] = share
+                name += f"_hurry_{share:g}"
+            settings[name] = fields
     runs = []
     for speed in (float(v) for v in args.speeds.split(",")):
         push_set = WalkPushSet(speed_mps=speed, azimuths_deg=args.azimuths,

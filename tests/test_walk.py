@@ -20,8 +20,8 @@ import pytest
 
 from tkujax.control.cpg import cpg_feet
 from tkujax.control.gait import (GaitState, WalkCommand, advance, gait_feet, gait_init,
-                                 gait_phase, move_footstep, planned_feet, step_vector,
-                                 time_at_phase)
+                                 gait_phase, hurry, move_footstep, planned_feet, step_vector,
+                                 time_at_phase, touchdown_time)
 from tkujax.control.walk_recovery import PHASE_BINS, RecoveryState, phase_weights, step_offset
 from tkujax.control.controller_params import ControllerParams
 from tkujax.sim.options import RolloutConfig
@@ -257,7 +257,7 @@ def test_footstep_offsets_centred_and_outward():
     state = GaitState(count=jnp.asarray(3.0), start_s=jnp.asarray(1.0),
                       swing_left=jnp.asarray(1.0), feet_from=jnp.zeros(4),
                       feet_to=jnp.array([-0.015, 0.0, 0.015, 0.0]), yaw_from=jnp.zeros(2),
-                      yaw_to=jnp.zeros(2))
+                      yaw_to=jnp.zeros(2), lead_s=jnp.asarray(0.0))
     moved = move_footstep(state, jnp.array([0.02, 0.01]))
     np.testing.assert_allclose(np.asarray(moved.feet_to), [-0.025, -0.005, 0.025, 0.005])
     rec = dataclasses.replace(RecoveryState.init(), pending=jnp.array([0.03, -0.02]),
@@ -274,18 +274,27 @@ def test_footstep_offsets_centred_and_outward():
 
 def test_footstep_recovery_silent_without_push_and_steps_after_one():
     """TKU-X at 0.1 m/s on MuJoCo C, 6.7 s: without a push the recovery never triggers (the
-    walk is bit-identical to recovery off); after 1.2 N s from behind in mid-swing (gait phase
-    0.25 of the 10th cycle) it moves a footstep forward, where recovery off moves none."""
+    walk is bit-identical to recovery off, with or without recovery_hurry); after 1.2 N s from
+    behind in mid-swing (gait phase 0.25 of the 10th cycle) it moves a footstep forward, where
+    recovery off moves none, and with recovery_hurry 0.3 the same offset's step lands sooner."""
     who = walker(None)
     off, on = (WalkCommand.for_params(who.gait_params, 0.1, recovery=r) for r in (0.0, 1.0))
+    hurried = dataclasses.replace(on, recovery_hurry=0.3)
     push = push_at_gait_phase(off, 0.25, 1.2, 0.0)
-    pushes = stack_pushes([make_push(0.0), make_push(0.0), push, push])
-    series, _ = run_walk(who, [off, on, off, on], float(push.onset_s) + 0.6, "mujoco",
+    pushes = stack_pushes([make_push(0.0)] * 3 + [push] * 3)
+    series, _ = run_walk(who, [off, on, hurried] * 2, float(push.onset_s) + 0.6, "mujoco",
                          pushes=pushes)
     for key, value in series.items():
-        np.testing.assert_array_equal(np.asarray(value)[1], np.asarray(value)[0], err_msg=key)
+        for lane in (1, 2):
+            np.testing.assert_array_equal(np.asarray(value)[lane], np.asarray(value)[0],
+                                          err_msg=key)
     x_sup = np.asarray(series.x_sup)
-    assert not np.any(x_sup[2]) and np.max(x_sup[3]) > 0.01, np.max(x_sup[3])
+    assert not np.any(x_sup[3]) and np.max(x_sup[4]) > 0.01, np.max(x_sup[4])
+    # The step that took the offset: its touchdown as the controller planned it, on and hurried.
+    moved = np.flatnonzero(x_sup[4])[0]
+    touchdown = np.asarray(series.touchdown_s)
+    gained = touchdown[4, moved + 1] - touchdown[5, moved + 1]
+    assert 0.005 < gained < 0.3 * float(on.step_period_s), gained
 
 
 @pytest.mark.slow
@@ -302,3 +311,24 @@ def test_mjx_agrees_with_mujoco_on_a_short_walk():
 
 
 WALK_COM_TOL_M = 0.01
+
+
+def test_hurry_cuts_the_rest_of_the_swing():
+    """recovery_hurry h: while active and before touchdown the step's clock runs 1 / (1 - h)
+    times as fast (its start moves back by period x h / (1 - h), which lead_s adds up); after
+    touchdown, inactive, or with h = 0 the gait is unchanged."""
+    cmd = WalkCommand.for_params(PARAMS, 0.1, recovery_hurry=0.25)
+    state, _ = advance(gait_init(cmd), float(cmd.start_s), cmd)
+    period = 0.03
+    hurried = hurry(state, float(cmd.start_s) + 0.1, cmd, 1.0, period)
+    gained = period * 0.25 / 0.75
+    assert abs(float(state.start_s - hurried.start_s) - gained) < 1e-6
+    assert abs(float(hurried.lead_s) - gained) < 1e-6
+    assert float(touchdown_time(hurried, cmd)) < float(touchdown_time(state, cmd))
+    landed = float(touchdown_time(state, cmd)) + 0.001
+    for same in (hurry(state, landed, cmd, 1.0, period),
+                 hurry(state, float(cmd.start_s) + 0.1, cmd, 0.0, period),
+                 hurry(state, float(cmd.start_s) + 0.1,
+                       dataclasses.replace(cmd, recovery_hurry=0.0), 1.0, period)):
+        for a, b in zip(jax.tree_util.tree_leaves(same), jax.tree_util.tree_leaves(state)):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))

@@ -22,7 +22,7 @@ from tkujax.control.gait import GaitState, WalkCommand, move_footstep
 from tkujax.control.walk_recovery import (WARM_VISITS, RecoveryState, late_push,
                                           move_footsteps, recovery_update)
 from tkujax.dialects.validation import SpecError
-from tkujax.dialects.walk_table import parse_walk
+from tkujax.dialects.walk_table import parse_walk, resolve_walk
 from tkujax.walking.walk_push import outward_step
 
 PARAMS = dataclasses.replace(ControllerParams.paper(), lateral_steps=1.0)
@@ -42,7 +42,7 @@ def _gait(swing_left, start_s):
     return GaitState(count=jnp.asarray(20.0), start_s=jnp.asarray(start_s),
                      swing_left=jnp.asarray(float(swing_left)), feet_from=jnp.zeros(4),
                      feet_to=jnp.asarray(to, jnp.float32), yaw_from=jnp.zeros(2),
-                     yaw_to=jnp.zeros(2))
+                     yaw_to=jnp.zeros(2), lead_s=jnp.asarray(0.0))
 
 
 def _pushed(xi_y, time_s, command, state=None):
@@ -152,6 +152,11 @@ def test_the_walk_table_key_is_checked_and_reaches_the_command():
         parse_walk({"walk": {"recovery_late_swing_gain": 1.5}})
     with pytest.raises(ValueError, match="recovery_late_swing_gain"):
         _command(-0.1).validate()
+    # recovery_hurry, the step's timing, likewise (resolve_walk carries it into the command)
+    walk = parse_walk({"walk": {"recovery_hurry": 0.2}})
+    assert resolve_walk(walk, ControllerParams.paper()).command().recovery_hurry == 0.2
+    with pytest.raises(SpecError, match=r"walk\.recovery_hurry: 0\.9 is out of range"):
+        parse_walk({"walk": {"recovery_hurry": 0.9}})
 
 
 def test_the_push_sets_split_sideways_pushes_by_the_step_they_arrive_in():

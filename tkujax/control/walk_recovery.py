@@ -110,12 +110,14 @@ def walking_capture_point(phi, psi, pitch_rate, psi_rate, params: ControllerPara
 
 
 def recovery_update(state: RecoveryState, xi, time_s, command: WalkCommand,
-                    params: ControllerParams, on, steady) -> tuple[RecoveryState, jax.Array]:
+                    params: ControllerParams, on, steady, lead_s=0.0
+                    ) -> tuple[RecoveryState, jax.Array]:
     """One period: (state, deviation (2,) m) from this period's capture point xi (2,) at
     controller time time_s; `on` = recovery x enabled (0 or 1); `steady`: the gait is past its
-    ramp (the baseline learns the steady gait only)."""
+    ramp (the baseline learns the steady gait only); lead_s: how far the gait runs ahead of its
+    nominal schedule (`GaitState.lead_s`), so that the phase is the gait's own."""
     dtype = state.baseline.dtype
-    weights = phase_weights(gait_phase(jnp.asarray(time_s, dtype), command), dtype)
+    weights = phase_weights(gait_phase(jnp.asarray(time_s, dtype) + lead_s, command), dtype)
     base = weights @ state.baseline
     seen = jnp.min(jnp.where(weights > 0.0, state.seen, jnp.inf))
     deviation = jnp.where(seen > 0.5, xi - base, 0.0)

@@ -7,7 +7,8 @@ CPG, the legs' IK (with the hip yaws of the heading hold, `solve.solve_legs_yaw`
 feedback are the standing controller's. Recovery while walking
 (command.recovery = 1, and `enabled`) moves the next footstep instead of adding a step
 (`tkujax.control.walk_recovery`: the capture point against the undisturbed gait's at the same
-phase); the offset a step took is recorded as x_sup_m, y_sup_m (step_weight 1 from the first).
+phase), and with command.recovery_hurry the step that took it lands sooner (`gait.hurry`); the
+offset a step took is recorded as x_sup_m, y_sup_m (step_weight 1 from the first).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import jax.numpy as jnp
 from tkujax.control.controller import (ControllerOutput, ControllerState, Sensors,
                                        controller_init, detect_push, stance_offsets)
 from tkujax.control.gait import (MAX_TURN_RAD, GaitState, WalkCommand, advance, gait_feet,
-                                 gait_init, gait_yaws, touchdown_time)
+                                 gait_init, gait_yaws, hurry, touchdown_time)
 from tkujax.control.kalman import accel_to_angle, accel_variance, gyro_to_rates, kalman_step
 from tkujax.control.controller_params import ControllerParams
 from tkujax.control.solve import solve_legs_yaw
@@ -83,13 +84,16 @@ def walking_step(state: WalkingState, sensors: Sensors, params: ControllerParams
     xi = walking_capture_point(phi, psi, pitch_rate, psi_rate, params)
     on = enabled * jnp.asarray(command.recovery, phi.dtype)
     steady = state.gait.count >= jnp.asarray(command.ramp_steps, phi.dtype)
-    recovery, _ = recovery_update(state.recovery, xi, ctrl.time_s, command, params, on, steady)
+    recovery, _ = recovery_update(state.recovery, xi, ctrl.time_s, command, params, on, steady,
+                                  state.gait.lead_s)
     turn = jnp.clip(-jnp.asarray(command.heading_gain, phi.dtype) * state.heading_rad,
                     -MAX_TURN_RAD, MAX_TURN_RAD)
     gait, started = advance(state.gait, ctrl.time_s, command, turn=turn)
     recovery, gait, moved = move_footsteps(recovery, gait, started, ctrl.time_s, command,
                                            params.control_period)
     offset = recovery.applied
+    # A step that took an offset lands sooner (command.recovery_hurry; 0: nominal timing).
+    gait = hurry(gait, ctrl.time_s, command, on * jnp.any(offset != 0.0), params.control_period)
     p_right, p_left = gait_feet(gait, ctrl.time_s, command, params)
     yaw_right, yaw_left = gait_yaws(gait, ctrl.time_s, command, params)
     targets, reachable = solve_legs_yaw(p_right, p_left, yaw_right, yaw_left, params)

@@ -9,6 +9,8 @@
     recovery_forward_gain = 1  # the recovery's forward footstep moves x this (0: none)
     recovery_late_swing_gain = 1   # a late sideways push's swing foot moves x this (0: the
                                    # support foot alone moves)
+    recovery_hurry = 0         # the share of its remaining time a step that took an offset
+                               # cuts (0: nominal timing; negative: time added)
 
     [push.grid]
     gait_phase = {start = 0, stop = 1, num = 8, endpoint = false}   # instead of onset_s
@@ -38,7 +40,8 @@ RECOVERY_SETTINGS = ("off", "on")
 # [walk] keys: (lo, hi, unit); the limits of WalkCommand.validate.
 WALK_FIELDS = {k: (*WALK_LIMITS[k], unit) for k, unit in (
     ("speed_mps", "m/s"), ("lateral_mps", "m/s"), ("step_period_s", "s"),
-    ("recovery_forward_gain", "(a gain)"), ("recovery_late_swing_gain", "(a gain)"))}
+    ("recovery_forward_gain", "(a gain)"), ("recovery_late_swing_gain", "(a gain)"),
+    ("recovery_hurry", "(a share of the step's remaining time)"))}
 PUSH_CYCLE_RANGE = (0, 100)
 DEFAULT_PUSH_CYCLE = 9      # as tkujax.walking.walk_push.PUSH_CYCLE: the recovery is armed
 # The record columns of the commanded walk, and the WalkCommand field each one sets.
@@ -56,6 +59,7 @@ class WalkSpec:
     step_period_s: float | None = None     # None: the robot's
     recovery_forward_gain: float | None = None     # WalkCommand's; None: the robot's, else 1
     recovery_late_swing_gain: float | None = None  # WalkCommand's; None: the robot's, else 1
+    recovery_hurry: float | None = None            # WalkCommand's; None: the robot's, else 0
     recovery: tuple[str, ...] = ("off",)
     push_cycle: int = DEFAULT_PUSH_CYCLE
     base: WalkCommand | None = None
@@ -105,7 +109,7 @@ def resolve_walk(walk: WalkSpec, gait_params: ControllerParams,
     fields = dict(robot_gait or {})
     if walk.step_period_s is not None:
         fields["step_period_s"] = walk.step_period_s
-    for key in ("recovery_forward_gain", "recovery_late_swing_gain"):
+    for key in ("recovery_forward_gain", "recovery_late_swing_gain", "recovery_hurry"):
         if getattr(walk, key) is not None:
             fields[key] = getattr(walk, key)
     base = WalkCommand.for_params(gait_params, walk.speed_mps, walk.lateral_mps, **fields)
