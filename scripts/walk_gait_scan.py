@@ -4,6 +4,8 @@
     python scripts/walk_gait_scan.py --robot specs/robots/g1.toml --speed-mps 0 --seconds 10 \
         --out runs/g1_gait_scan.json
 
+The robot's scaled gait without a robot file's defaults from its stand (`Robot.gait`: the
+shift that centres the CoM, the lift's cap), as the committed scans were run before them.
 One batch of walks (`tkujax.walking.walk.run_walk`, balance control on, recovery off) over
 every combination of --sway-frac (the sway as a fraction of the hip offset d_y), --dsr (the
 double support ratio), --lift-m and --period-x (the step period as a multiple of the robot's

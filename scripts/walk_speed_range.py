@@ -5,7 +5,8 @@
         --out results/walking/speed_range_op3_cpu.json
 
 One batch of walks (`tkujax.walking.walk.run_walk`, the robot's default gait: its controller's
-T, a third of d_y of sway, a 4-step ramp; balance control on, recovery off) at speeds from
+T, a third of d_y of sway, a 4-step ramp, under the robot's gait (`Robot.gait`: a robot file's
+defaults from its stand and its [walk] table); balance control on, recovery off) at speeds from
 --min to --max in --step, for --seconds each. Per speed: fell (and when), the measured mean
 speed, step length and period, heading drift. "held": the widest interval of tested speeds
 around 0 (stepping in place) in which no walk fell; the robot file's name and sha256, the
@@ -57,7 +58,7 @@ def main(argv=None) -> None:
         ap.error(f"--out {args.out} is the input")
     who = walker(args.robot)
     speeds = np.round(np.arange(args.min, args.max + 0.5 * args.step, args.step), 4)
-    commands = [WalkCommand.for_params(who.gait_params, float(v)) for v in speeds]
+    commands = [WalkCommand.for_params(who.gait_params, float(v), **who.gait) for v in speeds]
     t0 = time.perf_counter()
     series, _ = run_walk(who, commands, args.seconds, "mujoco")
     wall = time.perf_counter() - t0
@@ -69,7 +70,7 @@ def main(argv=None) -> None:
                   engine="mujoco", seconds=args.seconds, wall_s=round(wall, 1),
                   gait={k: float(getattr(commands[0], k)) for k in
                         ("step_period_s", "lift_m", "double_support_ratio", "sway_m",
-                         "start_s", "ramp_steps")},
+                         "start_s", "ramp_steps", "com_shift_m")},
                   held_mps=held, rows=rows)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(result, indent=1) + "\n")

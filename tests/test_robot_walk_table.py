@@ -43,7 +43,9 @@ def test_a_bad_walk_table_is_refused_naming_the_key(tmp_path, table, message):
 
 def test_the_robot_gait_reaches_the_walk_and_the_spec_wins_over_it(robot_file):
     who = walker(str(robot_file))
-    assert who.gait == pytest.approx(GAIT)
+    # The file's table over the defaults from the stand (tkujax.robot.walk_defaults).
+    assert set(who.gait) == set(GAIT) | {"com_shift_m"}
+    assert {k: who.gait[k] for k in GAIT} == pytest.approx(GAIT)
     unset = parse_walk({"walk": {"speed_mps": 0.1}})
     command = resolve_walk(unset, who.gait_params, who.gait).command()
     for key, value in GAIT.items():
@@ -70,4 +72,6 @@ def test_tkujax_walk_takes_the_robot_gait_and_the_command_line_over_it(robot_fil
 
 def test_tkujax_stand_prints_the_robot_gait(robot_file, capsys):
     main(["stand", "--robot", str(robot_file), "--seconds", "0.2"])
-    assert json.loads(capsys.readouterr().out)["walk_gait"] == pytest.approx(GAIT)
+    gait = json.loads(capsys.readouterr().out)["walk_gait"]
+    shift = walker(str(robot_file)).gait["com_shift_m"]
+    assert gait == pytest.approx(GAIT | {"com_shift_m": shift})

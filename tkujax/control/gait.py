@@ -57,7 +57,7 @@ WALK_LIMITS = dict(speed_mps=(-1.0, 1.0), lateral_mps=(-0.5, 0.5), step_period_s
                    start_s=(0.0, 100.0), ramp_steps=(0.0, 20.0), recovery=(0.0, 1.0),
                    recovery_band_m=(0.0, 0.5), recovery_forward_gain=(0.0, 2.0),
                    recovery_late_swing_gain=(0.0, 1.0), heading_gain=(0.0, 2.0),
-                   recovery_hurry=(-0.8, 0.8))
+                   recovery_hurry=(-0.8, 0.8), com_shift_m=(-0.1, 0.1))
 
 
 @jax.tree_util.register_dataclass
@@ -84,6 +84,11 @@ class WalkCommand:
     the swing lands sooner and every later step comes sooner by as much; `hurry`); negative:
     time is added, the step slows; 0 (default): the timing stays nominal, the placement alone
     moves (docs/walking.md measures both: nominal timing falls least).
+    com_shift_m: the waist's forward shift relative to the feet while walking (m; negative:
+    backward), grown linearly over the ramp's time ((ramp_steps + 1) T from start_s): a robot
+    file's default centres its stand's CoM over its support polygon (`tkujax.robot.walk_defaults`:
+    Booster T1 stands with its CoM 2.4 cm ahead of the polygon's middle and falls forward
+    walking at 0.05 m/s without the shift; docs/walking.md).
     heading_gain: each step turns by -heading_gain x the heading error (the yaw the
     controller integrates from the gyro since the start; at most MAX_TURN_RAD), with the hip
     yaws (`advance`'s turn); 0: the hip yaws stay 0. The defaults are TKU-X's
@@ -103,6 +108,7 @@ class WalkCommand:
     recovery_late_swing_gain: jax.Array = 1.0
     heading_gain: jax.Array = HEADING_GAIN
     recovery_hurry: jax.Array = 0.0
+    com_shift_m: jax.Array = 0.0
 
     @classmethod
     def for_params(cls, params: ControllerParams, speed_mps: float = 0.0,
@@ -278,7 +284,8 @@ def gait_feet(state: GaitState, time_s, command: WalkCommand, params: Controller
     """Ankle targets (p_right, p_left), each (3,) m relative to P_W in the level frame, of the
     gait at controller time time_s: both feet from feet_from to feet_to with the CPG's quarter
     sine (Eq. 13/16), the swing foot lifted by lift_m (Eq. 15/18), the sway added to both feet's
-    y. Before the first step: the stand."""
+    y, the waist's forward shift com_shift_m (ramped, `shift_ramp`) taken off both feet's x.
+    Before the first step: the stand."""
     dtype = state.feet_to.dtype
     c = _as(command, dtype)
     t_step = jnp.asarray(time_s, dtype) - state.start_s
@@ -292,11 +299,19 @@ def gait_feet(state: GaitState, time_s, command: WalkCommand, params: Controller
     sway = jnp.where(walking, side * c.sway_m * jnp.sin(
         jnp.pi * jnp.clip(t_step / c.step_period_s, 0.0, 1.0)), 0.0)
     d_y, d_z = params.hip_offset_y, params.hip_to_ankle_z
-    p_right = jnp.stack([d[..., 0], -d_y + d[..., 1] + sway,
+    back = c.com_shift_m * shift_ramp(time_s, c)
+    p_right = jnp.stack([d[..., 0] - back, -d_y + d[..., 1] + sway,
                          -d_z + jnp.where(left_swings, 0.0, lift)], -1)
-    p_left = jnp.stack([d[..., 2], d_y + d[..., 3] + sway,
+    p_left = jnp.stack([d[..., 2] - back, d_y + d[..., 3] + sway,
                         -d_z + jnp.where(left_swings, lift, 0.0)], -1)
     return p_right.astype(dtype), p_left.astype(dtype)
+
+
+def shift_ramp(time_s, command: WalkCommand):
+    """The share of com_shift_m in place at time_s: 0 until start_s, then growing linearly to 1
+    over the step ramp's time, (ramp_steps + 1) step periods (continuous: no jump in the feet)."""
+    span = (command.ramp_steps + 1.0) * command.step_period_s
+    return jnp.clip((time_s - command.start_s) / span, 0.0, 1.0)
 
 
 def touchdown_time(state: GaitState, command: WalkCommand):

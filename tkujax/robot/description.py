@@ -22,7 +22,7 @@ roles given twice, the MJCF's existence); the names are checked against the comp
     [walk]                        # optional: the robot's gait (tkujax walk, [walk] sweeps):
                                   # lift_m, sway_m, step_period_s, double_support_ratio,
                                   # recovery_forward_gain, recovery_late_swing_gain,
-                                  # recovery_hurry
+                                  # recovery_hurry, com_shift_m
 
 Each leg names hip_yaw, hip_roll, hip_pitch (in whatever order the chain has them), knee,
 ankle_pitch and, optionally, ankle_roll (a five-joint leg has none).
@@ -60,7 +60,8 @@ SOLVER_RANGES = {"iterations": (1, 1000), "ls_iterations": (1, 1000)}
 # range, WalkCommand.validate's, and unit
 WALK_RANGES = {k: (*WALK_LIMITS[k], unit) for k, unit in (
     ("lift_m", "m"), ("sway_m", "m"), ("step_period_s", "s"), ("double_support_ratio", ""),
-    ("recovery_forward_gain", ""), ("recovery_late_swing_gain", ""), ("recovery_hurry", ""))}
+    ("recovery_forward_gain", ""), ("recovery_late_swing_gain", ""), ("recovery_hurry", ""),
+    ("com_shift_m", "m"))}
 HIP_HEIGHT_FRAC = 0.93        # computed stand: hip-to-ankle = this x (thigh + calf)
 _VAR = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)(?::-([^}]*))?\}")
 

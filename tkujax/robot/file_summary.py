@@ -13,6 +13,8 @@ from tkujax.robot.own_controller import CONSERVATIVE_SOURCE
 from tkujax.robot.robot_setup import settled_geometry
 from tkujax.robot.simsetup import settled_data
 from tkujax.robot.stand import check_stand, stand_pose
+from tkujax.robot.support import com_margins
+from tkujax.robot.walk_defaults import walk_defaults
 from tkujax.sim.setup import SETTLE_S
 
 SCALED_FIELDS = ("step_period", "lift_height", "standing_lean", "eps_forward", "eps_backward",
@@ -27,8 +29,11 @@ def robot_stand_summary(path: str | Path, seconds: float = 5.0) -> dict:
     robot = load_robot(path)
     pose = stand_pose(robot)
     # The lean the sweeps' controller takes: the settled stand's, not the pose's.
-    geo = settled_geometry(robot, pose, settled_data(robot, pose, SETTLE_S))
+    settled = settled_data(robot, pose, SETTLE_S)
+    geo = settled_geometry(robot, pose, settled)
     params, clamped = scaled_defaults(geo)
+    # The gait the robot walks: its defaults from the stand, then its file's [walk] table.
+    gait = dict(walk_defaults(com_margins(robot, settled), params) + robot.description.walk)
     analytic, why = analytic_ik_applies(robot)
     result = check_stand(robot, pose, seconds)
     def rounded(v):
@@ -47,7 +52,7 @@ def robot_stand_summary(path: str | Path, seconds: float = 5.0) -> dict:
                     if robot.description.controller_path else CONSERVATIVE_SOURCE),
         walk_controller=(f"file {robot.description.walk_controller_path.name}"
                          if robot.description.walk_controller_path else "the controller"),
-        walk_gait=dict(robot.description.walk) or "the scaled defaults (no [walk] table)",
+        walk_gait=gait or "the scaled defaults",
         servos=servo_summary(robot),
         ik="analytic" if analytic else "numeric", ik_reason=why,
         stand={k: rounded(v) for k, v in result.as_dict().items()},

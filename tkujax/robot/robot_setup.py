@@ -46,6 +46,8 @@ from tkujax.robot.model_files import model_files, model_files_digest
 from tkujax.robot.own_controller import robot_controller, walking_controller
 from tkujax.robot.simsetup import floor_geoms, robot_index, settled_data
 from tkujax.robot.stand import stand_pose
+from tkujax.robot.support import com_margins
+from tkujax.robot.walk_defaults import walk_defaults
 from tkujax.sim.mjx_import import mjx
 from tkujax.sim.robot import Robot
 from tkujax.sim.setup import SETTLE_S, ModelIndex, SimSetup
@@ -143,7 +145,7 @@ def _robot_from_file(path: str, digest: str, controller: str) -> Robot:
     return Robot(setup=setup, settled=data, params=params, name=robot.name, digest=digest,
                       source=path, controller=controller, defaults=scaled,
                       walk_params=walk_params, walk_controller=walk_source,
-                      gait=robot.description.walk)
+                      gait=walk_defaults(com_margins(robot, data), scaled) + robot.description.walk)
 
 
 def robot_from_file(path: str | Path) -> Robot:

@@ -49,8 +49,9 @@ class Robot:
     came from). model_params: TKU-X's generator parameters; None for a robot file.
     walk_params, walk_controller: the controller while walking and where it came from (None,
     "": `params`; `walking_params` gives the one in use).
-    gait: the robot file's [walk] table, (WalkCommand field, value) pairs overriding the gait's
-    defaults (`WalkCommand.for_params`); () for TKU-X and a file without one.
+    gait: (WalkCommand field, value) pairs overriding the gait's defaults
+    (`WalkCommand.for_params`): a robot file's defaults from its stand
+    (`tkujax.robot.walk_defaults`), then its [walk] table (later pairs win); () for TKU-X.
     """
 
     setup: SimSetup
