@@ -87,7 +87,7 @@ class WalkCommand:
     com_shift_m: the waist's forward shift relative to the feet while walking (m; negative:
     backward), grown linearly over the ramp's time ((ramp_steps + 1) T from start_s): a robot
     file's default centres its stand's CoM over its support polygon (`tkujax.robot.walk_defaults`:
-    Booster T1 stands with its CoM 2.4 cm ahead of the polygon's middle and falls forward
+    Booster T1 stands with its CoM 2.8 cm ahead of the polygon's middle and falls forward
     walking at 0.05 m/s without the shift; docs/walking.md).
     heading_gain: each step turns by -heading_gain x the heading error (the yaw the
     controller integrates from the gyro since the start; at most MAX_TURN_RAD), with the hip
