@@ -204,6 +204,36 @@ def test_walk_command_line(capsys):
         assert key in out
 
 
+def test_walk_command_line_writes_the_walk_as_a_video_and_a_picture(tmp_path, capsys):
+    """`tkujax walk --gif --png`: a GIF that shows the walk's time at one frame per 1 / GIF_FPS
+    s and a picture of STRIP_FRAMES frames side by side (skips where no GL context can be
+    made)."""
+    from PIL import Image
+
+    from tkujax import render
+    from tkujax.cli import main
+    from tkujax.walking.walk_render import FRAME_HEIGHT, FRAME_WIDTH, GIF_FPS, STRIP_FRAMES
+
+    ok, why = render.rendering_available()
+    if not ok:
+        pytest.skip(f"no offscreen rendering here: {why}")
+    gif, png = tmp_path / "walk.gif", tmp_path / "walk.png"
+    assert main(["walk", "--seconds", "0.9", "--speed-mps", "0", "--gif", str(gif),
+                 "--png", str(png)]) == 0
+    assert json.loads(capsys.readouterr().out)["figures"] == {"gif": str(gif), "png": str(png)}
+    samples = int(round(0.9 / 0.03))               # one qpos per 30 ms control period
+    every = int(round(1.0 / (GIF_FPS * 0.03)))
+    with Image.open(gif) as video:
+        assert video.size == (FRAME_WIDTH, FRAME_HEIGHT)
+        shown_ms = 0
+        for k in range(video.n_frames):      # identical frames may be merged, not dropped
+            video.seek(k)
+            shown_ms += video.info["duration"]
+    assert shown_ms == -(-samples // every) * round(1000.0 * every * 0.03)
+    with Image.open(png) as picture:
+        assert picture.size == (STRIP_FRAMES * FRAME_WIDTH, FRAME_HEIGHT)
+
+
 def test_yawed_ik_through_mujoco_kinematics():
     """solve_legs_yaw on TKU-X: MuJoCo's forward kinematics put each ankle at its target
     (1 mm), the sole level (within the hip roll's |sin(roll) sin(lean)| + 1 deg, as

@@ -28,10 +28,11 @@ def rendering_available() -> tuple[bool, str]:
         return False, f"{type(err).__name__}: {err} (MUJOCO_GL={os.environ.get('MUJOCO_GL')})"
 
 
-def _camera(azimuth_deg: float) -> mujoco.MjvCamera:
+def _camera(azimuth_deg: float, scale: float = 1.0) -> mujoco.MjvCamera:
+    """The camera on TKU-X (scale 1), or on a robot `scale` times its size."""
     cam = mujoco.MjvCamera()
-    cam.lookat[:] = (0.0, 0.0, 0.27)
-    cam.distance = 1.15
+    cam.lookat[:] = (0.0, 0.0, 0.27 * scale)
+    cam.distance = 1.15 * scale
     cam.azimuth = azimuth_deg
     cam.elevation = -12.0
     return cam
@@ -39,14 +40,18 @@ def _camera(azimuth_deg: float) -> mujoco.MjvCamera:
 
 def render_frames(model: mujoco.MjModel, qpos_seq: np.ndarray, width: int = 480,
                   height: int = 400, azimuth_deg: float = 215.0,
-                  track_xy: bool = True, all_geom_groups: bool = False) -> list[np.ndarray]:
+                  track_xy: bool = True, all_geom_groups: bool = False,
+                  scale: float = 1.0) -> list[np.ndarray]:
     """RGB frames (height, width, 3) uint8 for each row of `qpos_seq` (n, nq).
-    all_geom_groups: draw every geom group, the collision geoms (often hidden) included."""
+    all_geom_groups: draw every geom group, the collision geoms (often hidden) included.
+    scale: the robot's size against TKU-X's (the camera's distance and height follow it)."""
     for name, v in (("width", width), ("height", height)):
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 16 <= v <= 4096:
             raise ValueError(f"{name} must be an integer in [16, 4096] pixels, got {v!r}")
     data = mujoco.MjData(model)
-    cam = _camera(azimuth_deg)
+    if not 0.1 <= scale <= 20.0:
+        raise ValueError(f"scale must be in [0.1, 20], got {scale!r}")
+    cam = _camera(azimuth_deg, scale)
     scene_option = mujoco.MjvOption()
     scene_option.sitegroup[:] = 0   # hide sensor sites; show the bodies
     if all_geom_groups:

@@ -13,7 +13,7 @@ def _cmd_walk(args) -> int:
     result = simulate_walk(args.robot, speed_mps=args.speed_mps, lateral_mps=args.lateral_mps,
                            seconds=args.seconds, engine=args.engine,
                            step_period_s=args.step_period_s, enabled=args.control == "on",
-                           lift_m=args.lift_m, sway_m=args.sway_m)
+                           lift_m=args.lift_m, sway_m=args.sway_m, gif=args.gif, png=args.png)
     print(json.dumps(result, indent=2))
     return 1 if result["fell"] else 0
 
@@ -41,4 +41,8 @@ def add_walk_command(sub) -> None:
     p.add_argument("--engine", choices=["mujoco", "mjx"], default="mujoco")
     p.add_argument("--control", choices=["on", "off"], default="on",
                    help="the balance controller's stance feedback while walking")
+    p.add_argument("--gif", default=None, metavar="F.gif",
+                   help="also write the walk as a video (needs EGL or OSMesa)")
+    p.add_argument("--png", default=None, metavar="F.png",
+                   help="also write a picture: six frames over the last gait cycle")
     p.set_defaults(func=_cmd_walk)
