@@ -25,7 +25,9 @@ def _layer(module: str) -> str:
 def _imports(path: Path):
     tree = ast.parse(path.read_text())
     for node in ast.walk(tree):
-        if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+        if isinstance(node, ast.ImportFrom) and node.module == "tkujax" and node.level == 0:
+            yield from (f"tkujax.{a.name}" for a in node.names)    # from tkujax import render
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
             yield node.module
         elif isinstance(node, ast.Import):
             yield from (a.name for a in node.names)

@@ -229,10 +229,10 @@ def test_cli_rejects_bad_phases(tmp_path, capsys):
     assert "phases must be an integer in [0, 100]" in capsys.readouterr().err
 
 
-def test_render_case_rejects_unknown_case(tmp_path):
+def test_case_trajectory_rejects_unknown_case():
     for case in ("football-back", "volleyball-left", "volleyball"):
         with pytest.raises(ValueError, match="case"):
-            paper.render_case(case, True, tmp_path / "x.gif")
+            paper.case_trajectory(case, True)
 
 
 def test_render_frames_rejects_bad_sizes_before_rendering():
@@ -257,7 +257,7 @@ def test_render_case_writes_gif(tmp_path):
         pytest.skip(why)
     from PIL import Image
 
-    path = paper.render_case("volleyball-back", True, tmp_path / "vb.gif", width=160, height=120)
+    path = render.render_case("volleyball-back", True, tmp_path / "vb.gif", width=160, height=120)
     with Image.open(path) as im:
         assert im.format == "GIF"
         assert im.n_frames == 70                     # 2.1 s at the 30 ms control period

@@ -205,14 +205,14 @@ def test_walk_command_line(capsys):
 
 
 def test_walk_command_line_writes_the_walk_as_a_video_and_a_picture(tmp_path, capsys):
-    """`tkujax walk --gif --png`: a GIF that shows the walk's time at one frame per 1 / GIF_FPS
-    s and a picture of STRIP_FRAMES frames side by side (skips where no GL context can be
-    made)."""
+    """`tkujax walk --gif --png`: a GIF that shows the walk's time at one frame per
+    1 / WALK_GIF_FPS s and a picture of WALK_STRIP_FRAMES frames side by side (skips where no
+    GL context can be made)."""
     from PIL import Image
 
     from tkujax import render
     from tkujax.cli import main
-    from tkujax.walking.walk_render import FRAME_HEIGHT, FRAME_WIDTH, GIF_FPS, STRIP_FRAMES
+    from tkujax.render import WALK_FRAME_SIZE, WALK_GIF_FPS, WALK_STRIP_FRAMES
 
     ok, why = render.rendering_available()
     if not ok:
@@ -222,16 +222,16 @@ def test_walk_command_line_writes_the_walk_as_a_video_and_a_picture(tmp_path, ca
                  "--png", str(png)]) == 0
     assert json.loads(capsys.readouterr().out)["figures"] == {"gif": str(gif), "png": str(png)}
     samples = int(round(0.9 / 0.03))               # one qpos per 30 ms control period
-    every = int(round(1.0 / (GIF_FPS * 0.03)))
+    every = int(round(1.0 / (WALK_GIF_FPS * 0.03)))
     with Image.open(gif) as video:
-        assert video.size == (FRAME_WIDTH, FRAME_HEIGHT)
+        assert video.size == WALK_FRAME_SIZE
         shown_ms = 0
         for k in range(video.n_frames):      # identical frames may be merged, not dropped
             video.seek(k)
             shown_ms += video.info["duration"]
     assert shown_ms == -(-samples // every) * round(1000.0 * every * 0.03)
     with Image.open(png) as picture:
-        assert picture.size == (STRIP_FRAMES * FRAME_WIDTH, FRAME_HEIGHT)
+        assert picture.size == (WALK_STRIP_FRAMES * WALK_FRAME_SIZE[0], WALK_FRAME_SIZE[1])
 
 
 def test_yawed_ik_through_mujoco_kinematics():

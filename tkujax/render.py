@@ -1,4 +1,6 @@
-"""Offscreen pictures and videos of TKU-X (MuJoCo's renderer; needs EGL or OSMesa on Linux).
+"""Offscreen pictures and videos (MuJoCo's renderer; needs EGL or OSMesa on Linux): TKU-X, a
+paper case (`render_case`) and a walk (`save_walk_figures`). The simulations stay in their
+layers (studies.paper, walking); drawing happens here, at the top.
 
 On a headless Linux machine: `apt-get install libegl1 libgl1-mesa-dri` and MUJOCO_GL=egl (the CLI
 sets egl when MUJOCO_GL is unset), or `apt-get install libosmesa6` and MUJOCO_GL=osmesa.
@@ -85,4 +87,49 @@ def save_gif(frames: list[np.ndarray], out: str | Path, fps: float) -> Path:
     images = [Image.fromarray(f) for f in frames]
     images[0].save(out, save_all=True, append_images=images[1:], loop=0,
                    duration=int(round(1000.0 / fps)), optimize=True)
+    return out
+
+
+def check_rendering() -> None:
+    """Raise RuntimeError, with what to install, when no offscreen GL context can be made."""
+    ok, why = rendering_available()
+    if not ok:
+        raise RuntimeError(f"rendering is not available here ({why}); on Linux install EGL "
+                           "(libegl1, libgl1-mesa-dri) or OSMesa and set MUJOCO_GL")
+
+
+def render_case(case: str, control_on: bool, out: str | Path, width: int = 480,
+                height: int = 400, impulse_scale: float = 1.0) -> Path:
+    """GIF of one paper case, e.g. case='volleyball-back' (`studies.paper.case_trajectory`)."""
+    from tkujax.studies.paper import case_trajectory
+
+    model, qpos, period_s = case_trajectory(case, control_on, impulse_scale)
+    return save_gif(render_frames(model, qpos, width, height), out, fps=1.0 / period_s)
+
+
+# A walk's figures (`tkujax walk --gif/--png`): the GIF at about WALK_GIF_FPS frames per second
+# of simulated time, the picture WALK_STRIP_FRAMES frames side by side over the last gait cycle.
+WALK_GIF_FPS = 10.0
+WALK_STRIP_FRAMES = 6
+WALK_FRAME_SIZE = (280, 240)          # width, height (pixels)
+
+
+def save_walk_figures(model: mujoco.MjModel, qpos: np.ndarray, period_s: float, last: int,
+                      cycle_s: float, scale: float, gif: str | Path | None = None,
+                      png: str | Path | None = None) -> dict:
+    """Write the GIF and/or the picture of one walk: qpos (n, nq) sampled every period_s, the
+    walk ending at sample `last` (its end or its fall), cycle_s one gait cycle (2 T), scale the
+    robot's size against TKU-X's (the camera follows the base). Returns {"gif": path, "png":
+    path} of what was written."""
+    width, height = WALK_FRAME_SIZE
+    out = {}
+    if gif is not None:
+        every = max(1, int(round(1.0 / (WALK_GIF_FPS * period_s))))
+        frames = render_frames(model, qpos[:last + 1:every], width, height, scale=scale)
+        out["gif"] = str(save_gif(frames, gif, fps=1.0 / (every * period_s)))
+    if png is not None:
+        first = max(0, last - int(round(cycle_s / period_s)))
+        picks = np.linspace(first, last, WALK_STRIP_FRAMES).round().astype(int)
+        frames = render_frames(model, qpos[picks], width, height, scale=scale)
+        out["png"] = str(save_image(np.concatenate(frames, axis=1), png))
     return out

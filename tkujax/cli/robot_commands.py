@@ -41,9 +41,7 @@ def _cmd_render(args) -> int:
         frame = render.render_frames(model, data.qpos[None], args.width, args.height)[0]
         print(render.save_image(frame, args.out))
         return 0
-    from tkujax.studies.paper import render_case
-
-    print(render_case(args.case, args.control == "on", args.out, args.width, args.height,
+    print(render.render_case(args.case, args.control == "on", args.out, args.width, args.height,
                       impulse_scale=args.impulse_scale))
     return 0
 

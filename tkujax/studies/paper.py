@@ -274,9 +274,10 @@ def run_paper(out: Path, figures: bool = True, params: ControllerParams | None =
     return md + "\n" + phase_md
 
 
-def render_case(case: str, control_on: bool, out: str | Path, width: int = 480,
-                height: int = 400, impulse_scale: float = 1.0) -> Path:
-    """GIF of one paper case, e.g. case='volleyball-back' (impulse_scale as in run_paper)."""
+def case_trajectory(case: str, control_on: bool, impulse_scale: float = 1.0):
+    """One paper case, e.g. case='volleyball-back' (impulse_scale as in run_paper), simulated
+    2.1 s: (host model, qpos (n, nq) once per control period, the period in s), for a video
+    (`tkujax.render.render_case`)."""
     if not (0.0 < impulse_scale <= 10.0):
         raise ValueError(f"impulse_scale must be in (0, 10], got {impulse_scale!r}")
     try:
@@ -290,7 +291,6 @@ def render_case(case: str, control_on: bool, out: str | Path, width: int = 480,
                          f"in {DIRECTION_NAMES}, got {case!r}") from err
     import jax
 
-    from tkujax import render
     from tkujax.sim import rollout_mjx as sim
     from tkujax.sim.setup import init
 
@@ -299,5 +299,4 @@ def render_case(case: str, control_on: bool, out: str | Path, width: int = 480,
     episode = sim.Episode(push, 1.0 if control_on else 0.0, jax.random.PRNGKey(0))
     series = sim.rollout(model, state, episode, ControllerParams.paper(), config=config,
                          index=index)
-    frames = render.render_frames(host, np.asarray(series["qpos"]), width, height)
-    return render.save_gif(frames, out, fps=1.0 / config.control_period_s)
+    return host, np.asarray(series["qpos"]), config.control_period_s

@@ -176,17 +176,22 @@ def _one(series, i: int):
 def simulate_walk(robot_file: str | None = None, speed_mps: float = 0.0,
                   lateral_mps: float = 0.0, seconds: float = 20.0, engine: str = "mujoco",
                   step_period_s: float | None = None, enabled: bool = True,
-                  lift_m: float | None = None, sway_m: float | None = None,
-                  gif: str | None = None, png: str | None = None) -> dict:
+                  lift_m: float | None = None, sway_m: float | None = None) -> dict:
     """`tkujax walk`: one walk of TKU-X (None) or a robot file's robot at the commanded speeds;
     the commanded gait and `walk_metrics`, with the wall time. step_period_s, lift_m, sway_m:
-    None takes the robot file's [walk] table, else the robot's scaled defaults. gif, png: also
-    write the walk as a video and a picture (`walk_render`; "figures" in the result)."""
+    None takes the robot file's [walk] table, else the robot's scaled defaults."""
+    return walk_once(robot_file, speed_mps, lateral_mps, seconds, engine, step_period_s,
+                     enabled, lift_m, sway_m)[0]
+
+
+def walk_once(robot_file: str | None = None, speed_mps: float = 0.0, lateral_mps: float = 0.0,
+              seconds: float = 20.0, engine: str = "mujoco", step_period_s: float | None = None,
+              enabled: bool = True, lift_m: float | None = None, sway_m: float | None = None
+              ) -> tuple[dict, object, Walker, WalkCommand]:
+    """`simulate_walk`, also returning what drawing the walk needs: (result, the Series with
+    the qpos, the Walker, the command)."""
     if not 0.0 < seconds <= 600.0:
         raise ValueError(f"seconds must be in (0, 600], got {seconds!r}")
-    if gif is not None or png is not None:
-        from tkujax.walking.walk_render import check_rendering
-        check_rendering()
     who = walker(robot_file)
     given = dict(step_period_s=step_period_s, lift_m=lift_m, sway_m=sway_m)
     fields = who.gait | {k: float(v) for k, v in given.items() if v is not None}
@@ -204,18 +209,4 @@ def simulate_walk(robot_file: str | None = None, speed_mps: float = 0.0,
                                balance_control=bool(enabled)))
     result.update(walk_metrics(series, 0, command))
     result["wall_s"] = round(wall, 2)
-    if gif is not None or png is not None:
-        result["figures"] = _figures(who, series, command, result, gif, png)
-    return result
-
-
-def _figures(who: Walker, series, command: WalkCommand, result: dict, gif, png) -> dict:
-    """The walk's GIF and picture (`walk_render.save_walk_figures`), up to its end or fall."""
-    from tkujax.walking.walk_render import save_walk_figures
-
-    t = np.asarray(series.t[0])
-    period = float(t[1] - t[0])
-    last = (int(np.searchsorted(t, result["fall_s"])) if result["fell"] else len(t) - 1)
-    return save_walk_figures(who.robot.host_model, np.asarray(series.qpos[0]), period,
-                             min(last, len(t) - 1), 2.0 * float(command.step_period_s),
-                             float(who.gait_params.com_height), gif, png)
+    return result, series, who, command
