@@ -205,6 +205,7 @@ def walk_once(robot_file: str | None = None, speed_mps: float = 0.0, lateral_mps
                                step_period_s=float(command.step_period_s),
                                step_length_m=float(step[0]), step_lateral_m=float(step[1]),
                                lift_m=float(command.lift_m), sway_m=float(command.sway_m),
+                               com_shift_m=float(command.com_shift_m),
                                ramp_steps=float(command.ramp_steps),
                                balance_control=bool(enabled)))
     result.update(walk_metrics(series, 0, command))
