@@ -11,6 +11,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+import threading
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -202,6 +203,8 @@ def test_an_interrupted_command_cancels_its_pending_redeliveries(monkeypatch, ca
 
     monkeypatch.setattr(errors, "REDELIVER_S", 60.0)     # never fires within this test
     monkeypatch.setattr(sys, "unraisablehook", sys.unraisablehook)
+    # An earlier test's command may have ended as interrupted in this process.
+    monkeypatch.setattr(errors, "INTERRUPT_HANDLED", threading.Event())
     errors.keep_interrupts()
     sys.unraisablehook(SimpleNamespace(exc_type=KeyboardInterrupt, exc_value=KeyboardInterrupt(),
                                        exc_traceback=None, err_msg=None, object=None))
@@ -216,3 +219,10 @@ def test_an_interrupted_command_cancels_its_pending_redeliveries(monkeypatch, ca
     pending[0].join(timeout=5)
     assert pending[0].finished.is_set() and not pending[0].is_alive()
     assert "interrupted" in capsys.readouterr().err
+    # A Ctrl-C already on its way, dropped after the command ended, schedules none; the next
+    # command re-arms the re-delivery.
+    sys.unraisablehook(SimpleNamespace(exc_type=KeyboardInterrupt, exc_value=KeyboardInterrupt(),
+                                       exc_traceback=None, err_msg=None, object=None))
+    assert not errors.PENDING_REDELIVERIES
+    assert errors.run_command("tkujax sweep", lambda: 0) == 0
+    assert not errors.INTERRUPT_HANDLED.is_set()

@@ -69,6 +69,10 @@ REDELIVER_S = 0.05
 # one landing while Python exits would end the process by SIGINT instead of exit 130
 # (tests/test_hostile_interrupts.py).
 PENDING_REDELIVERIES: list[threading.Timer] = []
+# Set once a command has ended as interrupted (cleared when one starts): a Ctrl-C already on
+# its way then schedules no re-delivery (one would land after the command's last line, while
+# Python exits).
+INTERRUPT_HANDLED = threading.Event()
 
 
 def keep_interrupts() -> None:
@@ -83,6 +87,8 @@ def keep_interrupts() -> None:
 
     def hook(info):
         if info.exc_type is not None and issubclass(info.exc_type, KeyboardInterrupt):
+            if INTERRUPT_HANDLED.is_set():
+                return
             timer = threading.Timer(REDELIVER_S, os.kill, (os.getpid(), signal.SIGINT))
             timer.daemon = True
             PENDING_REDELIVERIES.append(timer)
@@ -118,6 +124,7 @@ def run_command(name: str, command, rerun=None) -> int:
     what a rerun of an interrupted command does, a callable asked after the Ctrl-C (None:
     `RESUMES`)."""
     keep_interrupts()
+    INTERRUPT_HANDLED.clear()
     try:
         return command()
     except KeyboardInterrupt:
@@ -141,6 +148,7 @@ def cancel_redeliveries() -> None:
 
 
 def _interrupted(name: str, rerun=None) -> int:
+    INTERRUPT_HANDLED.set()
     cancel_redeliveries()
     try:
         said = RESUMES if rerun is None else rerun()
