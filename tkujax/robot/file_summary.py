@@ -10,11 +10,9 @@ from tkujax.robot.geometry import scaled_defaults
 from tkujax.robot.ik_numeric import analytic_ik_applies
 from tkujax.robot.loader import LEG_ORDER, RobotModel, load_robot
 from tkujax.robot.own_controller import CONSERVATIVE_SOURCE
-from tkujax.robot.robot_setup import settled_geometry
+from tkujax.robot.robot_setup import robot_gait, settled_geometry
 from tkujax.robot.simsetup import settled_data
 from tkujax.robot.stand import check_stand, stand_pose
-from tkujax.robot.support import com_margins
-from tkujax.robot.walk_defaults import walk_defaults
 from tkujax.sim.setup import SETTLE_S
 
 SCALED_FIELDS = ("step_period", "lift_height", "standing_lean", "eps_forward", "eps_backward",
@@ -32,8 +30,7 @@ def robot_stand_summary(path: str | Path, seconds: float = 5.0) -> dict:
     settled = settled_data(robot, pose, SETTLE_S)
     geo = settled_geometry(robot, pose, settled)
     params, clamped = scaled_defaults(geo)
-    # The gait the robot walks: its defaults from the stand, then its file's [walk] table.
-    gait = dict(walk_defaults(com_margins(robot, settled), params) + robot.description.walk)
+    gait = dict(robot_gait(robot, settled, params))
     analytic, why = analytic_ik_applies(robot)
     result = check_stand(robot, pose, seconds)
     def rounded(v):

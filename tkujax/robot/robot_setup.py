@@ -124,6 +124,13 @@ def settled_geometry(robot: RobotModel, pose, data: mujoco.MjData) -> RobotGeome
     return dataclasses.replace(geo, stand_lean_rad=lean)
 
 
+def robot_gait(robot: RobotModel, data: mujoco.MjData,
+               scaled: ControllerParams) -> tuple[tuple[str, float], ...]:
+    """The robot's gait (`Robot.gait`): its defaults from the settled stand `data` and its
+    scaled controller defaults (`walk_defaults`), then its file's [walk] table (later wins)."""
+    return walk_defaults(com_margins(robot, data), scaled) + robot.description.walk
+
+
 def _params(robot: RobotModel, pose, data: mujoco.MjData) -> ControllerParams:
     """controller_params_for the settled stand's geometry."""
     return controller_params_for(settled_geometry(robot, pose, data))
@@ -145,7 +152,7 @@ def _robot_from_file(path: str, digest: str, controller: str) -> Robot:
     return Robot(setup=setup, settled=data, params=params, name=robot.name, digest=digest,
                       source=path, controller=controller, defaults=scaled,
                       walk_params=walk_params, walk_controller=walk_source,
-                      gait=walk_defaults(com_margins(robot, data), scaled) + robot.description.walk)
+                      gait=robot_gait(robot, data, scaled))
 
 
 def robot_from_file(path: str | Path) -> Robot:
