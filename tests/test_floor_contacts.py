@@ -19,7 +19,7 @@ import pytest
 from tkujax.robot.builtin import GENERATED_SECOND, write_generated_robot
 from tkujax.robot.description import RobotFileError, load_description
 from tkujax.robot.loader import load_robot
-from tkujax.robot.simsetup import floor_geoms
+from tkujax.robot.fall_geoms import floor_geoms
 
 from test_robot_file import REPO, needs_op3
 

@@ -99,11 +99,14 @@ def _pushes(height_m: float, impulses, azimuth_deg) -> Push:
 
 @needs_op3
 def test_op3_box_fall_test_mujoco_c_and_mjx(op3):
-    """OP3's non-foot collision meshes are fitted boxes (collision mode "primitives"): a stand
-    is no fall, a hard push with the control off is one, and MuJoCo C and MJX agree on the
-    falls and, before any fall, on the base's pitch and the ankles."""
+    """OP3's non-foot collision meshes are fitted boxes (collision mode "primitives"), which
+    the fall test reads by their meshes' vertices: a stand is no fall, a hard push with the
+    control off is one, and MuJoCo C and MJX agree on the falls and, before any fall, on the
+    base's pitch and the ankles."""
     idx = op3.setup.index
-    assert idx.sphere_geoms.size == 0 and not idx.mesh_geoms and idx.box_geoms.size > 10
+    assert idx.sphere_geoms.size == 0 and idx.box_geoms.size == 0 and len(idx.mesh_geoms) > 10
+    assert all(op3.setup.host_model.geom_type[g] == mujoco.mjtGeom.mjGEOM_BOX
+               for g in idx.mesh_geoms)
     pushes = _pushes(op3.params.com_height, [0.0, 0.6, 4.0], [0.0, 90.0, 180.0])
     enabled, config = np.array([0.0, 1.0, 0.0]), RolloutConfig(duration_s=1.5)
     # The series are compared under op3_widen.json: under OP3's tuned controller the pitch

@@ -33,6 +33,7 @@ import dataclasses
 
 import mujoco
 import numpy as np
+from scipy.spatial import ConvexHull, QhullError
 
 COLLISION_MODES = ("primitives", "model")
 DEFAULT_COLLISION_MODE = "primitives"
@@ -58,6 +59,9 @@ class CollisionChanges:
     boxed_meshes: tuple[int, ...]       # mesh geoms replaced by boxes
     self_collision_geoms: int           # robot geoms whose dynamic collisions became floor-only
     removed_pairs: int                  # robot-robot <pair>s removed
+    # Each box's mesh as the fall test reads it: (box name, the mesh's convex-hull vertices in
+    # the box's frame), so a fall is decided on the mesh, not on the box around it.
+    box_mesh_points: tuple[tuple[str, np.ndarray], ...] = ()
 
 
 def _mat(quat: np.ndarray) -> np.ndarray:
@@ -125,11 +129,29 @@ def _retarget_pairs(spec: mujoco.MjSpec, renamed: dict[str, str]) -> None:
             pair.geomname2 = renamed[pair.geomname2]
 
 
-def _box_meshes(spec: mujoco.MjSpec, model: mujoco.MjModel, feet: set[int]) -> list[int]:
-    """Replace each colliding robot mesh by a fitted box; the replaced geom ids."""
+def hull_points(points: np.ndarray) -> np.ndarray:
+    """The vertices of the convex hull of `points` (n, 3): the same lowest point in any pose,
+    from a few hundred points where a mesh has tens of thousands. `points` as given where
+    they span no volume."""
+    try:
+        return points[ConvexHull(points).vertices]
+    except QhullError:
+        return points
+
+
+def _in_box_frame(model: mujoco.MjModel, g: int, fit: BoxFit) -> np.ndarray:
+    """Mesh geom g's hull vertices in the frame of its fitted box."""
+    points = hull_points(mesh_vertices_in_body(model, g))
+    return (points - fit.pos) @ _mat(fit.quat)
+
+
+def _box_meshes(spec: mujoco.MjSpec, model: mujoco.MjModel,
+                feet: set[int]) -> tuple[list[int], list[tuple[str, np.ndarray]]]:
+    """Replace each colliding robot mesh by a fitted box; the replaced geom ids, and each box's
+    name with its mesh's hull vertices in the box's frame."""
     geoms = {g.id: g for g in spec.geoms}
     paired = set(model.pair_geom1.tolist()) | set(model.pair_geom2.tolist())
-    renamed, boxed = {}, []
+    renamed, boxed, points = {}, [], []
     for g in range(model.ngeom):
         if (model.geom_bodyid[g] == 0 or model.geom_type[g] != mujoco.mjtGeom.mjGEOM_MESH
                 or not (_collides(model, g) or g in paired)):
@@ -137,12 +159,13 @@ def _box_meshes(spec: mujoco.MjSpec, model: mujoco.MjModel, feet: set[int]) -> l
         spec_geom = geoms[g]
         fit = fit_box(model, g, body_frame=int(model.geom_bodyid[g]) in feet)
         box = _add_box(spec_geom, model, g, fit)
+        points.append((box, _in_box_frame(model, g, fit)))
         if spec_geom.name:
             renamed[spec_geom.name] = box
         spec_geom.contype, spec_geom.conaffinity = 0, 0
         boxed.append(g)
     _retarget_pairs(spec, renamed)
-    return boxed
+    return boxed, points
 
 
 def _colliding_robot_geoms(spec: mujoco.MjSpec) -> list:
@@ -179,10 +202,10 @@ def approximate_collisions(spec: mujoco.MjSpec, model: mujoco.MjModel,
                            feet: set[int]) -> CollisionChanges:
     """Edit `spec` (compiled as `model`, spec.geoms' ids valid) for the "primitives" mode:
     colliding meshes to boxes, robot self-collisions off. `feet`: the foot bodies' ids."""
-    boxed = _box_meshes(spec, model, feet)
+    boxed, points = _box_meshes(spec, model, feet)
     changed, removed = _floor_only(spec, model)
     return CollisionChanges(boxed_meshes=tuple(boxed), self_collision_geoms=changed,
-                            removed_pairs=removed)
+                            removed_pairs=removed, box_mesh_points=tuple(points))
 
 
 def feet_only(spec: mujoco.MjSpec, foot_bodies: set[str]) -> int:

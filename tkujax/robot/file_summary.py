@@ -6,6 +6,7 @@ import dataclasses
 import math
 from pathlib import Path
 
+from tkujax.robot.fall_geoms import STAND_CLEARANCE_MIN_M, fall_geoms
 from tkujax.robot.geometry import scaled_defaults
 from tkujax.robot.ik_numeric import analytic_ik_applies
 from tkujax.robot.loader import LEG_ORDER, RobotModel, load_robot
@@ -51,9 +52,20 @@ def robot_stand_summary(path: str | Path, seconds: float = 5.0) -> dict:
                          if robot.description.walk_controller_path else "the controller"),
         walk_gait=gait or "the scaled defaults",
         servos=servo_summary(robot),
+        fall_test=fall_test_summary(robot, pose.qpos),
         ik="analytic" if analytic else "numeric", ik_reason=why,
         stand={k: rounded(v) for k, v in result.as_dict().items()},
         fell=not result.stood)
+
+
+def fall_test_summary(robot: RobotModel, stand_qpos) -> dict:
+    """The geoms the fall test reads, and those it leaves out as too near the floor at the
+    stand (tkujax.robot.fall_geoms)."""
+    fall = fall_geoms(robot, stand_qpos)
+    return dict(geoms_read=len(fall.primitives) + len(fall.point_geoms),
+                meshes_read_by_vertices=len(fall.point_geoms),
+                left_out={name: f"{1e3 * z:.1f} mm above the floor at the stand (under "
+                          f"{1e3 * STAND_CLEARANCE_MIN_M:g} mm)" for name, z in fall.left_out})
 
 
 def servo_summary(robot: RobotModel) -> dict:

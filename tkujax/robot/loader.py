@@ -63,6 +63,9 @@ class RobotModel:
     fsr_sensors: tuple[str, ...]
     waist_joints: tuple[int, ...] = ()        # joints above the hips on a leg's chain
     chain_order: tuple[tuple[str, ...], tuple[str, ...]] = (LEG_ROLES, LEG_ROLES)  # base first
+    # (box geom, its mesh's hull vertices in the box's frame) for each mesh the "primitives"
+    # collision mode boxed (tkujax.robot.collision): what the fall test reads in its place.
+    box_mesh_points: tuple[tuple[int, np.ndarray], ...] = ()
 
     @property
     def name(self) -> str:
@@ -418,8 +421,9 @@ def load_robot(robot: RobotDescription | str | Path) -> RobotModel:
     _check_sides(raw, root, {side: legs[side][1] for side in LEG_ORDER})
     waist = set(legs["right"][2]) | set(legs["left"][2])
     _apply_servos(spec, raw, desc, legs, waist)
+    boxed = ()
     if desc.collision_mode == "primitives":
-        approximate_collisions(spec, raw, {legs[s][1] for s in LEG_ORDER})
+        boxed = approximate_collisions(spec, raw, {legs[s][1] for s in LEG_ORDER}).box_mesh_points
     if desc.floor_contacts == "feet":
         feet_only(spec, {raw.body(legs[s][1]).name for s in LEG_ORDER})
     raw = _compile(spec, f"{desc.mjcf_path} with tkujax's servos and collisions")
@@ -445,4 +449,5 @@ def load_robot(robot: RobotDescription | str | Path) -> RobotModel:
         ankle_sites=(model.site(ankles[0]).id, model.site(ankles[1]).id),
         fsr_sites=np.array([model.site(n).id for n in touch]), fsr_sensors=tuple(touch),
         waist_joints=tuple(sorted(waist)),
-        chain_order=(legs["right"][3], legs["left"][3]))
+        chain_order=(legs["right"][3], legs["left"][3]),
+        box_mesh_points=tuple((model.geom(name).id, pts) for name, pts in boxed))

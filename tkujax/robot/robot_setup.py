@@ -44,7 +44,7 @@ from tkujax.robot.leg_map import leg_chain, sign_map
 from tkujax.robot.loader import RobotModel, load_robot
 from tkujax.robot.model_files import model_files, model_files_digest
 from tkujax.robot.own_controller import robot_controller, walking_controller
-from tkujax.robot.simsetup import floor_geoms, robot_index, settled_data
+from tkujax.robot.simsetup import robot_index, settled_data
 from tkujax.robot.stand import stand_pose
 from tkujax.robot.support import com_margins
 from tkujax.robot.walk_defaults import walk_defaults
@@ -88,18 +88,6 @@ def leg_map(robot: RobotModel, pose, params: ControllerParams) -> dict:
     return dict(leg_matrix=chain.matrix, leg_offsets=chain.offsets, leg_chain=chain)
 
 
-def mesh_fall_geoms(robot: RobotModel) -> tuple[tuple[int, ...], tuple[np.ndarray, ...]]:
-    """The non-foot collision meshes that can touch the floor and their vertices (geom frame)."""
-    model = robot.model
-    geoms = [g for g in floor_geoms(robot) if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH]
-    points = []
-    for g in geoms:
-        m = model.geom_dataid[g]
-        adr, n = model.mesh_vertadr[m], model.mesh_vertnum[m]
-        points.append(np.array(model.mesh_vert[adr:adr + n], np.float64))
-    return tuple(int(g) for g in geoms), tuple(points)
-
-
 def _check_layout(robot: RobotModel) -> None:
     """The loop reads the base's pose from qpos[0:7] and the CoM from body 1's subtree."""
     model = robot.model
@@ -109,10 +97,8 @@ def _check_layout(robot: RobotModel) -> None:
 
 
 def closed_loop_index(robot: RobotModel, pose, params: ControllerParams) -> ModelIndex:
-    """robot_index with the leg map and the mesh geoms of the fall test."""
-    meshes, points = mesh_fall_geoms(robot)
-    return dataclasses.replace(robot_index(robot, pose), **leg_map(robot, pose, params),
-                               mesh_geoms=meshes, mesh_points=points)
+    """robot_index with the leg map."""
+    return dataclasses.replace(robot_index(robot, pose), **leg_map(robot, pose, params))
 
 
 def settled_geometry(robot: RobotModel, pose, data: mujoco.MjData) -> RobotGeometry:

@@ -4,13 +4,11 @@
 It lives here, not in tkujax/sim/, because robot files are a layer above the simulator.
 The index is the robot's: its leg actuators (right then left, in role order), its floating
 base as the pushed body, tkujax's IMU and touch sensors, the ankle sites, the stand's targets,
-and as the fall test's bodies the non-foot collision spheres, boxes, capsules and cylinders
-that can touch the floor (mesh geoms are not in it). The IMU has no low-pass (TKU-X's is a
+and the fall test's geoms (tkujax.robot.fall_geoms). The IMU has no low-pass (TKU-X's is a
 model of TKU-X's sensor).
 
 For the closed loop use `tkujax.robot.robot_setup.robot_from_file`: it adds the leg map (the
-controller's joint conventions to the robot's), the mesh fall test and the controller's
-parameters. See docs/robots.md.
+controller's joint conventions to the robot's) and the controller's parameters. See docs/robots.md.
 """
 
 from __future__ import annotations
@@ -22,27 +20,11 @@ import mujoco
 import numpy as np
 
 from tkujax.robot.description import RobotDescription
+from tkujax.robot.fall_geoms import fall_geoms
 from tkujax.robot.loader import ACCEL, GYRO, RobotModel, load_robot
 from tkujax.robot.stand import StandPose, stand_pose
 from tkujax.sim.mjx_import import mjx
 from tkujax.sim.setup import ModelIndex, SimSetup, fall_geom_fields, imu_indices
-
-
-def floor_geoms(robot: RobotModel) -> list[int]:
-    """Collision geoms not on a foot that can touch the floor (a pair, or contype/conaffinity)."""
-    model, floor = robot.model, robot.floor_geom
-    feet = set(robot.foot_bodies.tolist())
-    paired = {int(b) for a, b in zip(model.pair_geom1, model.pair_geom2) if a == floor} | {
-        int(a) for a, b in zip(model.pair_geom1, model.pair_geom2) if b == floor}
-    out = []
-    for g in range(model.ngeom):
-        if g == floor or model.geom_bodyid[g] in feet or model.geom_bodyid[g] == 0:
-            continue
-        collides = (model.geom_contype[g] & model.geom_conaffinity[floor]
-                    or model.geom_conaffinity[g] & model.geom_contype[floor])
-        if collides or g in paired:
-            out.append(g)
-    return out
 
 
 def robot_index(robot: RobotModel, pose: StandPose) -> ModelIndex:
@@ -51,7 +33,7 @@ def robot_index(robot: RobotModel, pose: StandPose) -> ModelIndex:
     data = mujoco.MjData(model)
     data.qpos[:] = pose.qpos
     mujoco.mj_forward(model, data)
-    geoms = floor_geoms(robot)
+    fall = fall_geoms(robot, pose.qpos)
     adr = lambda n: int(model.sensor_adr[model.sensor(n).id])  # noqa: E731
     base = robot.root_body
     return ModelIndex(
@@ -59,7 +41,8 @@ def robot_index(robot: RobotModel, pose: StandPose) -> ModelIndex:
         chest_stand_z=float(data.xpos[base][2]), chest_stand_cos=float(data.xmat[base][8]),
         gyro_adr=adr(GYRO), accel_adr=adr(ACCEL),
         fsr_adr=np.array([adr(n) for n in robot.fsr_sensors]), fsr_sites=robot.fsr_sites,
-        **fall_geom_fields(model, geoms),
+        **fall_geom_fields(model, list(fall.primitives)),
+        mesh_geoms=fall.point_geoms, mesh_points=fall.points,
         ankle_sites=tuple(int(s) for s in robot.ankle_sites), stand_ctrl=pose.ctrl.copy(),
         timestep_s=float(model.opt.timestep), **imu_indices(model, GYRO, ACCEL))
 
