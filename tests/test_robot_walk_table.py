@@ -72,6 +72,11 @@ def test_tkujax_walk_takes_the_robot_gait_and_the_command_line_over_it(robot_fil
 
 def test_tkujax_stand_prints_the_robot_gait(robot_file, capsys):
     main(["stand", "--robot", str(robot_file), "--seconds", "0.2"])
-    gait = json.loads(capsys.readouterr().out)["walk_gait"]
+    out = json.loads(capsys.readouterr().out)
+    gait = out["walk_gait"]
     shift = walker(str(robot_file)).gait["com_shift_m"]
     assert gait == pytest.approx(GAIT | {"com_shift_m": shift})
+    # The margins printed beside it are those the shift was computed from (walk_defaults).
+    margins = out["walk_gait_com_margin_m"]
+    assert shift == pytest.approx(round(0.5 * (margins["front_m"] - margins["back_m"]), 4),
+                                  abs=1e-4)

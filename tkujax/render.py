@@ -133,3 +133,19 @@ def save_walk_figures(model: mujoco.MjModel, qpos: np.ndarray, period_s: float, 
         frames = render_frames(model, qpos[picks], width, height, scale=scale)
         out["png"] = str(save_image(np.concatenate(frames, axis=1), png))
     return out
+
+
+def walk_figures(result: dict, series, who, command, gif: str | Path | None = None,
+                 png: str | Path | None = None) -> dict:
+    """`save_walk_figures` of what `tkujax.walking.walk.walk_once` returns (result, series, the
+    Walker, the command): up to the walk's end or its fall, the camera sized to the robot by
+    its CoM height against TKU-X's, a gait cycle of 2 T in the picture."""
+    from tkujax.control.controller_params import ControllerParams
+
+    t = np.asarray(series.t[0])
+    period = float(t[1] - t[0])
+    last = int(np.searchsorted(t, result["fall_s"])) if result["fell"] else len(t) - 1
+    scale = float(who.gait_params.com_height) / float(ControllerParams.paper().com_height)
+    return save_walk_figures(who.robot.host_model, np.asarray(series.qpos[0]), period,
+                             min(last, len(t) - 1), 2.0 * float(command.step_period_s), scale,
+                             gif, png)

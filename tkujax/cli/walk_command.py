@@ -19,26 +19,9 @@ def _cmd_walk(args) -> int:
         seconds=args.seconds, engine=args.engine, step_period_s=args.step_period_s,
         enabled=args.control == "on", lift_m=args.lift_m, sway_m=args.sway_m)
     if draw:
-        result["figures"] = _figures(result, series, who, command, args.gif, args.png)
+        result["figures"] = render.walk_figures(result, series, who, command, args.gif, args.png)
     print(json.dumps(result, indent=2))
     return 1 if result["fell"] else 0
-
-
-def _figures(result: dict, series, who, command, gif, png) -> dict:
-    """The walk's GIF and picture (`render.save_walk_figures`), up to its end or its fall, the
-    camera sized to the robot by its CoM height against TKU-X's."""
-    import numpy as np
-
-    from tkujax import render
-    from tkujax.control.controller_params import ControllerParams
-
-    t = np.asarray(series.t[0])
-    period = float(t[1] - t[0])
-    last = int(np.searchsorted(t, result["fall_s"])) if result["fell"] else len(t) - 1
-    scale = float(who.gait_params.com_height) / float(ControllerParams.paper().com_height)
-    return render.save_walk_figures(who.robot.host_model, np.asarray(series.qpos[0]), period,
-                                    min(last, len(t) - 1), 2.0 * float(command.step_period_s),
-                                    scale, gif, png)
 
 
 def add_walk_command(sub) -> None:

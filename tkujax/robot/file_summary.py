@@ -14,6 +14,7 @@ from tkujax.robot.own_controller import CONSERVATIVE_SOURCE
 from tkujax.robot.robot_setup import robot_gait, settled_geometry
 from tkujax.robot.simsetup import settled_data
 from tkujax.robot.stand import check_stand, stand_pose
+from tkujax.robot.support import com_margins
 from tkujax.sim.setup import SETTLE_S
 
 SCALED_FIELDS = ("step_period", "lift_height", "standing_lean", "eps_forward", "eps_backward",
@@ -51,6 +52,9 @@ def robot_stand_summary(path: str | Path, seconds: float = 5.0) -> dict:
         walk_controller=(f"file {robot.description.walk_controller_path.name}"
                          if robot.description.walk_controller_path else "the controller"),
         walk_gait=gait or "the scaled defaults",
+        # The margins the gait's defaults read: the stand after SETTLE_S, as the simulations
+        # start from it (`stand.com_margin_m` below is after the longer hold of `seconds`).
+        walk_gait_com_margin_m=rounded(com_margins(robot, settled)),
         servos=servo_summary(robot),
         fall_test=fall_test_summary(robot, pose.qpos),
         ik="analytic" if analytic else "numeric", ik_reason=why,
