@@ -46,11 +46,18 @@ def _cmd_tune_robot(args) -> int:
 
     record = tune_robot_controller(args.robot, args.out, budget_s=args.budget_s or 480.0,
                                    heldout_n=args.heldout_n, write=not args.no_write,
-                                   retry=not args.no_retry, structure=args.structure)
+                                   retry=not args.no_retry, structure=args.structure,
+                                   policy_method={"auto": None, "on": True,
+                                                  "off": False}[args.policy_method])
     ratio = "-" if record["ratio"] is None else f"{record['ratio']:.3f}"
     print(f"{record['robot']}: {100 * record['on_fall']:.1f} % of {record['n_pushes']} held-out "
           f"pushes fall with the tuned controller, {100 * record['off_fall']:.1f} % with control "
           f"off (ratio {ratio}); {len(record['harmed_cells'])} harmed cell(s); {record['why']}")
+    if "policy" in record["stages"]:
+        policy = record["stages"]["policy"]
+        print(f"the CMA-ES controller: {record['stages']['tune']['why']}; the line search's "
+              f"policy ({policy['budget_s']:.0f} s): {policy['why']}; reported: the "
+              f"{record['chosen_stage']}'s")
     if "retry" in record["stages"]:
         print(f"the first controller: {record['stages']['tune']['why']}; the retry's: "
               f"{record['stages']['retry']['why']}; reported: the {record['chosen_stage']}'s")
@@ -176,6 +183,10 @@ def _add_tune(sub) -> None:
     p.add_argument("--no-retry", action="store_true",
                    help="without a spec: no second search with the harm weight when the first "
                         "controller fails its verdict")
+    p.add_argument("--policy-method", choices=("auto", "on", "off"), default="auto",
+                   help="without a spec: also train a scheduled policy from the CMA-ES result "
+                        "with the gradient line search for the same wall time, and keep the "
+                        "better verdict (auto: on a GPU)")
     p.add_argument("--structure", choices=("step", "shift_step", "stance"), default=None,
                    help="without a spec: tune this recovery structure instead of the one the "
                         "probe chooses (docs/robots.md)")

@@ -1,9 +1,10 @@
 """The robot's controller: the one its robot file names, else a conservative default.
 
 `controller = "op3_controller.json"` in a robot file (relative to it) names a parameter file
-(`tkujax.control.params_files`); sweeps, maps, capture and compare use it, `--params` overrides it,
-and
-control off stays available. A robot without one gets `conservative_controller`: the paper's
+(`tkujax.control.params_files`) or a scheduled policy file (`save_policy_json`, as
+`tkujax tune --robot` writes when its policy method wins); sweeps, maps, capture and compare
+use it (capture and walking the policy's scalars), `--params` overrides it, and control off
+stays available. A robot without one gets `conservative_controller`: the paper's
 controller at the robot's scaled defaults with its steps switched off, half the recommended
 controller's stance feedback (ankle and hip on pitch, ankle on roll) and its accelerometer
 gate. Steps at scaled defaults doubled OP3's falls; stance feedback alone moves no foot. At the
@@ -20,7 +21,8 @@ import dataclasses
 import math
 from pathlib import Path
 
-from tkujax.control.params_files import is_policy, load_controller_params_json
+from tkujax.control.params_files import (is_policy, load_controller_params_json,
+                                         load_policy_json)
 from tkujax.control.controller_params import RECOMMENDED, ControllerParams
 from tkujax.robot.description import RobotDescription
 from tkujax.robot.file_checks import RobotFileError
@@ -48,13 +50,13 @@ def conservative_stance() -> dict:
 
 
 def robot_controller(desc: RobotDescription,
-                     scaled: ControllerParams) -> tuple[ControllerParams, str]:
-    """(the robot's controller, where it came from): the file its robot file names, else the
-    conservative default."""
+                     scaled: ControllerParams) -> tuple[ControllerParams, object, str]:
+    """(the robot's controller, its Schedule or None, where it came from): the parameter or
+    policy file its robot file names, else the conservative default."""
     if desc.controller_path is None:
-        return conservative_controller(scaled), CONSERVATIVE_SOURCE
-    return controller_file(desc.controller_path, "controller"), \
-        f"file {desc.controller_path.name}"
+        return conservative_controller(scaled), None, CONSERVATIVE_SOURCE
+    params, schedule = controller_file(desc.controller_path, "controller", policy=True)
+    return params, schedule, f"file {desc.controller_path.name}"
 
 
 def walking_controller(desc: RobotDescription, standing: ControllerParams,
@@ -65,23 +67,27 @@ def walking_controller(desc: RobotDescription, standing: ControllerParams,
     and backward, where its earlier controller's (0.34) walk (docs/robots.md)."""
     if desc.walk_controller_path is None:
         return standing, source
-    return controller_file(desc.walk_controller_path, "walk_controller"), \
+    return controller_file(desc.walk_controller_path, "walk_controller")[0], \
         f"file {desc.walk_controller_path.name}"
 
 
-def controller_file(path: Path, key: str) -> ControllerParams:
-    """The parameter file a robot file's `key` names; RobotFileError naming the key when it
-    is not a readable parameter file (a scheduled policy included)."""
+def controller_file(path: Path, key: str, policy: bool = False) -> tuple[ControllerParams, object]:
+    """(parameters, Schedule or None) of the file a robot file's `key` names: a parameter file,
+    or with `policy` also a scheduled policy file (`save_policy_json`; the gait runs no
+    schedule, so `walk_controller` names a parameter file). RobotFileError names the key when
+    the file cannot be read."""
     import json
     try:
         data = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
         raise RobotFileError(f"{key}: {path} is not a readable JSON "
                              f"parameter file: {err}") from err
-    if is_policy(data):
-        raise RobotFileError(f"{key}: {path} is a scheduled policy; a "
-                             "robot file names a parameter file (pass a policy with --params)")
+    if is_policy(data) and not policy:
+        raise RobotFileError(f"{key}: {path} is a scheduled policy, which the gait does not "
+                             "run; name a parameter file")
     try:
-        return load_controller_params_json(path)
+        if is_policy(data):
+            return load_policy_json(path)
+        return load_controller_params_json(path), None
     except ValueError as err:
         raise RobotFileError(f"{key}: {err}") from err

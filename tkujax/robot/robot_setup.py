@@ -129,7 +129,7 @@ def _robot_from_file(path: str, digest: str, controller: str) -> Robot:
     pose = stand_pose(robot)
     data = settled_data(robot, pose, SETTLE_S)
     scaled = _params(robot, pose, data)
-    params, controller = robot_controller(robot.description, scaled)
+    params, schedule, controller = robot_controller(robot.description, scaled)
     walk_params, walk_source = walking_controller(robot.description, params, controller)
     device = jax.local_devices()[0]
     setup = SimSetup(robot.model, mjx.put_model(robot.model, device=device),
@@ -138,7 +138,7 @@ def _robot_from_file(path: str, digest: str, controller: str) -> Robot:
     return Robot(setup=setup, settled=data, params=params, name=robot.name, digest=digest,
                       source=path, controller=controller, defaults=scaled,
                       walk_params=walk_params, walk_controller=walk_source,
-                      gait=robot_gait(robot, data, scaled))
+                      gait=robot_gait(robot, data, scaled), schedule=schedule)
 
 
 def robot_from_file(path: str | Path) -> Robot:

@@ -52,6 +52,9 @@ class Robot:
     gait: (WalkCommand field, value) pairs overriding the gait's defaults
     (`WalkCommand.for_params`): a robot file's defaults from its stand
     (`tkujax.robot.walk_defaults`), then its [walk] table (later pairs win); () for TKU-X.
+    schedule: the scheduled policy's Schedule (`tkujax.control.policy`) when the robot file's
+    controller is a policy file, with `params` its scalars; None otherwise. Sweeps standing
+    run it with `params`; walking and capture regions take `params` alone.
     """
 
     setup: SimSetup
@@ -66,6 +69,7 @@ class Robot:
     walk_params: ControllerParams | None = None
     walk_controller: str = ""
     gait: tuple[tuple[str, float], ...] = ()
+    schedule: object | None = None
 
     def __repr__(self) -> str:
         return f"Robot({self.name!r}, source={self.source!r}, digest={self.digest[:12]!r})"

@@ -13,6 +13,11 @@ Stages, each kept in DIR and skipped when done (rerun the command to resume):
 4. `compare/` and `first_verdict.json`: `tkujax compare` of the two; the controller passes
    when it falls less often than control off and no direction x impulse x phase cell with
    >= 100 pushes falls more than 2 points more often.
+   `policy/` (the policy method; by default where JAX runs on a GPU): a scheduled policy
+   started at the CMA-ES result and trained by the gradient line search for the CMA-ES
+   search's wall time, compile included (`tkujax.studies.robot_policy`), judged on the same
+   held-out pushes; the better verdict is kept (`better_verdict`: passing, then fewer harmed
+   cells, then fewer falls; the CMA-ES controller on a tie).
 5. `retry/` (only when that controller fails while control off falls): the search again from
    the tuned controller, a harmed push weighing RETRY_HARM_WEIGHT (not 2) and twice the
    tuning pushes, for the same share of the budget; then the search's result (`tune/`'s
@@ -46,6 +51,8 @@ from tkujax.robot.own_controller import STANCE_GAINS
 from tkujax.sweeps.progress import StatusLog
 from tkujax.studies.robot_pushes import (PROBE_DURATION_S, PROBE_HORIZON_S, PROBE_ONSET_S,
                                          robot_pushes, widest_pushes)
+from tkujax.studies.robot_policy import (MIN_BUDGET_S, POLICY, POLICY_METHOD, policy_budget_s,
+                                         policy_size, policy_spec, run_policy_method)
 from tkujax.studies.robot_structure import STRUCTURES, choose_structure, structure_start
 from tkujax.studies.robot_verdict import heldout_verdict, name_controller
 from tkujax.dialects.sweep_spec import SpecError, parse_spec
@@ -245,11 +252,13 @@ def _summary(v: dict) -> dict:
 
 
 def _stage_retry(out: Path, robot_file: str, robot, pushes: dict, structure: str,
-                 budget_s: float, log, first: dict, tuned: dict, held: dict):
-    """Step 5 (module doc): (the verdict to report, its controller's parameter dict)."""
+                 budget_s: float, log, best: dict, best_params: dict, tuned: dict, held: dict):
+    """Step 5 (module doc): (the verdict to report, its controller's parameter dict). `best`
+    and `best_params`: the verdict and controller so far; `tuned`: the CMA-ES result, where
+    the search starts again."""
     if hasattr(log, "add_budget"):
         log.add_budget(budget_s)
-    log(f"retry: {first['why']}; the search again from it, harm weight "
+    log(f"retry: {best['why']}; the search again from the CMA-ES result, harm weight "
         f"{RETRY_HARM_WEIGHT:g} (the budget grows by {budget_s:.0f} s)")
     again = _stage_tune(out / "retry", robot_file, robot, pushes, structure,
                         TUNE_SHARE * budget_s, log, retry_from=tuned)
@@ -257,10 +266,43 @@ def _stage_retry(out: Path, robot_file: str, robot, pushes: dict, structure: str
     second = heldout_verdict(out / "retry", robot, held, again, method="cma",
                              n_params=len(STRUCTURES[structure]["tuned"]),
                              reference=out / "heldout")
-    record = better_verdict(first, second)
-    record["stages"] = {"tune": _summary(first), "retry": _summary(second)}
-    record["chosen_stage"] = "retry" if record is second else "tune"
-    return record, (again if record is second else tuned)
+    record = better_verdict(best, second)
+    record["stages"] = dict(best["stages"], retry=_summary(second))
+    record["chosen_stage"] = ("retry" if record is second
+                              else best.get("chosen_stage", "tune"))
+    return record, (again if record is second else best_params)
+
+
+def _stage_policy(out: Path, robot_file: str, robot, pushes: dict, structure: str, log,
+                  record: dict, params: dict, held: dict):
+    """The policy method (module doc, step 4): (the verdict to report, its controller's
+    parameter or policy dict)."""
+    history = json.loads((out / "tune" / "history.json").read_text())
+    budget = max(MIN_BUDGET_S, policy_budget_s(history))
+    start = tune_spec(robot_file, robot, pushes, structure, iterations=10_000,
+                      retry_from=params)["controller"]
+    spec = policy_spec(tune_spec(robot_file, robot, pushes, structure, iterations=10_000),
+                       start, budget)
+    policy = run_policy_method(out / "policy", spec, robot, log)
+    if policy is None:
+        return record, params
+    log("verdict: the policy on the same held-out pushes")
+    verdict = heldout_verdict(out / "policy", robot, held, policy,
+                              method=f"{POLICY_METHOD} ({POLICY} policy)",
+                              n_params=policy_size(spec), reference=out / "heldout")
+    stages = dict(record["stages"], policy=_summary(verdict) | {"budget_s": round(budget, 1)})
+    best = better_verdict(record, verdict)
+    best["stages"] = stages
+    best["chosen_stage"] = "policy" if best is verdict else record.get("chosen_stage", "tune")
+    return best, (policy if best is verdict else params)
+
+
+def policy_method_default() -> bool:
+    """The policy method runs by default where JAX's default backend is a GPU: on a CPU the
+    gradient through MJX of a robot file's model compiles for minutes."""
+    import jax
+
+    return jax.default_backend() == "gpu"
 
 
 def fallback_params(robot, scale: float) -> dict:
@@ -339,10 +381,12 @@ def claim_out(out: Path, robot) -> None:
 
 def tune_robot_controller(robot_file: str | Path, out: str | Path, budget_s: float = 480.0,
                           heldout_n: int = 8192, write: bool = True, retry: bool = True,
-                          log=None, structure: str | None = None) -> dict:
+                          log=None, structure: str | None = None,
+                          policy_method: bool | None = None) -> dict:
     """Run the stages (module doc) for the robot file; returns the verdict's record.
     retry False: steps 5 and 6 never run. structure: one of STRUCTURES instead of the probe's
-    choice (None: the probe chooses)."""
+    choice (None: the probe chooses). policy_method: run the policy method of step 4 (None:
+    where JAX runs on a GPU, `policy_method_default`)."""
     if structure is not None and structure not in STRUCTURES:
         raise ValueError(f"structure must be one of {sorted(STRUCTURES)}, got {structure!r}")
     if not (isinstance(budget_s, (int, float)) and math.isfinite(budget_s)
@@ -371,9 +415,12 @@ def tune_robot_controller(robot_file: str | Path, out: str | Path, budget_s: flo
     (out / "first_verdict.json").write_text(json.dumps(first, indent=1) + "\n")
     record, params = first, tuned
     record["stages"] = {"tune": _summary(first)}
-    if retry and should_retry(first):
+    if policy_method_default() if policy_method is None else policy_method:
+        record, params = _stage_policy(out, robot_file, robot, pushes, name, log, record,
+                                       params, held)
+    if retry and should_retry(record):
         record, params = _stage_retry(out, robot_file, robot, pushes, name, budget_s, log,
-                                      first, tuned, held)
+                                      record, params, tuned, held)
         if should_retry(record):
             record, params = _stage_fallback(out, robot, held, log, record, params)
     record["structure"] = dict(chosen=name, why=structure["why"])

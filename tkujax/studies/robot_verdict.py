@@ -21,8 +21,8 @@ import re
 import time
 from pathlib import Path
 
-from tkujax.control.params_files import (controller_params_from_dict, save_controller_params_json,
-                                         without_notes)
+from tkujax.control.params_files import (controller_params_from_dict, is_policy,
+                                         save_policy_json, without_notes)
 from tkujax.control.controller_params import ControllerParams
 from tkujax.analysis.compare import Bands, compare_runs
 from tkujax.dialects.sweep_spec import parse_spec
@@ -35,8 +35,19 @@ _CONTROLLER_LINE = re.compile(r"^\s*controller\s*=.*$", re.MULTILINE)
 
 def controller_params(params: dict) -> ControllerParams:
     """A parameter file's dict (its notes, such as recommended_from, left out) as
-    ControllerParams."""
+    ControllerParams; a policy file's dict: its scalars."""
+    if is_policy(params):
+        params = params["controller"]
     return controller_params_from_dict(without_notes(params), "the tuned controller")
+
+
+def controller_schedule(params: dict):
+    """The Schedule of a policy file's dict (`save_policy_json`); None for a parameter file's."""
+    if not is_policy(params):
+        return None
+    from tkujax.control.policy import schedule_from_dict
+
+    return schedule_from_dict(params["schedule"], "the tuned policy: schedule")
 
 
 def verdict_reason(v: dict) -> str:
@@ -61,8 +72,8 @@ def verdict_reason(v: dict) -> str:
 
 def heldout_verdict(out: Path, robot, spec: dict, params: dict, method: str,
                     n_params: int, reference: Path | None = None) -> dict:
-    """Sweep `spec` (a sweep spec's TOML dict) into out/heldout with `params` (a parameter
-    file's dict) and judge it (module doc). `reference`: a held-out sweep folder of the same
+    """Sweep `spec` (a sweep spec's TOML dict) into out/heldout with `params` (a parameter or
+    policy file's dict) and judge it (module doc). `reference`: a held-out sweep folder of the same
     spec whose control-off run is compared with (the sweep then runs control on only).
     Resumable: the sweep resumes, the rest reruns."""
     t0 = time.perf_counter()
@@ -77,7 +88,8 @@ def heldout_verdict(out: Path, robot, spec: dict, params: dict, method: str,
     engine = computed_with(Path(reference)) if reference is not None else None
     engine = engine or computed_with(out / "heldout") or "auto"
     manifest = run_sweep(parse_spec(read_spec_record(path)), out / "heldout", params=controller,
-                         model_params=robot, quiet=True, backend=engine)
+                         model_params=robot, quiet=True, backend=engine,
+                         schedule=controller_schedule(params))
     if not manifest["complete"]:
         raise RuntimeError(f"{out / 'heldout'}: the held-out sweep is incomplete; rerun to "
                            "resume")
@@ -131,11 +143,12 @@ def read_spec_record(path: str | Path) -> dict:
 
 
 def name_controller(robot_file: str | Path, params: dict) -> Path:
-    """Write `params` as `<stem>_controller.json` beside the robot file and name it there
-    (replacing a `controller = ...` line, else after the top-level keys' first line)."""
+    """Write `params` (a parameter or policy file's dict) as `<stem>_controller.json` beside
+    the robot file and name it there (replacing a `controller = ...` line, else after the
+    top-level keys' first line)."""
     robot_file = Path(robot_file)
     path = robot_file.with_name(f"{robot_file.stem}_controller.json")
-    save_controller_params_json(controller_params(params), path)
+    save_policy_json(controller_params(params), controller_schedule(params), path)
     line = f'controller = "{path.name}"'
     text = robot_file.read_text()
     if _CONTROLLER_LINE.search(text):

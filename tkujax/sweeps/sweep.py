@@ -240,10 +240,11 @@ def _compute_early(out: Path, job: _ChunkJob, claims: chunks.Claims, progress: P
 def _checked_inputs(spec: SweepSpec | str | Path, params: ControllerParams | None,
                     robot: Robot | None, model_params: Robot | ModelParams | None,
                     max_chunks: int | None,
-                    schedule: Schedule | None) -> tuple[SweepSpec, ControllerParams, Robot]:
-    """The spec (loaded from its path), the controller parameters (default: the robot's) and
-    the Robot (`model_params`, else the spec's [robot] file, else TKU-X), after refusing the
-    combinations a sweep cannot run."""
+                    schedule: Schedule | None
+                    ) -> tuple[SweepSpec, ControllerParams, Robot, Schedule | None]:
+    """The spec (loaded from its path), the controller parameters and schedule (default: the
+    robot's; a robot file's policy runs standing only) and the Robot (`model_params`, else the
+    spec's [robot] file, else TKU-X), after refusing the combinations a sweep cannot run."""
     if max_chunks is not None and (isinstance(max_chunks, bool) or not isinstance(max_chunks, int)
                                    or max_chunks < 1):
         raise ValueError(f"max_chunks must be an integer >= 1 (or None: all), got {max_chunks!r}")
@@ -263,12 +264,15 @@ def _checked_inputs(spec: SweepSpec | str | Path, params: ControllerParams | Non
                         "while walking; give a plain parameter file")
     if robot.builtin:
         check_tkux_pushes(spec)
-        return spec, params or robot.params, robot
+        return spec, params or robot.params, robot, schedule
     spec = walk_for_robot(spec, robot)
     check_push_window(spec)
     check_robot_sweep(spec, robot)
-    own = robot.params if spec.walk is None else robot.walking_params
-    return spec, params or own, robot
+    if params is not None:
+        return spec, params, robot, schedule
+    if spec.walk is not None:
+        return spec, robot.walking_params, robot, None
+    return spec, robot.params, robot, robot.schedule
 
 
 TKUX_HEIGHT_M = (0.25, 0.46)   # TKU-X's trunk, from the hips to the shoulders
@@ -368,8 +372,8 @@ def run_sweep(spec: SweepSpec | str | Path, out: str | Path, params: ControllerP
     if num_processes > 1:   # before any JAX call (the robot's model goes onto a device)
         jax.distributed.initialize(coordinator_address=coordinator, num_processes=num_processes,
                                    process_id=process_id)
-    spec, params, robot = _checked_inputs(spec, params, robot, model_params, max_chunks,
-                                          schedule)
+    spec, params, robot, schedule = _checked_inputs(spec, params, robot, model_params,
+                                                    max_chunks, schedule)
     spec = with_decisions(spec, decisions)
     check_walk_sweep(spec)
     backend = choose_backend(backend, spec)
