@@ -15,25 +15,13 @@ import json
 import mujoco
 import numpy as np
 
-from tkujax.robot.fall_geoms import floor_geoms
+from tkujax.robot.fall_geoms import floor_geoms, primitive_low
 from tkujax.robot.loader import load_robot
 from tkujax.robot.robot_setup import robot_from_file
 from tkujax.sim.metrics import FALL_BODY_CLEARANCE_M, FALL_PELVIS_HEIGHT_M
 from tkujax.sim.options import RolloutConfig
 from tkujax.sim.push import Push
-from tkujax.sim.recording import axial_lows
 from tkujax.sim.rollout_mujoco import simulate_mujoco
-
-
-def _primitive_low(m, d, g) -> float:
-    kind, size = m.geom_type[g], m.geom_size[g]
-    z, rot = d.geom_xpos[g][2], d.geom_xmat[g].reshape(3, 3)
-    if kind == mujoco.mjtGeom.mjGEOM_SPHERE:
-        return float(z - size[0])
-    if kind == mujoco.mjtGeom.mjGEOM_BOX:
-        return float(z - np.abs(rot[2]) @ size)
-    capsule = kind == mujoco.mjtGeom.mjGEOM_CAPSULE
-    return float(axial_lows(np, np.array([z]), np.array([rot[2, 2]]), size[None, :2], capsule)[0])
 
 
 def _fell(m, qpos_series, box_geoms, point_geoms) -> bool:
@@ -41,7 +29,7 @@ def _fell(m, qpos_series, box_geoms, point_geoms) -> bool:
     for q in qpos_series:
         d.qpos[:] = q
         mujoco.mj_kinematics(m, d)
-        lows = [_primitive_low(m, d, g) for g in box_geoms] + [
+        lows = [primitive_low(m, d, g) for g in box_geoms] + [
             float((d.geom_xpos[g][2] + p @ d.geom_xmat[g].reshape(3, 3)[2]).min())
             for g, p in point_geoms]
         if q[2] < FALL_PELVIS_HEIGHT_M or min(lows) < FALL_BODY_CLEARANCE_M:

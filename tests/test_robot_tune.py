@@ -52,6 +52,17 @@ def test_structure_is_chosen_by_the_harm_weighted_loss(robot_file, pushes):
     assert set(STRUCTURES["stance"]["tuned"]) < set(STRUCTURES["step"]["tuned"])
 
 
+def robot_copy_and_stance(folder):
+    """A generated robot file written into `folder` (made), and two stance controllers as
+    parameter dicts: its start (good), and the same with its stance signs reversed (harmful)."""
+    folder.mkdir()
+    copy = write_generated_robot(folder, name="gen")
+    robot = robot_setup(copy)
+    good = dataclasses.asdict(dataclasses.replace(
+        robot.defaults, **structure_start(robot, "stance")))
+    return copy, good, dict(good, stance_ankle_kp=-3.0, stance_hip_kp=-3.0, stance_roll_kp=-3.0)
+
+
 def _resumable_run(out, pushes, params: dict, retry: dict | None = None,
                    recommended_from: str = "tuned"):
     """An output folder as a run that has finished its search (and its retry's) leaves it."""
@@ -80,12 +91,7 @@ def test_a_failed_controller_is_retried_then_falls_back_and_a_passing_one_writte
     monkeypatch.setattr(robot_verdict, "MIN_CELL_PUSHES", 4)
     monkeypatch.setattr(robot_tune, "FALLBACK_SCALES", (1.0, 0.5))    # the ladder's first two
     folder = tmp_path / "robot"
-    folder.mkdir()
-    copy = write_generated_robot(folder, name="gen")
-    robot = robot_setup(copy)
-    good = dataclasses.asdict(dataclasses.replace(
-        robot.defaults, **structure_start(robot, "stance")))
-    harmful = dict(good, stance_ankle_kp=-3.0, stance_hip_kp=-3.0, stance_roll_kp=-3.0)
+    copy, good, harmful = robot_copy_and_stance(folder)
     _resumable_run(tmp_path / "run", pushes, harmful, retry=harmful)
     before = file_digest(copy)
     record = tune_robot_controller(copy, tmp_path / "run", budget_s=30, heldout_n=512)

@@ -29,6 +29,8 @@ from tkujax.studies.tune.reparam import check_start
 from tkujax.studies.tune.tune_spec import parse_tune_spec
 from tkujax.sweeps.sweep import run_sweep
 
+from test_robot_tune import robot_copy_and_stance
+
 
 @pytest.fixture(scope="module")
 def generated(tmp_path_factory):
@@ -83,12 +85,7 @@ def test_a_better_policy_is_kept_named_and_run(tmp_path, generated, monkeypatch)
     monkeypatch.setattr(robot_verdict, "MIN_CELL_PUSHES", 4)
     _, pushes = generated
     folder = tmp_path / "robot"
-    folder.mkdir()
-    copy = write_generated_robot(folder, name="gen")
-    robot = robot_setup(copy)
-    good = dataclasses.asdict(dataclasses.replace(
-        robot.defaults, **structure_start(robot, "stance")))
-    harmful = dict(good, stance_ankle_kp=-3.0, stance_hip_kp=-3.0, stance_roll_kp=-3.0)
+    copy, good, harmful = robot_copy_and_stance(folder)
     schedule = json.loads(RECOMMENDED_POLICY_PATH.read_text())["schedule"]
     policy = {"controller": good, "schedule": schedule}
     _resumed(tmp_path / "run", pushes, harmful, policy)

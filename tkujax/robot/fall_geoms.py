@@ -66,7 +66,7 @@ def _mesh_points(model: mujoco.MjModel, g: int) -> np.ndarray:
     return hull_points(np.array(model.mesh_vert[adr:adr + n], np.float64))
 
 
-def _primitive_low(model: mujoco.MjModel, data: mujoco.MjData, g: int) -> float:
+def primitive_low(model: mujoco.MjModel, data: mujoco.MjData, g: int) -> float:
     """The lowest point's height of a sphere, box, capsule or cylinder, as the fall test reads
     it (tkujax.sim.recording); +inf for another type, which the fall test does not read."""
     kind, size = model.geom_type[g], model.geom_size[g]
@@ -101,7 +101,7 @@ def fall_geoms(robot: RobotModel, stand_qpos: np.ndarray) -> FallGeoms:
         else:
             local = None
         if local is None:
-            low = _primitive_low(model, data, g)
+            low = primitive_low(model, data, g)
         else:
             low = data.geom_xpos[g][2] + local @ data.geom_xmat[g].reshape(3, 3)[2]
         clearance = float(np.min(low))   # a height, as the fall test reads it (metrics)
