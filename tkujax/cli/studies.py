@@ -186,7 +186,8 @@ def _add_tune(sub) -> None:
     p.add_argument("--policy-method", choices=("auto", "on", "off"), default="auto",
                    help="without a spec: also train a scheduled policy from the CMA-ES result "
                         "with the gradient line search for the same wall time, and keep the "
-                        "better verdict (auto: on a GPU)")
+                        "better verdict (auto: on a GPU when the policy has at least 160 "
+                        "parameters, where the line search beat CMA-ES)")
     p.add_argument("--structure", choices=("step", "shift_step", "stance"), default=None,
                    help="without a spec: tune this recovery structure instead of the one the "
                         "probe chooses (docs/robots.md)")

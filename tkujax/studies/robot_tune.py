@@ -13,7 +13,8 @@ Stages, each kept in DIR and skipped when done (rerun the command to resume):
 4. `compare/` and `first_verdict.json`: `tkujax compare` of the two; the controller passes
    when it falls less often than control off and no direction x impulse x phase cell with
    >= 100 pushes falls more than 2 points more often.
-   `policy/` (the policy method; by default where JAX runs on a GPU): a scheduled policy
+   `policy/` (the policy method; by default on a GPU where the policy has at least
+   GRADIENTS_PAY_FROM_PARAMS parameters, `gradients_pay`; `policy_method`): a scheduled policy
    started at the CMA-ES result and trained by the gradient line search for the CMA-ES
    search's wall time, compile included (`tkujax.studies.robot_policy`), judged on the same
    held-out pushes; the better verdict is kept (`better_verdict`: passing, then fewer harmed
@@ -72,6 +73,12 @@ TUNE_SHARE = 0.6                     # of --budget-s for the search's generation
 TUNE_HARM_WEIGHT = 2.0               # OP3's loss: a harmed push costs twice a saved one
 RETRY_HARM_WEIGHT = 8.0              # the retry's (module doc, step 5)
 RETRY_BATCH = 2 * TUNE_BATCH
+# The policy method runs by default from this many parameters: on TKU-X the gradient line
+# search beat sep-CMA-ES at equal wall time from 160 parameters up (from the paper's
+# controller), and lost below and from a CMA-ES-tuned start (docs/tuning.md; on OP3 its
+# 127-parameter policy from the CMA-ES result gained nothing at 152 s,
+# results/robots/op3_command/policy_h200/).
+GRADIENTS_PAY_FROM_PARAMS = 160
 # The fallback's ladder (step 6): the conservative default, then its stance gains halved and
 # quartered. A conservative default can harm a cell at the 2-point rule's edge (the Berkeley
 # Humanoid's, +2.2 points in one run: results/robots/berkeley_humanoid/README.md);
@@ -274,15 +281,23 @@ def _stage_retry(out: Path, robot_file: str, robot, pushes: dict, structure: str
 
 
 def _stage_policy(out: Path, robot_file: str, robot, pushes: dict, structure: str, log,
-                  record: dict, params: dict, held: dict):
+                  record: dict, params: dict, held: dict, forced: bool):
     """The policy method (module doc, step 4): (the verdict to report, its controller's
-    parameter or policy dict)."""
-    history = json.loads((out / "tune" / "history.json").read_text())
-    budget = max(MIN_BUDGET_S, policy_budget_s(history))
+    parameter or policy dict). Not `forced`: only where `gradients_pay`."""
     start = tune_spec(robot_file, robot, pushes, structure, iterations=10_000,
                       retry_from=params)["controller"]
-    spec = policy_spec(tune_spec(robot_file, robot, pushes, structure, iterations=10_000),
-                       start, budget)
+    cma = tune_spec(robot_file, robot, pushes, structure, iterations=10_000)
+    n_params = policy_size(policy_spec(cma, start, MIN_BUDGET_S))
+    if not (forced or gradients_pay(n_params)):
+        log(f"policy: not run by default here ({n_params} parameters; it runs on a GPU from "
+            f"{GRADIENTS_PAY_FROM_PARAMS}, where the line search beat CMA-ES; --policy-method "
+            "on runs it)")
+        return record, params
+    history = json.loads((out / "tune" / "history.json").read_text())
+    budget = max(MIN_BUDGET_S, policy_budget_s(history))
+    spec = policy_spec(cma, start, budget)
+    if hasattr(log, "add_budget"):
+        log.add_budget(budget)
     policy = run_policy_method(out / "policy", spec, robot, log)
     if policy is None:
         return record, params
@@ -297,12 +312,13 @@ def _stage_policy(out: Path, robot_file: str, robot, pushes: dict, structure: st
     return best, (policy if best is verdict else params)
 
 
-def policy_method_default() -> bool:
-    """The policy method runs by default where JAX's default backend is a GPU: on a CPU the
-    gradient through MJX of a robot file's model compiles for minutes."""
+def gradients_pay(n_params: int) -> bool:
+    """Whether the policy method runs by default (`--policy-method auto`): where JAX runs on a
+    GPU (on a CPU the gradient through MJX of a robot file's model compiles for minutes) and
+    the policy has at least GRADIENTS_PAY_FROM_PARAMS parameters."""
     import jax
 
-    return jax.default_backend() == "gpu"
+    return jax.default_backend() == "gpu" and n_params >= GRADIENTS_PAY_FROM_PARAMS
 
 
 def fallback_params(robot, scale: float) -> dict:
@@ -386,7 +402,7 @@ def tune_robot_controller(robot_file: str | Path, out: str | Path, budget_s: flo
     """Run the stages (module doc) for the robot file; returns the verdict's record.
     retry False: steps 5 and 6 never run. structure: one of STRUCTURES instead of the probe's
     choice (None: the probe chooses). policy_method: run the policy method of step 4 (None:
-    where JAX runs on a GPU, `policy_method_default`)."""
+    where `gradients_pay`)."""
     if structure is not None and structure not in STRUCTURES:
         raise ValueError(f"structure must be one of {sorted(STRUCTURES)}, got {structure!r}")
     if not (isinstance(budget_s, (int, float)) and math.isfinite(budget_s)
@@ -415,9 +431,9 @@ def tune_robot_controller(robot_file: str | Path, out: str | Path, budget_s: flo
     (out / "first_verdict.json").write_text(json.dumps(first, indent=1) + "\n")
     record, params = first, tuned
     record["stages"] = {"tune": _summary(first)}
-    if policy_method_default() if policy_method is None else policy_method:
+    if policy_method is not False:
         record, params = _stage_policy(out, robot_file, robot, pushes, name, log, record,
-                                       params, held)
+                                       params, held, forced=policy_method is True)
     if retry and should_retry(record):
         record, params = _stage_retry(out, robot_file, robot, pushes, name, budget_s, log,
                                       record, params, tuned, held)
