@@ -36,7 +36,9 @@ LINESEARCH_STUDY = dict(groups=4, temperature_deg=0.5, push_clip=1.0, ray_radius
                         ray_ratio=0.7071, select="validation", select_every_s=20.0,
                         heldout_checkpoints=2, budget_includes_compile=True, seeds=[0],
                         seeds_side_by_side=False)
-MIN_BUDGET_S = 30.0          # below this a line search takes no step after its compile
+# The least wall time the policy's search is given, compile included (its compile alone took
+# 79 s on one H200 for OP3: results/robots/op3_command/policy_h200/policy_run.json).
+MIN_BUDGET_S = 30.0
 
 
 def scheduled_fields(tuned) -> list[str]:
@@ -92,9 +94,8 @@ def run_policy_method(folder: Path, spec: dict, robot, log) -> dict | None:
     if not best.is_file():
         folder.mkdir(parents=True, exist_ok=True)
         (folder / "policy_spec.json").write_text(json.dumps(spec, indent=1) + "\n")
-        n = len(spec["tune"]["params"]) + 8 * len(spec["tune"]["schedule"])
-        log(f"policy: the line search on a {POLICY} policy ({n} parameters) from the CMA-ES "
-            f"result, {spec['study']['budget_s']:.0f} s with its compile")
+        log(f"policy: the line search on a {POLICY} policy ({policy_size(spec)} parameters) "
+            f"from the CMA-ES result, {spec['study']['budget_s']:.0f} s with its compile")
         run_tune(spec, folder / "study", quiet=True, robot=differentiable(robot))
     return json.loads(best.read_text())
 
