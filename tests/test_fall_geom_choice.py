@@ -128,3 +128,19 @@ def test_a_geom_at_the_floor_at_the_stand_is_left_out(tmp_path, height_m, left_o
         clearance = dict(fall.left_out)["shin_guard"]
         np.testing.assert_allclose(clearance, height_m, atol=1e-4)
         assert clearance < STAND_CLEARANCE_MIN_M
+
+
+def test_a_robot_files_sweep_records_the_fall_tests_rule(tmp_path):
+    """A robot file's sweep hash holds the fall test's rule (a sweep run with the box reading
+    is another sweep, never resumed into one with the mesh reading); TKU-X's does not."""
+    from tkujax.control.controller_params import ControllerParams
+    from tkujax.dialects.sweep_spec import parse_spec
+    from tkujax.robot.fall_geoms import FALL_TEST_RULE
+    from tkujax.robot.robot_setup import robot_setup
+    from tkujax.sweeps.sweep_hash import INPUT_NAMES, hash_parts
+
+    spec = parse_spec({"sweep": {"name": "t"}, "push": {"grid": {"impulse_ns": [0.3]}}})
+    robot = robot_setup(write_generated_robot(tmp_path, GENERATED_SECOND, name="r"))
+    parts = hash_parts(spec, robot.params, robot)
+    assert parts["fall_test"] == FALL_TEST_RULE and "fall_test" in INPUT_NAMES
+    assert "fall_test" not in hash_parts(spec, ControllerParams.paper(), None)

@@ -30,6 +30,10 @@ from tkujax.sim.recording import axial_lows
 # fall test: twice its 5 mm clearance, so that a sole's tilt of a few mm in a step does not
 # make a fall of a stand (tests/test_fall_geoms.py).
 STAND_CLEARANCE_MIN_M = 2 * FALL_BODY_CLEARANCE_M
+# The rule as a robot file's sweep records it (tkujax.sweeps.sweep_hash): a sweep whose fall
+# test read boxed meshes by their boxes is another sweep, never resumed into this one.
+FALL_TEST_RULE = ("fall test: meshes and boxed meshes read by their hull vertices; geoms "
+                  f"within {STAND_CLEARANCE_MIN_M:g} m of the floor at the stand left out")
 
 
 @dataclasses.dataclass(frozen=True)

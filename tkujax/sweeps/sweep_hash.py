@@ -17,6 +17,7 @@ from tkujax.control.controller_params import ControllerParams
 from tkujax.control.policy import Schedule, schedule_to_dict
 from tkujax.model import ModelParams
 from tkujax.sim.robot import Robot, as_robot
+from tkujax.robot.fall_geoms import FALL_TEST_RULE
 from tkujax.sweeps.record_schema import TREE_PASSES_BEFORE, hashed_fields
 from tkujax.dialects.sweep_spec import SweepSpec
 from tkujax.dialects.program_keys import hashed_raw
@@ -43,6 +44,7 @@ INPUT_NAMES = {
     "schedule": "the scheduled policy (--params)",
     "tree_passes": "the tree passes",
     "decisions": "the decisions (--decisions or [sweep] decisions)",
+    "fall_test": "the fall test's geoms (tkujax.robot.fall_geoms)",
     "shared_draws": "the rule for robot draws",
 }
 
@@ -60,8 +62,9 @@ def hash_parts(spec: SweepSpec, params: ControllerParams, robot: Robot | ModelPa
                                     "controller_params", dataclasses.asdict(params))}
     if robot.builtin:
         parts["model"] = hashed_fields("model_params", dataclasses.asdict(robot.model_params))
-    else:   # a robot file: by its content and its model's
+    else:   # a robot file: by its content and its model's, and the fall test's geoms
         parts["robot"] = {"robot sha256": robot.digest}
+        parts["fall_test"] = FALL_TEST_RULE
     if spec.arithmetic == "fixed":   # the FixedPointConfig defaults fill every unset [fpga] key
         parts["fixed_point_defaults"] = {
             "fixed_point_defaults": dataclasses.asdict(FixedPointConfig())}
