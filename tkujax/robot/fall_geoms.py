@@ -9,7 +9,7 @@ the floor. For a robot file's model:
   collision mode replaced by a box (tkujax.robot.collision): the box collides, the mesh decides
   the fall. A box around a shin reaches well below the shin: Unitree G1's shank box is 13.5 mm
   above the floor at the stand where its mesh is 28.3 mm, and an ankle pitched in a step took
-  the box within 5 mm with the robot upright (tests/test_fall_geoms.py);
+  the box within 5 mm with the robot upright (tests/test_fall_geom_choice.py);
 - a geom already within STAND_CLEARANCE_MIN_M of the floor at the stand is left out: there it
   is (nearly) a fall before any push, so it cannot tell one. `tkujax stand` names it.
 """
@@ -28,7 +28,7 @@ from tkujax.sim.recording import axial_lows
 
 # A geom whose lowest point is closer than this to the floor at the stand is not read by the
 # fall test: twice its 5 mm clearance, so that a sole's tilt of a few mm in a step does not
-# make a fall of a stand (tests/test_fall_geoms.py).
+# make a fall of a stand (tests/test_fall_geom_choice.py).
 STAND_CLEARANCE_MIN_M = 2 * FALL_BODY_CLEARANCE_M
 # The rule as a robot file's sweep records it (tkujax.sweeps.sweep_hash): a sweep whose fall
 # test read boxed meshes by their boxes is another sweep, never resumed into this one.
