@@ -13,7 +13,7 @@ import json
 from pathlib import Path
 
 from tkujax.robot import robot_from_file
-from tkujax.studies.robot_tune import heldout_spec
+from tkujax.studies.robot_tune_specs import heldout_spec
 from tkujax.studies.robot_verdict import heldout_verdict
 
 

@@ -10,7 +10,7 @@ import tomllib
 import pytest
 from hostile_helpers import refused
 
-from tkujax.studies import robot_tune
+from tkujax.studies import robot_tune, robot_tune_specs
 from tkujax.dialects.push_limits import MAX_RECORDS
 from tkujax.studies.tune.tune_spec import parse_tune_spec
 from tkujax.dialects.validation import SpecError
@@ -86,13 +86,13 @@ def test_tune_robot_checks_its_stages_before_the_probe(capsys, monkeypatch, tmp_
         raise AssertionError("the probe ran before the stages were checked")
 
     monkeypatch.setattr(robot_tune, "robot_pushes", no_probe)
-    monkeypatch.setattr(robot_tune, "TUNE_HORIZON_S", 0.42)
+    monkeypatch.setattr(robot_tune_specs, "TUNE_HORIZON_S", 0.42)
     out = tmp_path / "out"
     line = refused(capsys, "tune.duration_s = 0.42", "tune", "--robot", robot_file, "--out", out)
     assert "push.onset_s" in line and not (out / "pushes.json").exists()
-    monkeypatch.setattr(robot_tune, "TUNE_HORIZON_S", robot_tune.HELDOUT_HORIZON_S)
+    monkeypatch.setattr(robot_tune_specs, "TUNE_HORIZON_S", robot_tune_specs.HELDOUT_HORIZON_S)
     robot = robot_tune.robot_from_file(str(robot_file))
-    robot_tune.check_stages(str(robot_file), robot, 64)           # the shipped stages pass
+    robot_tune_specs.check_stages(str(robot_file), robot, 64)           # the shipped stages pass
 
 
 def test_a_tune_into_another_specs_folder_is_refused(capsys, tmp_path):

@@ -148,8 +148,8 @@ def test_the_retry_starts_at_the_tuned_controller_with_the_harm_weight(robot_fil
     """The retry's spec: the first search's parameters and ranges, started at the tuned
     values (nudged strictly inside a range they sit on), a harmed push weighing
     RETRY_HARM_WEIGHT, twice the tuning pushes."""
-    from tkujax.studies.robot_tune import (RETRY_BATCH, RETRY_HARM_WEIGHT, TUNE_BATCH,
-                                           TUNE_HARM_WEIGHT, tune_spec)
+    from tkujax.studies.robot_tune_specs import (RETRY_BATCH, RETRY_HARM_WEIGHT,
+                                                 TUNE_BATCH, TUNE_HARM_WEIGHT, tune_spec)
     from tkujax.studies.tune.tune_spec import parse_tune_spec
 
     robot = robot_setup(robot_file)
@@ -173,7 +173,7 @@ def test_the_retry_starts_at_the_tuned_controller_with_the_harm_weight(robot_fil
 def test_every_structure_starts_inside_its_ranges(robot_file):
     """Every structure's start (and a retry from it) lies strictly inside its search ranges,
     as the stage checks ask before anything runs; the sideways gain keeps its sign."""
-    from tkujax.studies.robot_tune import check_stages, ranges_for
+    from tkujax.studies.robot_tune_specs import check_stages, ranges_for
 
     robot = robot_setup(robot_file)
     check_stages(str(robot_file), robot, 8192)
@@ -190,7 +190,7 @@ def test_a_default_clamped_onto_its_cap_starts_inside_the_search(robot_file):
     """A robot whose scaled default is clamped onto its allowed range's edge (a tall robot's
     lift height at the 0.1 m cap) still passes the stage checks, and the first search starts
     inside its ranges by at least START_MARGIN of their width."""
-    from tkujax.studies.robot_tune import START_MARGIN, check_stages, tune_spec
+    from tkujax.studies.robot_tune_specs import START_MARGIN, check_stages, tune_spec
 
     robot = robot_setup(robot_file)
     tall = dataclasses.replace(robot, defaults=dataclasses.replace(robot.defaults,
@@ -281,7 +281,7 @@ def test_the_heldout_spec_records_the_robot_file_relative_to_its_folder(tmp_path
 
     from tkujax.dialects.sweep_spec import parse_spec
     from tkujax.studies import robot_verdict
-    from tkujax.studies.robot_tune import heldout_spec
+    from tkujax.studies.robot_tune_specs import heldout_spec
 
     robot_file = write_generated_robot(tmp_path / "here" / "robots", name="gen")
     out = tmp_path / "here" / "runs" / "gen_tune"

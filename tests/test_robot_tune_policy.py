@@ -24,7 +24,8 @@ from tkujax.studies.robot_policy import (POLICY, POLICY_METHOD, policy_budget_s,
                                          policy_spec, scheduled_fields)
 from tkujax.studies.robot_pushes import robot_pushes
 from tkujax.studies.robot_structure import STRUCTURES, structure_start
-from tkujax.studies.robot_tune import tune_robot_controller, tune_spec
+from tkujax.studies.robot_tune import tune_robot_controller
+from tkujax.studies.robot_tune_specs import tune_spec
 from tkujax.studies.tune.reparam import check_start
 from tkujax.studies.tune.tune_spec import parse_tune_spec
 from tkujax.sweeps.sweep import run_sweep
@@ -127,3 +128,34 @@ def test_a_robot_file_runs_the_policy_it_names(tmp_path):
         'controller = "gen_policy.json"\nwalk_controller = "gen_policy.json"\n', 1))
     with pytest.raises(RobotFileError, match="walk_controller: .* scheduled policy"):
         robot_setup(copy)
+
+
+def test_a_policy_that_returned_its_start_is_not_judged(tmp_path, generated, monkeypatch):
+    """The line search found no step (a zero table at its start, the CMA-ES result nudged
+    inside its ranges): `returned_start` says so, and the command reports it without a
+    verdict of its own, keeping the CMA-ES controller; a moved scalar or a non-zero table is
+    a policy of its own."""
+    from tkujax.studies import robot_verdict
+    from tkujax.studies.robot_policy import returned_start
+
+    monkeypatch.setattr(robot_verdict, "MIN_CELL_PUSHES", 4)
+    robot_file, pushes = generated
+    copy, good, _ = robot_copy_and_stance(tmp_path / "robot")
+    robot = robot_setup(copy)
+    start = tune_spec(str(copy), robot, pushes, "stance", iterations=10,
+                      retry_from=good)["controller"]
+    spec = policy_spec(tune_spec(str(copy), robot, pushes, "stance", iterations=10), start,
+                       60.0)
+    schedule = json.loads(RECOMMENDED_POLICY_PATH.read_text())["schedule"]
+    zero = dict(schedule, table=[[0.0] * len(row) for row in schedule["table"]])
+    policy = {"controller": dict(good, **start), "schedule": zero}
+    assert returned_start(policy, spec)
+    assert not returned_start(dict(policy, schedule=schedule), spec)
+    moved = dict(policy["controller"], stance_hip_kp=start["stance_hip_kp"] + 1e-3)
+    assert not returned_start(dict(policy, controller=moved), spec)
+    _resumed(tmp_path / "run", pushes, good, policy)
+    record = tune_robot_controller(copy, tmp_path / "run", budget_s=30, heldout_n=512,
+                                   retry=False, policy_method=True)
+    assert record["stages"]["policy"]["returned_start"] is True
+    assert record["chosen_stage"] == "tune" and record["method"] == "cma"
+    assert not (tmp_path / "run" / "policy" / "heldout").exists()

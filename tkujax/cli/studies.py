@@ -41,32 +41,49 @@ def _cmd_refine(args) -> int:
     return 0
 
 
+def _stage_words(stage: str) -> str:
+    """What a `tkujax tune --robot` stage's controller is, in words."""
+    from tkujax.studies.robot_tune import FALLBACK_SCALES, fallback_stage
+
+    words = dict(tune="the CMA-ES controller", policy="the line search's policy",
+                 retry="the retry's controller", own="the robot's own controller")
+    words |= {fallback_stage(s)[0]: fallback_stage(s)[1] for s in FALLBACK_SCALES}
+    return words.get(stage, stage)
+
+
 def _cmd_tune_robot(args) -> int:
-    from tkujax.studies.robot_tune import FALLBACK_SCALES, fallback_stage, tune_robot_controller
+    from tkujax.studies.robot_tune import (FALLBACK_SCALES, fallback_stage, is_builtin,
+                                           tune_robot_controller)
 
     record = tune_robot_controller(args.robot, args.out, budget_s=args.budget_s or 480.0,
                                    heldout_n=args.heldout_n, write=not args.no_write,
                                    retry=not args.no_retry, structure=args.structure,
                                    policy_method={"auto": None, "on": True,
                                                   "off": False}[args.policy_method])
+    stages, chosen = record["stages"], _stage_words(record["chosen_stage"])
     ratio = "-" if record["ratio"] is None else f"{record['ratio']:.3f}"
     print(f"{record['robot']}: {100 * record['on_fall']:.1f} % of {record['n_pushes']} held-out "
-          f"pushes fall with the tuned controller, {100 * record['off_fall']:.1f} % with control "
-          f"off (ratio {ratio}); {len(record['harmed_cells'])} harmed cell(s); {record['why']}")
-    if "policy" in record["stages"]:
-        policy = record["stages"]["policy"]
-        print(f"the CMA-ES controller: {record['stages']['tune']['why']}; the line search's "
-              f"policy ({policy['budget_s']:.0f} s): {policy['why']}; reported: the "
-              f"{record['chosen_stage']}'s")
-    if "retry" in record["stages"]:
-        print(f"the first controller: {record['stages']['tune']['why']}; the retry's: "
-              f"{record['stages']['retry']['why']}; reported: the {record['chosen_stage']}'s")
+          f"pushes fall with {chosen}, {100 * record['off_fall']:.1f} % with control off "
+          f"(ratio {ratio}); {len(record['harmed_cells'])} harmed cell(s); {record['why']}")
+    if "policy" in stages:
+        policy = stages["policy"]
+        print(f"the CMA-ES controller: {stages['tune']['why']}; the line search's policy "
+              f"({policy['budget_s']:.0f} s): {policy['why']}")
+    if "retry" in stages:
+        print(f"the first controller: {stages['tune']['why']}; the retry's: "
+              f"{stages['retry']['why']}")
     for scale in FALLBACK_SCALES:
         stage, what = fallback_stage(scale)
-        if stage in record["stages"]:
-            print(f"{what}: {record['stages'][stage]['why']}")
+        if stage in stages:
+            print(f"{what}: {stages[stage]['why']}")
+    if "own" in stages:
+        print(f"the robot's own controller ({stages['own']['where']}): {stages['own']['why']}; "
+              + ("kept: this run's is no better" if record["chosen_stage"] == "own"
+                 else "replaced: this run's is better"))
+    print(f"reported: {chosen}")
     if record.get("controller_file"):
-        print(f"controller written to {record['controller_file']} and named in {args.robot}")
+        named = "" if is_builtin(args.robot) else f" and named in {args.robot}"
+        print(f"controller written to {record['controller_file']}{named}")
     print(f"verdict: {Path(args.out, 'verdict.json')}")
     return 0 if record["passed"] else 1
 
@@ -155,13 +172,16 @@ def _add_tune(sub) -> None:
                    help="tune spec, e.g. specs/tune/tune_cpu.toml; without one, --robot FILE "
                         "tunes that robot's recovery controller from the robot alone (its "
                         "pushes, the recovery structure, CMA-ES, the no-harm verdict on "
-                        "held-out pushes) and names it in the robot file when it passes")
+                        "held-out pushes) and names it in the robot file when it passes and "
+                        "beats the controller the file names; --robot tkux: the built-in TKU-X, "
+                        "against its recommended policy")
     p.add_argument("--out", required=True, help="output folder (history.json, params_*.json, "
                                                  "loss_curve.png, summary.md)")
     p.add_argument("--iterations", type=int, default=None, help="override tune.iterations")
     p.add_argument("--robot", default=None, metavar="FILE.toml",
                    help="a robot file (docs/robots.md): tune on that robot from its scaled "
-                        "controller defaults (default: the spec's [robot] file)")
+                        "controller defaults (default: the spec's [robot] file); without a "
+                        "spec, tkux names the built-in TKU-X")
     p.add_argument("--no-compare", action="store_true",
                    help="skip the spec's [compare] study (methods x seeds at one budget)")
     p.add_argument("--no-eval", action="store_true", help="skip the held-out evaluation")

@@ -6,7 +6,8 @@ height (MuJoCo C, `PROBE_*`), up to the impulse where about 80 % of the ladder's
 (`FALL_TARGET`). The distributions then span the hard part of the robot's range:
 
 - impulses uniform in [IMPULSE_LO_FRAC, 1] x that impulse;
-- contact heights on the trunk, uniform in HEIGHT_BAND x the CoM height;
+- contact heights on the trunk, uniform in HEIGHT_BAND x the CoM height (on TKU-X, inside
+  its trunk: `contact_heights_m`);
 - every direction, every hit phase (onsets uniform over several control periods);
 - pulses of 10-80 ms.
 
@@ -24,6 +25,7 @@ import numpy as np
 from tkujax.sim.push import make_push, stack_pushes
 from tkujax.sim.options import RolloutConfig
 from tkujax.sim.rollout_mujoco import simulate_mujoco
+from tkujax.sweeps.sweep import TKUX_HEIGHT_M
 
 FALL_TARGET = 0.8                     # the ladder stops where this share of pushes falls
 PROBE_STEPS = np.arange(1, 41) * 0.025   # x m sqrt(g h): 0.025 .. 1.0
@@ -73,11 +75,20 @@ def _ladder(robot) -> np.ndarray:
     return PROBE_STEPS * momentum_scale(mass_kg, float(robot.defaults.com_height))
 
 
-def _distributions(robot, top: float, ladder, fell) -> RobotPushes:
+def contact_heights_m(robot) -> tuple[float, float]:
+    """HEIGHT_BAND x the CoM height; on the built-in TKU-X, inside its trunk (TKUX_HEIGHT_M: its
+    CoM, 0.244 m high, sits below the trunk's 0.25 m, where a sweep refuses a push)."""
     h = float(robot.defaults.com_height)
+    lo, hi = HEIGHT_BAND[0] * h, HEIGHT_BAND[1] * h
+    if robot.builtin:
+        lo, hi = (min(max(x, TKUX_HEIGHT_M[0]), TKUX_HEIGHT_M[1]) for x in (lo, hi))
+    return round(lo, 4), round(hi, 4)
+
+
+def _distributions(robot, top: float, ladder, fell) -> RobotPushes:
     return RobotPushes(
         impulse_ns=(round(IMPULSE_LO_FRAC * top, 4), round(top, 4)),
-        height_m=(round(HEIGHT_BAND[0] * h, 4), round(HEIGHT_BAND[1] * h, 4)),
+        height_m=contact_heights_m(robot),
         duration_s=PULSE_S, fall80_ns=round(top, 4),
         ladder_ns=tuple(round(float(x), 4) for x in ladder),
         ladder_fell=tuple(round(float(x), 4) for x in fell))

@@ -32,10 +32,20 @@ Stages, each kept in DIR and skipped when done (rerun the command to resume):
    when it passes; when it fails too, the same with its stance gains halved
    (`fallback_0.5/`), then quartered (`fallback_0.25/`) (`FALLBACK_SCALES`), until one
    passes.
-7. `verdict.json`: the passing controller (else the one with fewer harmed cells, then fewer
-   falls), with each stage's verdict under `stages`. A passing controller is written next to
-   the robot file (`<stem>_controller.json`) and named in it (`controller = ...`); otherwise
-   the verdict says why it failed and the robot file is left as it was.
+7. `own/` (only when the robot has a controller of its own: the one its robot file names, or
+   TKU-X's recommended policy): that controller judged on the same held-out pushes. It is
+   kept, and nothing is written, unless this run's verdict is better (`better_verdict`; the
+   own controller on a tie): a rerun with a smaller budget never replaces a better
+   controller with a worse one.
+8. `verdict.json`: the passing controller (else the one with fewer harmed cells, then fewer
+   falls), with each stage's verdict under `stages`. A passing controller of this run is
+   written next to the robot file (`<stem>_controller.json`) and named in it
+   (`controller = ...`); otherwise the verdict says why it failed and the robot file is left
+   as it was.
+
+`--robot tkux` (BUILTIN_ROBOT) runs the same stages on the built-in TKU-X: the specs name no
+robot file, and a passing controller that beats the recommended policy is written to
+`controller.json` in the output folder (the package's policy is replaced by hand only).
 """
 
 from __future__ import annotations
@@ -46,33 +56,26 @@ import math
 import time
 from pathlib import Path
 
-from tkujax.control.params_files import controller_params_from
+from tkujax.control.params_files import RECOMMENDED_POLICY_PATH, controller_params_from
 from tkujax.robot import robot_from_file
+from tkujax.robot.description import load_description
+from tkujax.sim.robot import builtin_robot
 from tkujax.robot.own_controller import STANCE_GAINS
 from tkujax.sweeps.progress import StatusLog
-from tkujax.studies.robot_pushes import (PROBE_DURATION_S, PROBE_HORIZON_S, PROBE_ONSET_S,
-                                         robot_pushes, widest_pushes)
+from tkujax.studies.robot_pushes import robot_pushes
 from tkujax.studies.robot_policy import (MIN_BUDGET_S, POLICY, POLICY_METHOD, policy_budget_s,
-                                         policy_size, policy_spec, run_policy_method)
+                                         policy_size, policy_spec, returned_start,
+                                         run_policy_method)
 from tkujax.studies.robot_structure import STRUCTURES, choose_structure, structure_start
-from tkujax.studies.robot_verdict import heldout_verdict, name_controller
-from tkujax.dialects.sweep_spec import SpecError, parse_spec
-from tkujax.dialects.push_limits import check_push_end
-from tkujax.studies.tune.reparam import check_start
-from tkujax.studies.tune.tune_spec import parse_tune_spec
+from tkujax.studies.robot_tune_specs import (RETRY_HARM_WEIGHT, check_stages, heldout_spec,
+                                             tune_spec)
+from tkujax.studies.robot_verdict import heldout_verdict, write_controller
+from tkujax.dialects.sweep_spec import SpecError
 
-TUNE_SEED, HELDOUT_SEED = 0, 11
-TUNE_BATCH, POPSIZE = 256, 13
-HELDOUT_HORIZON_S = 2.0
-# The search watches each push as long as the verdict does: with 1.5 s, stance gains that only
-# delay a fall past the search's horizon looked better than the start there and harmed 8
-# cells from behind in the Berkeley Humanoid's verdict at 2.0 s (falls 0 -> 7 % at 4-7 N s;
-# results/robots/berkeley_humanoid/README.md).
-TUNE_HORIZON_S = HELDOUT_HORIZON_S
+# `--robot tkux`: the built-in TKU-X, tuned like any robot (its specs name no robot file, its
+# own controller is the recommended policy, a passing controller is written into --out only).
+BUILTIN_ROBOT = "tkux"
 TUNE_SHARE = 0.6                     # of --budget-s for the search's generations
-TUNE_HARM_WEIGHT = 2.0               # OP3's loss: a harmed push costs twice a saved one
-RETRY_HARM_WEIGHT = 8.0              # the retry's (module doc, step 5)
-RETRY_BATCH = 2 * TUNE_BATCH
 # The policy method runs by default from this many parameters: on TKU-X the gradient line
 # search beat sep-CMA-ES at equal wall time from 160 parameters up (from the paper's
 # controller), and lost below and from a CMA-ES-tuned start (docs/tuning.md; on OP3 its
@@ -84,97 +87,6 @@ GRADIENTS_PAY_FROM_PARAMS = 160
 # Humanoid's, +2.2 points in one run: results/robots/berkeley_humanoid/README.md);
 # tests/test_robot_tune.py runs the ladder.
 FALLBACK_SCALES = (1.0, 0.5, 0.25)
-DEGREE_KEYS = ("eps_forward", "eps_backward")
-# A first search starts at least this share of each range's width inside it: a default clamped
-# onto its allowed range's edge (Unitree H1's lift height, 0.1 m) is a range's edge too, where
-# the search's bounded reparametrisation cannot move (tests/test_robot_tune.py).
-START_MARGIN = 0.05
-
-
-def ranges_for(robot, start: dict, tuned: tuple[str, ...]) -> dict:
-    """Search ranges of the tuned fields scaled to the robot, each holding the start strictly
-    inside (the stance gains keep the tune's default ranges)."""
-    d = robot.defaults
-    reach = float(d.thigh_length + d.calf_length)
-    # The sideways step's gain keeps its sign: widening (step) or toward the capture point
-    # (shift_step); tests/test_robot_tune.py checks every start lies inside its ranges.
-    lateral = [-2.0, 0.5] if start.get("cp_gain_lateral", -1.0) < 0 else [0.25, 2.0]
-    ranges = dict(cp_gain=[0.3, 4.0], cp_gain_lateral=lateral, accel_gate=[0.01, 1.0],
-                  cp_trigger_forward_m=[0.0, round(min(0.5, 0.6 * reach), 4)],
-                  cp_trigger_backward_m=[0.0, round(min(0.5, 0.6 * reach), 4)],
-                  cp_trigger_lateral_m=[0.0, round(min(0.5, 0.6 * reach), 4)])
-    if "step_period" in start:
-        t, lift = start["step_period"], start["lift_height"]
-        ranges |= dict(step_period=[round(0.5 * t, 4), round(min(2.0, 2.0 * t), 4)],
-                       lift_height=[round(0.2 * lift, 4), round(min(0.1, 2.5 * lift), 4)])
-    if "step_shift_m" in start:
-        ranges["step_shift_m"] = [0.0, round(min(0.25, max(0.02, 2.0 * start["step_shift_m"])), 4)]
-    return {k: v for k, v in ranges.items() if k in tuned}
-
-
-def _uniform(pair) -> dict:
-    return {"uniform": [float(pair[0]), float(pair[1])]}
-
-
-def tune_spec(robot_file: str, robot, pushes: dict, structure: str, iterations: int,
-              retry_from: dict | None = None) -> dict:
-    """The tune spec (as its TOML dict) of the robot's controller in `structure` (module doc);
-    `retry_from` (a tuned controller's parameter dict): the retry's spec (step 5), which starts
-    there, within the first search's ranges."""
-    start = structure_start(robot, structure)
-    tuned = STRUCTURES[structure]["tuned"]
-    ranges = ranges_for(robot, start, tuned)
-    if retry_from is None:
-        start = {k: _inside(v, ranges.get(k), START_MARGIN) for k, v in start.items()}
-    else:
-        start = {k: _inside(retry_from[k], ranges.get(k)) for k in start}
-    # The spec dialect gives the lean thresholds in degrees.
-    controller = {(f"{k}_deg" if k in DEGREE_KEYS else k): (math.degrees(v) if k in DEGREE_KEYS
-                                                            else v)
-                  for k, v in start.items()}
-    retry = retry_from is not None
-    return {
-        "robot": {"file": robot_file},
-        "tune": {"name": f"{robot.name}_controller" + ("_retry" if retry else ""),
-                 "seed": TUNE_SEED, "method": "cma", "popsize": POPSIZE,
-                 "iterations": iterations, "batch": RETRY_BATCH if retry else TUNE_BATCH,
-                 "duration_s": TUNE_HORIZON_S, "params": list(tuned), "float64": False,
-                 "remat": True, "ranges": ranges,
-                 "loss": dict(w_fall=1.0, w_recovery=1.0, w_step=0.1,
-                              w_harm=RETRY_HARM_WEIGHT if retry else TUNE_HARM_WEIGHT)},
-        "controller": controller,
-        "push": {"impulse_ns": _uniform(pushes["impulse_ns"]), "azimuth_deg": _uniform((0, 360)),
-                 "height_m": _uniform(pushes["height_m"]), "onset_s": _uniform((0.25, 0.4)),
-                 "duration_s": _uniform(pushes["duration_s"])},
-        "baseline": {"sigma": 0.5},
-        # The tune's grid evaluation over the robot's impulses (its default grid is TKU-X's).
-        "evaluate": {"impulse_ns": {"start": float(pushes["impulse_ns"][0]),
-                                    "stop": float(pushes["impulse_ns"][1]), "num": 12}},
-    }
-
-
-def _inside(value: float, bounds, margin_frac: float = 1e-6) -> float:
-    """`value` nudged strictly inside `bounds`, at least `margin_frac` of their width from each
-    edge (a tuned value can round onto its range's edge, and a start must lie strictly inside,
-    tkujax.studies.tune.reparam); as it is without."""
-    if bounds is None:
-        return float(value)
-    lo, hi = bounds
-    margin = margin_frac * (hi - lo)
-    return float(min(max(value, lo + margin), hi - margin))
-
-
-def heldout_spec(robot_file: str, robot, pushes: dict, n: int) -> dict:
-    """The held-out sweep spec (as its TOML dict): other seed, onsets and horizon."""
-    return {"robot": {"file": robot_file},
-            "sweep": {"name": f"{robot.name}_heldout", "seed": HELDOUT_SEED,
-                      "chunk_size": min(n, 8192), "duration_s": HELDOUT_HORIZON_S,
-                      "control": ["off", "on"]},
-            "push": {"random": {"n": n, "impulse_ns": _uniform(pushes["impulse_ns"]),
-                                "azimuth_deg": _uniform((0, 360)),
-                                "height_m": _uniform(pushes["height_m"]),
-                                "onset_s": _uniform((0.3, 0.6)),
-                                "duration_s": _uniform(pushes["duration_s"])}}}
 
 
 def _stage_pushes(out: Path, robot, log) -> dict:
@@ -224,7 +136,8 @@ def _stage_tune(folder: Path, robot_file: str, robot, pushes: dict, structure: s
     weight = spec["tune"]["loss"]["w_harm"]
     log(f"{'retry' if retry_from else 'tune'}: CMA-ES over {len(spec['tune']['params'])} "
         f"parameters ({structure}, harm weight {weight:g}), {budget_s:.0f} s of generations")
-    run_tune(spec, folder / "tune", quiet=True, compare=False, budget_s=budget_s, robot=robot)
+    run_tune(spec, folder / "tune", quiet=True, compare=False, budget_s=budget_s,
+             robot=None if robot.builtin else robot)
     return json.loads(record_path.read_text())
 
 
@@ -301,6 +214,14 @@ def _stage_policy(out: Path, robot_file: str, robot, pushes: dict, structure: st
     policy = run_policy_method(out / "policy", spec, robot, log)
     if policy is None:
         return record, params
+    if returned_start(policy, spec):
+        why = ("the line search returned its start, the CMA-ES controller: no step lowered "
+               "the validation falls")
+        log(f"policy: {why}")
+        record["stages"] = dict(record["stages"], policy=dict(
+            returned_start=True, why=why, n_params=policy_size(spec),
+            budget_s=round(budget, 1)))
+        return record, params
     log("verdict: the policy on the same held-out pushes")
     verdict = heldout_verdict(out / "policy", robot, held, policy,
                               method=f"{POLICY_METHOD} ({POLICY} policy)",
@@ -360,21 +281,56 @@ def _stage_fallback(out: Path, robot, held: dict, log, record: dict, params: dic
     return best, params
 
 
-def check_stages(robot_file: str, robot, heldout_n: int) -> None:
-    """The stages' pushes checked before anything is simulated, by the checks of sweeps and
-    tunes (`tkujax.dialects.push_limits`, `tkujax.studies.tune.limits`): the probe's pushes
-    within its horizon, and the tune and held-out specs of every structure, built with the
-    widest pushes the probe can give, parsed, each start strictly inside its ranges (SpecError
-    names the stage's key)."""
-    check_push_end("the probe's onset + pulse (tkujax.studies.robot_pushes.PROBE_ONSET_S + "
-                   "PROBE_DURATION_S)", PROBE_ONSET_S + PROBE_DURATION_S,
-                   "PROBE_HORIZON_S", PROBE_HORIZON_S)
-    widest = widest_pushes(robot).as_dict()
-    for structure in STRUCTURES:
-        for retry_from in (None, structure_start(robot, structure)):
-            check_start(parse_tune_spec(tune_spec(robot_file, robot, widest, structure,
-                                                  iterations=10_000, retry_from=retry_from)))
-    parse_spec(heldout_spec(robot_file, robot, widest, heldout_n))
+def is_builtin(robot_arg: str | Path) -> bool:
+    """Whether --robot names the built-in TKU-X (BUILTIN_ROBOT, and no file of that name)."""
+    return str(robot_arg).lower() == BUILTIN_ROBOT and not Path(robot_arg).exists()
+
+
+def robot_of(robot_arg: str | Path):
+    """(the Robot, its robot file's resolved path; None for the built-in TKU-X)."""
+    if is_builtin(robot_arg):
+        return builtin_robot(), None
+    path = str(Path(robot_arg).resolve())
+    return robot_from_file(path), path
+
+
+def own_controller(robot, robot_file: str | None) -> tuple[dict, str] | None:
+    """(the robot's own controller as a parameter or policy file's dict, where it is) before
+    this run: TKU-X's recommended policy, else the controller its robot file names; None
+    when the file names none."""
+    if robot_file is None:
+        return json.loads(RECOMMENDED_POLICY_PATH.read_text()), "the recommended policy"
+    path = load_description(robot_file).controller_path
+    return None if path is None else (json.loads(path.read_text()), f"file {path.name}")
+
+
+def _stage_own(out: Path, robot, robot_file: str | None, held: dict, log, record: dict,
+               params: dict):
+    """Step 7 (module doc): (the verdict to report, its controller's dict, whether it is the
+    robot's own). The own controller is kept in own/controller.json when first judged, so a
+    rerun judges the same one after a run has replaced it."""
+    kept = out / "own" / "controller.json"
+    if kept.is_file():
+        own, where = json.loads(kept.read_text()), json.loads(
+            (out / "own" / "where.json").read_text())["where"]
+    else:
+        found = own_controller(robot, robot_file)
+        if found is None:
+            return record, params, False
+        own, where = found
+        kept.parent.mkdir(parents=True, exist_ok=True)
+        kept.write_text(json.dumps(own, indent=1) + "\n")
+        (out / "own" / "where.json").write_text(json.dumps(dict(where=where)) + "\n")
+    log(f"verdict: the robot's own controller ({where}) on the same held-out pushes")
+    verdict = heldout_verdict(out / "own", robot, held, own,
+                              method=f"none (the robot's own controller, {where}, kept)",
+                              n_params=0, reference=out / "heldout")
+    stages = dict(record["stages"], own=_summary(verdict) | {"where": where})
+    # The own controller on a tie: a controller is replaced only by a better one.
+    best = better_verdict(verdict, record)
+    best["stages"] = stages
+    best["chosen_stage"] = "own" if best is verdict else record.get("chosen_stage", "tune")
+    return best, (own if best is verdict else params), best is verdict
 
 
 def claim_out(out: Path, robot) -> None:
@@ -399,10 +355,10 @@ def tune_robot_controller(robot_file: str | Path, out: str | Path, budget_s: flo
                           heldout_n: int = 8192, write: bool = True, retry: bool = True,
                           log=None, structure: str | None = None,
                           policy_method: bool | None = None) -> dict:
-    """Run the stages (module doc) for the robot file; returns the verdict's record.
-    retry False: steps 5 and 6 never run. structure: one of STRUCTURES instead of the probe's
-    choice (None: the probe chooses). policy_method: run the policy method of step 4 (None:
-    where `gradients_pay`)."""
+    """Run the stages (module doc) for the robot file (BUILTIN_ROBOT: the built-in TKU-X);
+    returns the verdict's record. retry False: steps 5 and 6 never run. structure: one of
+    STRUCTURES instead of the probe's choice (None: the probe chooses). policy_method: run the
+    policy method of step 4 (None: where `gradients_pay`)."""
     if structure is not None and structure not in STRUCTURES:
         raise ValueError(f"structure must be one of {sorted(STRUCTURES)}, got {structure!r}")
     if not (isinstance(budget_s, (int, float)) and math.isfinite(budget_s)
@@ -414,8 +370,7 @@ def tune_robot_controller(robot_file: str | Path, out: str | Path, budget_s: flo
     t0 = time.perf_counter()
     out = Path(out)
     log = log or StatusLog(budget_s=budget_s, desc="tune --robot ")
-    robot_file = str(Path(robot_file).resolve())
-    robot = robot_from_file(robot_file)
+    robot, robot_file = robot_of(robot_file)
     check_stages(robot_file, robot, heldout_n)
     out.mkdir(parents=True, exist_ok=True)
     claim_out(out, robot)
@@ -430,7 +385,7 @@ def tune_robot_controller(robot_file: str | Path, out: str | Path, budget_s: flo
     first = heldout_verdict(out, robot, held, tuned, method=method, n_params=n_params)
     (out / "first_verdict.json").write_text(json.dumps(first, indent=1) + "\n")
     record, params = first, tuned
-    record["stages"] = {"tune": _summary(first)}
+    record["stages"], record["chosen_stage"] = {"tune": _summary(first)}, "tune"
     if policy_method is not False:
         record, params = _stage_policy(out, robot_file, robot, pushes, name, log, record,
                                        params, held, forced=policy_method is True)
@@ -439,9 +394,10 @@ def tune_robot_controller(robot_file: str | Path, out: str | Path, budget_s: flo
                                       record, params, tuned, held)
         if should_retry(record):
             record, params = _stage_fallback(out, robot, held, log, record, params)
+    record, params, kept_own = _stage_own(out, robot, robot_file, held, log, record, params)
     record["structure"] = dict(chosen=name, why=structure["why"])
     record["wall_s"] = round(time.perf_counter() - t0, 1)     # this run of the command
-    if record["passed"] and write:
-        record["controller_file"] = str(name_controller(robot_file, params))
+    if record["passed"] and write and not kept_own:
+        record["controller_file"] = str(write_controller(robot_file, params, out))
     (out / "verdict.json").write_text(json.dumps(record, indent=1) + "\n")
     return record

@@ -160,3 +160,13 @@ def name_controller(robot_file: str | Path, params: dict) -> Path:
         text = "\n".join(lines) + "\n"
     robot_file.write_text(text)
     return path
+
+
+def write_controller(robot_file: str | Path | None, params: dict, out: str | Path) -> Path:
+    """Write a passing controller: beside the robot file, named there (`name_controller`);
+    for the built-in TKU-X (None), as out/controller.json (its shipped policy is the
+    package's, replaced by hand only)."""
+    if robot_file is not None:
+        return name_controller(robot_file, params)
+    return save_policy_json(controller_params(params), controller_schedule(params),
+                            Path(out) / "controller.json")

@@ -21,10 +21,11 @@ def recorded_robot(manifest: dict) -> dict | None:
 
 def check_robot(manifest: dict, robot, where: str):
     """`robot` (a Robot, or None for TKU-X) after checking that the sweep at `where`
-    ran on it; SpecError naming both files otherwise."""
+    ran on it; SpecError naming both files otherwise. A TKU-X sweep given the built-in Robot
+    is read as TKU-X's (None: the manifest's model)."""
     recorded = recorded_robot(manifest)
     if recorded is None:
-        if robot is not None:
+        if robot is not None and not robot.builtin:
             raise SpecError(f"--robot: {where} ran on tkujax's own robot (no robot file), "
                             f"--robot gives {robot.source}")
         return None
