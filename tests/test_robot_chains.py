@@ -376,3 +376,23 @@ def test_a_tilted_axis_in_tkux_order_gets_the_robots_own_ik(tmp_path):
     assert tilted.tkux_chain and not tilted.joint_for_joint
     assert robot_setup(tmp_path / "plain" / "op3.toml").leg_chain is None
     assert robot_setup(tmp_path / "tilted" / "op3.toml").leg_chain is not None
+
+
+@needs_op3
+def test_the_stands_needs_do_not_depend_on_armature(tmp_path):
+    """Statics do not see armature: OP3 with its joints' armature removed needs the torques it
+    needs with it (the stiff servos' stand integrated implicitly; with Euler it diverged and
+    read kilonewton-metres)."""
+    import re
+
+    from tkujax.robot.stand_torques import stand_torques
+
+    def needs(edit, folder):
+        robot = load_robot(_op3_variant(tmp_path / folder, edit))
+        pose = stand_pose(robot)
+        return stand_torques(robot, pose.qpos, pose.ctrl)
+
+    with_armature = needs(lambda text: text, "own")
+    without = needs(lambda text: re.sub(r'armature="[^"]*"', 'armature="0"', text), "none")
+    assert with_armature.max() > 0.3                  # the knees hold the stand
+    np.testing.assert_allclose(without, with_armature, rtol=0.15, atol=0.05)

@@ -48,6 +48,10 @@ class JointTorque:
 
 def _stiff_copy(robot: RobotModel, mgl: float) -> mujoco.MjModel:
     model = copy.deepcopy(robot.model)
+    # The stiff servos' damping integrated implicitly: with the semi-implicit Euler step, a
+    # joint without armature diverges under them (OP3 with its armature removed read 15.8 kN m
+    # at a hip that needs none; tests/test_robot_chains.py), and the needs were noise.
+    model.opt.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
     kp = STIFF_KP_PER_MGL * mgl
     for a in robot.leg_actuators.reshape(-1):
         model.actuator_gainprm[a, 0] = kp
