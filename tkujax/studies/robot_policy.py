@@ -23,6 +23,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import json
+import math
 from pathlib import Path
 
 from tkujax.control.policy import UNSCHEDULABLE
@@ -106,8 +107,6 @@ def returned_start(policy: dict, spec: dict) -> bool:
     table): no step lowered the validation falls. That policy is the CMA-ES controller but for
     the start's nudge inside its ranges, which flips a few chaotic outcomes (8 of 8,192 on
     TKU-X: results/robots/tkux/README.md), so it is not judged as a controller of its own."""
-    import math
-
     if any(v != 0.0 for row in policy["schedule"]["table"] for v in row):
         return False
     scalars, start = policy["controller"], spec["controller"]
