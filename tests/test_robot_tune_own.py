@@ -28,8 +28,9 @@ from tkujax.sweeps.sweep import TKUX_HEIGHT_M
 
 from test_robot_tune import robot_copy_and_stance
 
-# TKU-X's pushes as its probe gives them (0.1-1 x the impulse where 80 % fall standing still).
-TKUX_PUSHES = dict(impulse_ns=[0.28, 2.8], height_m=[0.29, 0.35], duration_s=[0.01, 0.08])
+# TKU-X's pushes as its probe gave them (results/robots/tkux/pushes.json).
+TKUX_PUSHES = dict(impulse_ns=[0.3629, 3.6295], height_m=[0.25, 0.2887],
+                   duration_s=[0.01, 0.08])
 
 
 def _searched(out, pushes: dict, params: dict):
@@ -82,9 +83,9 @@ def test_a_better_controller_replaces_a_harmful_one_and_a_rerun_judges_the_same(
     stages = record["stages"]
     assert stages["tune"]["on_fall"] < stages["own"]["on_fall"]
     assert record["chosen_stage"] == "tune"
-    if record["passed"]:
-        written = json.loads(load_description(copy).controller_path.read_text())
-        assert written["stance_ankle_kp"] == pytest.approx(good["stance_ankle_kp"])
+    written = json.loads(load_description(copy).controller_path.read_text())
+    named = good if record["passed"] else harmful      # a failing run writes nothing
+    assert written["stance_ankle_kp"] == pytest.approx(named["stance_ankle_kp"])
     # The rerun's own controller is the one named when the run began (harmful), kept in own/.
     again = _run(copy, tmp_path / "run")
     same = ("on_fall", "harmed_cells", "where")
