@@ -20,8 +20,8 @@ from tkujax.control.params_files import RECOMMENDED_POLICY_PATH, load_policy_jso
 from tkujax.robot.description import load_description
 from tkujax.studies.robot_pushes import contact_heights_m
 from tkujax.studies.robot_structure import structure_start
-from tkujax.studies.robot_tune import (BUILTIN_ROBOT, is_builtin, own_controller, robot_of,
-                                       tune_robot_controller)
+from tkujax.studies.robot_inputs import BUILTIN_ROBOT, is_builtin, tune_robot
+from tkujax.studies.robot_tune import own_controller, robot_of, tune_robot_controller
 from tkujax.studies.robot_tune_specs import check_stages, heldout_spec, tune_spec
 from tkujax.studies.robot_verdict import name_controller, write_controller
 from tkujax.sweeps.sweep import TKUX_HEIGHT_M
@@ -108,6 +108,7 @@ def test_tkux_is_the_builtin_robot_against_its_recommended_policy(tmp_path):
     assert is_builtin("TKUX") and not is_builtin(tmp_path / "tkux.toml")
     (tmp_path / "tkux").write_text("")              # a file of that name is a robot file
     assert not is_builtin(tmp_path / "tkux")
+    assert tune_robot({}, "tkux") is None                # a tune spec's --robot tkux: TKU-X
     check_stages(None, robot, 512)
     # TKU-X's CoM (0.244 m) is below its trunk: the pushes land on the trunk, as a sweep asks.
     lo, hi = contact_heights_m(robot)

@@ -52,7 +52,8 @@ def _stage_words(stage: str) -> str:
 
 
 def _cmd_tune_robot(args) -> int:
-    from tkujax.studies.robot_tune import (FALLBACK_SCALES, fallback_stage, is_builtin,
+    from tkujax.studies.robot_inputs import is_builtin
+    from tkujax.studies.robot_tune import (FALLBACK_SCALES, fallback_stage,
                                            tune_robot_controller)
 
     record = tune_robot_controller(args.robot, args.out, budget_s=args.budget_s or 480.0,

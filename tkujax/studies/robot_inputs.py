@@ -1,6 +1,7 @@
 """Robot files for the commands that read sweeps and run tunes: load the robot a sweep ran on
-(`sweep_robot`), the one a tune spec names (`tune_robot`), a robot's LIP (`robot_lip`) and
-its capture-region geometry (`capture_feet`, `capture_robot` for `tkujax capture`).
+(`sweep_robot`), the one a tune spec names (`tune_robot`; `--robot tkux` names the built-in
+TKU-X, `is_builtin`), a robot's LIP (`robot_lip`) and its capture-region geometry
+(`capture_feet`, `capture_robot` for `tkujax capture`).
 
 The studies check what they are given (`tkujax.sweeps.sweep_robot.check_robot`: the sha256 the
 manifest records; `tkujax.studies.tune.robot_table.on_robot`: the spec's [robot] file); this module
@@ -33,9 +34,20 @@ def sweep_robot(run_dir: str | Path, given: str | None = None):
     return None if recorded is None else robot_from_file(recorded["robot_file"])
 
 
+# `--robot tkux`: the built-in TKU-X, where a command takes a robot file.
+BUILTIN_ROBOT = "tkux"
+
+
+def is_builtin(robot_arg: str | Path) -> bool:
+    """Whether --robot names the built-in TKU-X (BUILTIN_ROBOT, and no file of that name)."""
+    return str(robot_arg).lower() == BUILTIN_ROBOT and not Path(robot_arg).exists()
+
+
 def tune_robot(raw: dict, given: str | None = None):
     """The Robot of `given`, else of the tune spec's [robot] file (raw: its TOML dict),
-    else None."""
+    else None (also for `given` BUILTIN_ROBOT: TKU-X)."""
+    if given is not None and is_builtin(given):
+        return None
     path = given or robot_file_of(raw)
     return None if path is None else robot_from_file(path)
 

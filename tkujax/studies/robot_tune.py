@@ -43,9 +43,10 @@ Stages, each kept in DIR and skipped when done (rerun the command to resume):
    (`controller = ...`); otherwise the verdict says why it failed and the robot file is left
    as it was.
 
-`--robot tkux` (BUILTIN_ROBOT) runs the same stages on the built-in TKU-X: the specs name no
-robot file, and a passing controller that beats the recommended policy is written to
-`controller.json` in the output folder (the package's policy is replaced by hand only).
+`--robot tkux` (`robot_inputs.BUILTIN_ROBOT`) runs the same stages on the built-in TKU-X: the
+specs name no robot file, and a passing controller that beats the recommended policy is
+written to `controller.json` in the output folder (the package's policy is replaced by hand
+only).
 """
 
 from __future__ import annotations
@@ -62,6 +63,7 @@ from tkujax.robot.description import load_description
 from tkujax.sim.robot import builtin_robot
 from tkujax.robot.own_controller import STANCE_GAINS
 from tkujax.sweeps.progress import StatusLog
+from tkujax.studies.robot_inputs import is_builtin
 from tkujax.studies.robot_pushes import robot_pushes
 from tkujax.studies.robot_policy import (MIN_BUDGET_S, POLICY, POLICY_METHOD, policy_budget_s,
                                          policy_size, policy_spec, returned_start,
@@ -72,9 +74,6 @@ from tkujax.studies.robot_tune_specs import (RETRY_HARM_WEIGHT, check_stages, he
 from tkujax.studies.robot_verdict import heldout_verdict, write_controller
 from tkujax.dialects.sweep_spec import SpecError
 
-# `--robot tkux`: the built-in TKU-X, tuned like any robot (its specs name no robot file, its
-# own controller is the recommended policy, a passing controller is written into --out only).
-BUILTIN_ROBOT = "tkux"
 TUNE_SHARE = 0.6                     # of --budget-s for the search's generations
 # The policy method runs by default from this many parameters: on TKU-X the gradient line
 # search beat sep-CMA-ES at equal wall time from 160 parameters up (from the paper's
@@ -281,11 +280,6 @@ def _stage_fallback(out: Path, robot, held: dict, log, record: dict, params: dic
     return best, params
 
 
-def is_builtin(robot_arg: str | Path) -> bool:
-    """Whether --robot names the built-in TKU-X (BUILTIN_ROBOT, and no file of that name)."""
-    return str(robot_arg).lower() == BUILTIN_ROBOT and not Path(robot_arg).exists()
-
-
 def robot_of(robot_arg: str | Path):
     """(the Robot, its robot file's resolved path; None for the built-in TKU-X)."""
     if is_builtin(robot_arg):
@@ -355,7 +349,7 @@ def tune_robot_controller(robot_file: str | Path, out: str | Path, budget_s: flo
                           heldout_n: int = 8192, write: bool = True, retry: bool = True,
                           log=None, structure: str | None = None,
                           policy_method: bool | None = None) -> dict:
-    """Run the stages (module doc) for the robot file (BUILTIN_ROBOT: the built-in TKU-X);
+    """Run the stages (module doc) for the robot file ("tkux": the built-in TKU-X);
     returns the verdict's record. retry False: steps 5 and 6 never run. structure: one of
     STRUCTURES instead of the probe's choice (None: the probe chooses). policy_method: run the
     policy method of step 4 (None: where `gradients_pay`)."""
