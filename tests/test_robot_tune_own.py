@@ -24,6 +24,9 @@ from tkujax.studies.robot_inputs import BUILTIN_ROBOT, is_builtin, tune_robot
 from tkujax.studies.robot_tune import own_controller, robot_of, tune_robot_controller
 from tkujax.studies.robot_tune_specs import check_stages, heldout_spec, tune_spec
 from tkujax.studies.robot_verdict import name_controller, write_controller
+from tkujax.studies.tune.robot_table import on_robot
+from tkujax.studies.tune.tune_spec import parse_tune_spec
+from tkujax.dialects.validation import SpecError
 from tkujax.sweeps.sweep import TKUX_HEIGHT_M
 
 from test_robot_tune import robot_copy_and_stance
@@ -114,7 +117,14 @@ def test_tkux_is_the_builtin_robot_against_its_recommended_policy(tmp_path):
     lo, hi = contact_heights_m(robot)
     assert TKUX_HEIGHT_M[0] == lo < hi <= TKUX_HEIGHT_M[1]
     assert "robot" not in heldout_spec(None, robot, TKUX_PUSHES, 512)
-    assert "robot" not in tune_spec(None, robot, TKUX_PUSHES, "step", iterations=3)
+    spec = tune_spec(None, robot, TKUX_PUSHES, "step", iterations=3)
+    assert "robot" not in spec
+    parsed = parse_tune_spec(spec)                     # the built-in Robot is the spec's TKU-X
+    assert on_robot(parsed, robot) is parsed
+    other = dataclasses.replace(robot, model_params=dataclasses.replace(
+        robot.model_params, calf_length_m=robot.model_params.calf_length_m + 0.01))
+    with pytest.raises(SpecError, match="built-in TKU-X with other model parameters"):
+        on_robot(parsed, other)
     own, where = own_controller(robot, None)
     assert own == json.loads(RECOMMENDED_POLICY_PATH.read_text())
     assert where == "the recommended policy"

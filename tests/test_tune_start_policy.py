@@ -158,6 +158,7 @@ def test_a_robot_file_refuses_it():
 
     class Robot:                        # the checks before the robot's values are read
         source = "robots/x.toml"
+        builtin = False                 # a robot file
 
     with pytest.raises(SpecError, match="tune.start_policy: a policy file is TKU-X's"):
         on_robot(spec, Robot())

@@ -97,8 +97,7 @@ def run_policy_method(folder: Path, spec: dict, robot, log) -> dict | None:
         (folder / "policy_spec.json").write_text(json.dumps(spec, indent=1) + "\n")
         log(f"policy: the line search on a {POLICY} policy ({policy_size(spec)} parameters) "
             f"from the CMA-ES result, {spec['study']['budget_s']:.0f} s with its compile")
-        run_tune(spec, folder / "study", quiet=True,
-                 robot=None if robot.builtin else differentiable(robot))
+        run_tune(spec, folder / "study", quiet=True, robot=differentiable(robot))
     return json.loads(best.read_text())
 
 

@@ -135,8 +135,7 @@ def _stage_tune(folder: Path, robot_file: str, robot, pushes: dict, structure: s
     weight = spec["tune"]["loss"]["w_harm"]
     log(f"{'retry' if retry_from else 'tune'}: CMA-ES over {len(spec['tune']['params'])} "
         f"parameters ({structure}, harm weight {weight:g}), {budget_s:.0f} s of generations")
-    run_tune(spec, folder / "tune", quiet=True, compare=False, budget_s=budget_s,
-             robot=None if robot.builtin else robot)
+    run_tune(spec, folder / "tune", quiet=True, compare=False, budget_s=budget_s, robot=robot)
     return json.loads(record_path.read_text())
 
 

@@ -14,6 +14,7 @@ import dataclasses
 from pathlib import Path
 
 from tkujax.control.params_files import controller_params_from
+from tkujax.model import ModelParams
 from tkujax.studies.tune.reparam import check_start
 from tkujax.dialects.validation import SpecError, robot_file_of
 
@@ -24,8 +25,14 @@ def _same_file(a: str, b: str) -> bool:
 
 def on_robot(spec, robot=None) -> object:
     """`spec` on `robot` (a Robot: `tkujax.studies.robot_inputs.tune_robot` loads the
-    spec's [robot] file or --robot's; None: TKU-X, refused when the spec names a robot file)."""
+    spec's [robot] file or --robot's; None or the built-in Robot: TKU-X, refused when the spec
+    names a robot file)."""
     own = robot_file_of(spec.raw)
+    if robot is not None and robot.builtin:       # TKU-X: the spec's own model ([model])
+        if robot.model_params != ModelParams():
+            raise SpecError("robot: the built-in TKU-X with other model parameters; give them "
+                            "in the spec's [model] table")
+        robot = None
     if robot is None:
         if own is not None:
             raise SpecError(f"robot.file: the spec names {own}: give its Robot "
