@@ -312,8 +312,9 @@ def _stage_own(out: Path, robot, robot_file: str | None, held: dict, log, record
             return record, params, False
         own, where = found
         kept.parent.mkdir(parents=True, exist_ok=True)
-        kept.write_text(json.dumps(own, indent=1) + "\n")
+        # where.json first: controller.json marks the pair complete for a rerun.
         (out / "own" / "where.json").write_text(json.dumps(dict(where=where)) + "\n")
+        kept.write_text(json.dumps(own, indent=1) + "\n")
     log(f"verdict: the robot's own controller ({where}) on the same held-out pushes")
     verdict = heldout_verdict(out / "own", robot, held, own,
                               method=f"none (the robot's own controller, {where}, kept)",
